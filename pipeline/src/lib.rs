@@ -1,0 +1,1 @@
+//! The stage graph, capture directory, manifests and the `pipeline` command.
