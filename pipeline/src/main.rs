@@ -1,1 +1,134 @@
-fn main() {}
+//! The `pipeline` command. See `pipeline --help`.
+
+use std::io::Write;
+use std::process::ExitCode;
+
+use anyhow::Context;
+use clap::Parser;
+use indicatif::MultiProgress;
+use pipeline::cli::{Cli, Command, RunArgs};
+use pipeline::report::{OutputMode, Reporter};
+use pipeline::runner::{RunSummary, Selection};
+use pipeline::{open_capture, stages, status};
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let mode = if cli.json {
+        OutputMode::Json
+    } else if cli.quiet {
+        OutputMode::Quiet
+    } else {
+        OutputMode::Human
+    };
+    let reporter = Reporter::new(mode);
+    init_logging(cli.verbose, mode, reporter.multi().clone());
+    match dispatch(cli.command, &reporter) {
+        Ok(code) => code,
+        Err(e) => {
+            if mode == OutputMode::Json {
+                reporter.json(&serde_json::json!({"event": "error", "error": format!("{e:#}")}));
+            }
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
+    match command {
+        Command::Run(args) => run(args, reporter),
+        Command::Status { capture_dir } => {
+            let (capture, config) = open_capture(&capture_dir)?;
+            let rows = stages::pipeline().status(&capture, &config)?;
+            if reporter.mode() == OutputMode::Json {
+                reporter.json(&rows);
+            } else {
+                println!(
+                    "{} ({} cameras, {} stills)\n",
+                    capture.root.display(),
+                    capture.cameras.len(),
+                    capture.stills.len()
+                );
+                print!("{}", status::format_table(&rows));
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Demo { out_dir } => {
+            anyhow::bail!(
+                "the simulator that `demo` needs is not built into this version yet (asked for {})",
+                out_dir.display()
+            )
+        }
+    }
+}
+
+fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
+    let (capture, config) = open_capture(&args.capture_dir)?;
+    let selection = Selection {
+        from: args.from,
+        to: args.to,
+        only: args.only,
+        force: args.force,
+    };
+    let summary = stages::pipeline()
+        .run(&capture, &config, &selection, reporter)
+        .with_context(|| format!("run on {}", capture.root.display()))?;
+    report_summary(&summary, reporter);
+    Ok(if summary.complete() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
+}
+
+fn report_summary(summary: &RunSummary, reporter: &Reporter) {
+    reporter.json(&serde_json::json!({"event": "run_finished", "summary": summary}));
+    let mut line = format!(
+        "{} ran, {} up to date",
+        summary.ran.len(),
+        summary.skipped.len()
+    );
+    if !summary.not_implemented.is_empty() {
+        line += &format!(
+            ", not implemented yet: {}",
+            summary.not_implemented.join(", ")
+        );
+    }
+    if !summary.blocked.is_empty() {
+        line += &format!(", not run: {}", summary.blocked.join(", "));
+    }
+    if let Some((stage, _)) = &summary.failed {
+        line += &format!(", FAILED: {stage} (see `pipeline status`)");
+    }
+    reporter.say(&line);
+}
+
+/// Logs go to stderr through the progress bars' container so they never tear a bar.
+fn init_logging(verbose: u8, mode: OutputMode, multi: MultiProgress) {
+    let default = match (verbose, mode) {
+        (0, OutputMode::Human) => "info",
+        (0, _) => "warn",
+        (1, _) => "debug",
+        _ => "trace",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_env("PIPELINE_LOG")
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    let writer = move || BarSafeWriter(multi.clone());
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(writer)
+        .with_target(false)
+        .try_init();
+}
+
+struct BarSafeWriter(MultiProgress);
+
+impl Write for BarSafeWriter {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.0.suspend(|| std::io::stderr().write_all(buf))?;
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        std::io::stderr().flush()
+    }
+}

@@ -1,0 +1,137 @@
+//! `capture.toml`: the user's settings for one capture, overriding the defaults.
+//!
+//! Each stage reads its own section (`[sync]`, `[frames]`, …); the section, serialised to
+//! JSON, is that stage's parameter set in its manifest, so changing a key reruns exactly
+//! the stages that read it. Unknown sections and keys are errors that name the key.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+/// File name of the settings file inside a capture directory.
+pub const CONFIG_FILE: &str = "capture.toml";
+
+/// All settings of a capture. Every section is optional in the file.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CaptureConfig {
+    pub capture: CaptureSection,
+    pub ingest: StageSettings,
+    pub sync: StageSettings,
+    pub frames: StageSettings,
+    pub poses: StageSettings,
+    pub init: StageSettings,
+    pub train: StageSettings,
+    pub render: StageSettings,
+    pub eval: StageSettings,
+    pub export: StageSettings,
+}
+
+/// `[capture]`: the rig itself.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CaptureSection {
+    /// Number of video cameras (folders `raw/cam0` … in the capture directory).
+    pub cameras: usize,
+}
+
+impl Default for CaptureSection {
+    fn default() -> Self {
+        Self { cameras: 4 }
+    }
+}
+
+/// The settings of a stage that has no keys of its own yet; any key in its section is an
+/// error (so a typo never passes silently).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StageSettings {}
+
+/// A `capture.toml` that cannot be used.
+#[derive(Debug, Error)]
+pub enum ConfigError {
+    #[error("cannot read {path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {message}\n(fix or remove that key; the README lists every setting)")]
+    Invalid { path: PathBuf, message: String },
+}
+
+impl CaptureConfig {
+    /// Read `capture.toml` from a capture directory; defaults when the file is absent.
+    pub fn load(capture_dir: &Path) -> Result<Self, ConfigError> {
+        let path = capture_dir.join(CONFIG_FILE);
+        if !path.exists() {
+            return Ok(Self::default());
+        }
+        let text = std::fs::read_to_string(&path).map_err(|source| ConfigError::Read {
+            path: path.clone(),
+            source,
+        })?;
+        Self::parse(&text, &path)
+    }
+
+    /// Parse settings text; `path` is only used in error messages.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        let config: Self = toml::from_str(text).map_err(|e| ConfigError::Invalid {
+            path: path.to_path_buf(),
+            message: e.to_string().trim_end().to_string(),
+        })?;
+        if config.capture.cameras == 0 {
+            return Err(ConfigError::Invalid {
+                path: path.to_path_buf(),
+                message: "[capture] cameras must be at least 1".into(),
+            });
+        }
+        Ok(config)
+    }
+
+    /// The parameters of one stage as JSON (its section of this file).
+    pub fn section(&self, stage: &str) -> serde_json::Value {
+        let all = serde_json::to_value(self).unwrap_or_default();
+        all.get(stage)
+            .cloned()
+            .unwrap_or(serde_json::Value::Object(Default::default()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn empty_file_gives_defaults() {
+        let c = CaptureConfig::parse("", Path::new("capture.toml")).unwrap();
+        assert_eq!(c, CaptureConfig::default());
+        assert_eq!(c.capture.cameras, 4);
+    }
+
+    #[test]
+    fn unknown_key_names_the_key_and_file() {
+        let err = CaptureConfig::parse("[capture]\ncamras = 3\n", Path::new("/x/capture.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("camras"), "{err}");
+        assert!(err.contains("/x/capture.toml"), "{err}");
+        let err = CaptureConfig::parse("[trian]\n", Path::new("capture.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("trian"), "{err}");
+        let err = CaptureConfig::parse("[train]\nitertions = 5\n", Path::new("capture.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("itertions"), "{err}");
+    }
+
+    #[test]
+    fn camera_count_overrides_and_sections_serialise() {
+        let c = CaptureConfig::parse("[capture]\ncameras = 3\n", Path::new("c.toml")).unwrap();
+        assert_eq!(c.capture.cameras, 3);
+        assert_eq!(c.section("capture")["cameras"], 3);
+        assert_eq!(c.section("sync"), serde_json::json!({}));
+        assert!(CaptureConfig::parse("[capture]\ncameras = 0\n", Path::new("c.toml")).is_err());
+    }
+}

@@ -1,0 +1,307 @@
+//! The capture directory: what a user hands to `pipeline`, validated before anything is
+//! written.
+//!
+//! ```text
+//! CAPTURE_DIR/
+//!   capture.toml          optional settings (see `config`)
+//!   raw/cam0/ … raw/camN/ video files per camera (GoPro chapters GX01xxxx.MP4, GX02xxxx.MP4, …)
+//!   stills/               extra photos for pose solving (*.jpg, *.png)
+//!   calibration.*         optional calibration to import instead of solving poses
+//!   groundtruth/          written by the simulator only
+//!   work/<stage>/         outputs of each stage, with work/<stage>/stage.json
+//! ```
+//! This module only reads; it never creates or changes anything.
+
+use std::fs;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use thiserror::Error;
+
+/// File extensions taken as videos (case-insensitive).
+pub const VIDEO_EXTENSIONS: &[&str] = &["mp4", "mov", "m4v", "mkv", "webm", "avi"];
+/// Camera sidecar files that are ignored (GoPro thumbnails and low-res proxies).
+const IGNORED_EXTENSIONS: &[&str] = &["thm", "lrv"];
+/// Still image extensions.
+pub const IMAGE_EXTENSIONS: &[&str] = &["jpg", "jpeg", "png"];
+
+/// A validated capture directory.
+#[derive(Clone, Debug)]
+pub struct Capture {
+    pub root: PathBuf,
+    /// Cameras in order of their number, each with its video files in recording order.
+    pub cameras: Vec<CameraFolder>,
+    /// Files in `stills/`, sorted by name (empty when the folder is absent).
+    pub stills: Vec<PathBuf>,
+    /// A `calibration.*` file or `calibration/` folder to import, if present.
+    pub calibration: Option<PathBuf>,
+}
+
+/// One `raw/camN/` folder.
+#[derive(Clone, Debug)]
+pub struct CameraFolder {
+    /// Folder name, e.g. `cam0`.
+    pub name: String,
+    pub dir: PathBuf,
+    /// Video files sorted so that GoPro chapters come in recording order.
+    pub videos: Vec<PathBuf>,
+}
+
+impl Capture {
+    pub fn work_dir(&self) -> PathBuf {
+        self.root.join("work")
+    }
+    pub fn config_path(&self) -> PathBuf {
+        self.root.join(crate::config::CONFIG_FILE)
+    }
+}
+
+/// What is wrong with a capture directory. Each message names the path and the fix.
+#[derive(Debug, Error)]
+pub enum LayoutError {
+    #[error("capture directory {0} does not exist (create it, or check the path)")]
+    NoCaptureDir(PathBuf),
+    #[error("{0} is not a directory: pass the capture directory that holds raw/ and stills/")]
+    NotADirectory(PathBuf),
+    #[error("{0} is missing: put each camera's videos in raw/cam0/ … raw/cam{last}/", last = .1 - 1)]
+    NoRawDir(PathBuf, usize),
+    #[error("{dir}: expected {expected} camera folders (cam0 … cam{last}), found {found}{list}; \
+             add the missing camera's folder or set `cameras = {found}` under [capture] in capture.toml",
+            last = .expected - 1, list = if .names.is_empty() { String::new() } else { format!(" ({})", .names.join(", ")) })]
+    WrongCameraCount {
+        dir: PathBuf,
+        expected: usize,
+        found: usize,
+        names: Vec<String>,
+    },
+    #[error(
+        "{0} does not belong in raw/: only camera folders named camN (cam0, cam1, …) may be there"
+    )]
+    UnexpectedEntry(PathBuf),
+    #[error("{0} holds no video: copy that camera's recordings (e.g. GX010001.MP4) into it")]
+    EmptyCameraDir(PathBuf),
+    #[error("{path} is not a video{detail}; only {exts} files may be in a camera folder (move it elsewhere)",
+            exts = VIDEO_EXTENSIONS.join("/"))]
+    NotAVideo { path: PathBuf, detail: String },
+    #[error("{0} is not a directory: stills/ must be a folder of photos")]
+    StillsNotADirectory(PathBuf),
+    #[error(
+        "{0} is not an image: stills/ may only hold .jpg/.jpeg/.png photos (move it elsewhere)"
+    )]
+    NotAnImage(PathBuf),
+    #[error("cannot read {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> LayoutError + '_ {
+    move |source| LayoutError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+fn extension(path: &Path) -> String {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase()
+}
+
+fn is_hidden(path: &Path) -> bool {
+    path.file_name()
+        .and_then(|n| n.to_str())
+        .is_some_and(|n| n.starts_with('.'))
+}
+
+/// Sorted entries of a directory, hidden files skipped.
+fn list_dir(dir: &Path) -> Result<Vec<PathBuf>, LayoutError> {
+    let mut entries = Vec::new();
+    for entry in fs::read_dir(dir).map_err(io_err(dir))? {
+        let path = entry.map_err(io_err(dir))?.path();
+        if !is_hidden(&path) {
+            entries.push(path);
+        }
+    }
+    entries.sort();
+    Ok(entries)
+}
+
+/// The camera number in a folder name `camN`.
+fn camera_number(name: &str) -> Option<u32> {
+    name.strip_prefix("cam")
+        .filter(|n| !n.is_empty())
+        .and_then(|n| n.parse().ok())
+}
+
+/// Sort key that puts GoPro chapters (`GXccnnnn.MP4`, `GHccnnnn.MP4`, `GOPRnnnn.MP4` +
+/// `GPccnnnn.MP4`) in recording order: by clip number, then chapter. Other names sort by name.
+pub fn recording_order_key(path: &Path) -> (String, u32, String) {
+    let name = path
+        .file_name()
+        .and_then(|n| n.to_str())
+        .unwrap_or("")
+        .to_string();
+    let stem = name.split('.').next().unwrap_or("").to_ascii_uppercase();
+    let bytes = stem.as_bytes();
+    if stem.len() == 8
+        && (stem.starts_with("GX") || stem.starts_with("GH") || stem.starts_with("GP"))
+        && let (Ok(chapter), Ok(clip)) = (stem[2..4].parse::<u32>(), stem[4..8].parse::<u32>())
+    {
+        return (format!("{clip:04}"), chapter, name);
+    }
+    if stem.starts_with("GOPR") && bytes.len() == 8 {
+        return (stem[4..8].to_string(), 0, name);
+    }
+    (stem, 0, name)
+}
+
+/// Check that the file starts like a video container (MP4/MOV `ftyp`, Matroska/WebM, AVI).
+pub fn sniff_video(path: &Path) -> Result<(), LayoutError> {
+    let mut head = [0u8; 12];
+    let mut file = fs::File::open(path).map_err(io_err(path))?;
+    let n = file.read(&mut head).map_err(io_err(path))?;
+    let head = &head[..n];
+    let is_isobmff = n >= 8
+        && matches!(
+            &head[4..8],
+            b"ftyp" | b"moov" | b"mdat" | b"wide" | b"free" | b"skip"
+        );
+    let is_matroska = head.starts_with(&[0x1A, 0x45, 0xDF, 0xA3]);
+    let is_avi = n >= 12 && &head[0..4] == b"RIFF" && &head[8..12] == b"AVI ";
+    if is_isobmff || is_matroska || is_avi {
+        Ok(())
+    } else if n == 0 {
+        Err(LayoutError::NotAVideo {
+            path: path.to_path_buf(),
+            detail: " (the file is empty)".into(),
+        })
+    } else {
+        Err(LayoutError::NotAVideo {
+            path: path.to_path_buf(),
+            detail: " (its contents are not an MP4/MOV, Matroska/WebM or AVI container)".into(),
+        })
+    }
+}
+
+/// Validate a capture directory: exactly `expected_cameras` folders `raw/camN/`, each with
+/// at least one video, nothing else in `raw/`, `stills/` (optional) holding only images.
+pub fn validate(root: &Path, expected_cameras: usize) -> Result<Capture, LayoutError> {
+    if !root.exists() {
+        return Err(LayoutError::NoCaptureDir(root.to_path_buf()));
+    }
+    if !root.is_dir() {
+        return Err(LayoutError::NotADirectory(root.to_path_buf()));
+    }
+    let raw = root.join("raw");
+    if !raw.is_dir() {
+        return Err(LayoutError::NoRawDir(raw, expected_cameras.max(1)));
+    }
+    let mut cameras: Vec<(u32, PathBuf)> = Vec::new();
+    for entry in list_dir(&raw)? {
+        let name = entry.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        match camera_number(name) {
+            Some(n) if entry.is_dir() => cameras.push((n, entry.clone())),
+            _ => return Err(LayoutError::UnexpectedEntry(entry)),
+        }
+    }
+    cameras.sort();
+    if cameras.len() != expected_cameras {
+        return Err(LayoutError::WrongCameraCount {
+            dir: raw,
+            expected: expected_cameras,
+            found: cameras.len(),
+            names: cameras.iter().map(|(n, _)| format!("cam{n}")).collect(),
+        });
+    }
+    let mut folders = Vec::new();
+    for (_, dir) in cameras {
+        let mut videos = Vec::new();
+        for file in list_dir(&dir)? {
+            let ext = extension(&file);
+            if IGNORED_EXTENSIONS.contains(&ext.as_str()) {
+                continue;
+            }
+            if file.is_dir() || !VIDEO_EXTENSIONS.contains(&ext.as_str()) {
+                return Err(LayoutError::NotAVideo {
+                    path: file,
+                    detail: " (unexpected file type)".into(),
+                });
+            }
+            sniff_video(&file)?;
+            videos.push(file);
+        }
+        if videos.is_empty() {
+            return Err(LayoutError::EmptyCameraDir(dir));
+        }
+        videos.sort_by_key(|p| recording_order_key(p));
+        let name = dir
+            .file_name()
+            .and_then(|n| n.to_str())
+            .unwrap_or("")
+            .to_string();
+        folders.push(CameraFolder { name, dir, videos });
+    }
+    let stills_dir = root.join("stills");
+    let mut stills = Vec::new();
+    if stills_dir.exists() {
+        if !stills_dir.is_dir() {
+            return Err(LayoutError::StillsNotADirectory(stills_dir));
+        }
+        for file in list_dir(&stills_dir)? {
+            if file.is_dir() || !IMAGE_EXTENSIONS.contains(&extension(&file).as_str()) {
+                return Err(LayoutError::NotAnImage(file));
+            }
+            stills.push(file);
+        }
+    }
+    let calibration = list_dir(root)?
+        .into_iter()
+        .find(|p| p.file_stem().and_then(|s| s.to_str()) == Some("calibration"));
+    Ok(Capture {
+        root: root.to_path_buf(),
+        cameras: folders,
+        stills,
+        calibration,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gopro_chapters_sort_in_recording_order() {
+        let mut names: Vec<PathBuf> = [
+            "GX020012.MP4",
+            "GX010013.MP4",
+            "GX010012.MP4",
+            "GX030012.MP4",
+        ]
+        .iter()
+        .map(PathBuf::from)
+        .collect();
+        names.sort_by_key(|p| recording_order_key(p));
+        let order: Vec<_> = names.iter().map(|p| p.to_str().unwrap()).collect();
+        assert_eq!(
+            order,
+            [
+                "GX010012.MP4",
+                "GX020012.MP4",
+                "GX030012.MP4",
+                "GX010013.MP4"
+            ]
+        );
+    }
+
+    #[test]
+    fn camera_folder_names() {
+        assert_eq!(camera_number("cam3"), Some(3));
+        assert_eq!(camera_number("cam12"), Some(12));
+        assert_eq!(camera_number("cam"), None);
+        assert_eq!(camera_number("camera1"), None);
+        assert_eq!(camera_number("cam-1"), None);
+    }
+}

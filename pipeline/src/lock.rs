@@ -1,0 +1,94 @@
+//! One run at a time per capture directory: an exclusive OS lock on `work/.lock`.
+//! The OS releases it when the process ends, however it ends, so a crash never leaves a
+//! stale lock behind.
+
+use std::fs::{self, File, OpenOptions};
+use std::io::{Read, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+
+use thiserror::Error;
+
+#[derive(Debug, Error)]
+pub enum LockError {
+    #[error(
+        "{path} is locked by another `pipeline` run ({holder}); wait for it to finish, or stop it"
+    )]
+    Busy { path: PathBuf, holder: String },
+    #[error("cannot create the lock file {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+/// Held while a run works on a capture directory; released on drop.
+#[derive(Debug)]
+pub struct CaptureLock {
+    _file: File,
+    path: PathBuf,
+}
+
+impl CaptureLock {
+    pub fn path(work_dir: &Path) -> PathBuf {
+        work_dir.join(".lock")
+    }
+
+    /// Take the lock of `work_dir` (created if needed) or fail at once if it is held.
+    pub fn acquire(work_dir: &Path) -> Result<Self, LockError> {
+        let path = Self::path(work_dir);
+        let io = |source| LockError::Io {
+            path: path.clone(),
+            source,
+        };
+        fs::create_dir_all(work_dir).map_err(io)?;
+        let mut file = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .map_err(io)?;
+        match file.try_lock() {
+            Ok(()) => {}
+            Err(fs::TryLockError::WouldBlock) => {
+                let mut holder = String::new();
+                let _ = file.read_to_string(&mut holder);
+                let holder = if holder.trim().is_empty() {
+                    "unknown process".into()
+                } else {
+                    holder.trim().to_string()
+                };
+                return Err(LockError::Busy { path, holder });
+            }
+            Err(fs::TryLockError::Error(e)) => return Err(io(e)),
+        }
+        let note = format!(
+            "pid {}, started {}",
+            std::process::id(),
+            chrono::Utc::now().format("%Y-%m-%d %H:%M:%S UTC")
+        );
+        file.set_len(0).map_err(io)?;
+        file.seek(SeekFrom::Start(0)).map_err(io)?;
+        file.write_all(note.as_bytes()).map_err(io)?;
+        Ok(Self { _file: file, path })
+    }
+
+    /// Whether some process holds the lock right now (used by `status` to tell a running
+    /// stage from an interrupted one).
+    pub fn is_held(work_dir: &Path) -> bool {
+        let Ok(file) = File::open(Self::path(work_dir)) else {
+            return false;
+        };
+        match file.try_lock() {
+            Ok(()) => {
+                let _ = file.unlock();
+                false
+            }
+            Err(_) => true,
+        }
+    }
+
+    pub fn file(&self) -> &Path {
+        &self.path
+    }
+}

@@ -1,0 +1,137 @@
+//! Command-line parsing and the binary's behaviour on a valid capture.
+
+mod common;
+
+use std::process::Command;
+
+use clap::Parser;
+use common::make_capture;
+use pipeline::cli::{Cli, Command as Cmd};
+
+fn parse(args: &[&str]) -> Result<Cli, clap::Error> {
+    Cli::try_parse_from(std::iter::once("pipeline").chain(args.iter().copied()))
+}
+
+#[test]
+fn run_takes_a_stage_range() {
+    let cli = parse(&[
+        "run", "cap", "--from", "sync", "--to", "train", "--force", "-v",
+    ])
+    .unwrap();
+    assert_eq!(cli.verbose, 1);
+    let Cmd::Run(args) = cli.command else {
+        panic!("expected run")
+    };
+    assert_eq!(args.capture_dir.to_str(), Some("cap"));
+    assert_eq!(args.from.as_deref(), Some("sync"));
+    assert_eq!(args.to.as_deref(), Some("train"));
+    assert!(args.force);
+}
+
+#[test]
+fn unknown_stages_and_conflicting_flags_are_rejected() {
+    let err = parse(&["run", "cap", "--only", "trian"])
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("trian") && err.contains("train"), "{err}");
+    assert!(parse(&["run", "cap", "--only", "train", "--from", "sync"]).is_err());
+    assert!(parse(&["--quiet", "--json", "status", "cap"]).is_err());
+    assert!(
+        parse(&["run"]).is_err(),
+        "the capture directory is required"
+    );
+}
+
+#[test]
+fn demo_has_a_default_output_directory() {
+    let Cmd::Demo { out_dir } = parse(&["demo"]).unwrap().command else {
+        panic!()
+    };
+    assert_eq!(out_dir.to_str(), Some("4c4d-demo"));
+    let Cmd::Demo { out_dir } = parse(&["--json", "demo", "/tmp/x"]).unwrap().command else {
+        panic!()
+    };
+    assert_eq!(out_dir.to_str(), Some("/tmp/x"));
+}
+
+#[test]
+fn help_explains_the_commands() {
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .arg("--help")
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    for word in ["run", "status", "demo", "ingest → sync → frames"] {
+        assert!(text.contains(word), "--help lacks {word}: {text}");
+    }
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .args(["run", "--help"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("raw/cam0/") && text.contains("--from") && text.contains("Example"),
+        "{text}"
+    );
+}
+
+#[test]
+fn json_mode_prints_one_event_per_line() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = make_capture(tmp.path(), 4, 8);
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .args(["--json", "run"])
+        .arg(&root)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let events: Vec<serde_json::Value> = stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("each line is JSON"))
+        .collect();
+    assert!(!events.is_empty());
+    let last = events.last().unwrap();
+    assert_eq!(last["event"], "run_finished");
+    // Every stage is accounted for, one way or another.
+    let summary = &last["summary"];
+    let accounted = ["ran", "skipped", "not_implemented", "blocked"]
+        .iter()
+        .map(|k| summary[k].as_array().map_or(0, |a| a.len()))
+        .sum::<usize>()
+        + usize::from(!summary["failed"].is_null());
+    assert_eq!(accounted, pipeline::stages::STAGE_NAMES.len(), "{summary}");
+}
+
+#[test]
+fn status_prints_a_table_of_every_stage() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = make_capture(tmp.path(), 4, 8);
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .arg("status")
+        .arg(&root)
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("STAGE") && text.contains("STATE") && text.contains("DETAILS"),
+        "{text}"
+    );
+    for stage in pipeline::stages::STAGE_NAMES {
+        assert!(
+            text.lines().any(|l| l.starts_with(stage)),
+            "no row for {stage}: {text}"
+        );
+    }
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .args(["--json", "status"])
+        .arg(&root)
+        .output()
+        .unwrap();
+    let rows: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        rows.as_array().unwrap().len(),
+        pipeline::stages::STAGE_NAMES.len()
+    );
+    assert_eq!(rows[0]["state"], "missing");
+}

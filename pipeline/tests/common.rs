@@ -1,0 +1,52 @@
+//! Helpers shared by the pipeline's integration tests.
+#![allow(dead_code)]
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+/// The first bytes of an MP4 file (`ftyp` box): enough for layout validation, which only
+/// looks at the container signature.
+pub const MP4_HEADER: &[u8] = b"\x00\x00\x00\x18ftypmp42\x00\x00\x00\x00mp42isom";
+
+/// A capture directory with `cameras` camera folders holding one GoPro-named video each,
+/// and `stills` photos.
+pub fn make_capture(root: &Path, cameras: usize, stills: usize) -> PathBuf {
+    for i in 0..cameras {
+        let dir = root.join("raw").join(format!("cam{i}"));
+        fs::create_dir_all(&dir).unwrap();
+        let mut bytes = MP4_HEADER.to_vec();
+        bytes.extend_from_slice(format!("camera {i}").as_bytes());
+        fs::write(dir.join("GX010001.MP4"), bytes).unwrap();
+    }
+    if stills > 0 {
+        let dir = root.join("stills");
+        fs::create_dir_all(&dir).unwrap();
+        for i in 0..stills {
+            fs::write(
+                dir.join(format!("still_{i:02}.jpg")),
+                b"\xff\xd8\xff\xe0 not really decoded",
+            )
+            .unwrap();
+        }
+    }
+    root.to_path_buf()
+}
+
+/// Every file and folder under `root`, relative, sorted.
+pub fn tree(root: &Path) -> Vec<String> {
+    fn walk(root: &Path, dir: &Path, out: &mut Vec<String>) {
+        if let Ok(entries) = fs::read_dir(dir) {
+            for e in entries.flatten() {
+                let p = e.path();
+                out.push(p.strip_prefix(root).unwrap().to_string_lossy().into_owned());
+                if p.is_dir() {
+                    walk(root, &p, out);
+                }
+            }
+        }
+    }
+    let mut out = Vec::new();
+    walk(root, root, &mut out);
+    out.sort();
+    out
+}

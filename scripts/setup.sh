@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# Install the Debian packages the workspace needs to build and test (idempotent, quiet).
+# Run as root on Debian 12 (or with sudo available). Does nothing when all are present.
+set -euo pipefail
+
+PACKAGES=(
+  # build: bindgen for ffmpeg-sys-next / opencv, pkg-config to find the libraries
+  clang libclang-dev pkg-config nasm
+  # FFmpeg libraries (decode/encode video and audio) and the ffmpeg CLI used by tests
+  libavcodec-dev libavformat-dev libavutil-dev libavdevice-dev libavfilter-dev
+  libswscale-dev libswresample-dev ffmpeg
+  # camera models / undistortion, pose solving
+  libopencv-dev colmap
+  # wgpu on machines without a GPU (lavapipe)
+  mesa-vulkan-drivers libvulkan1
+)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -eq 0 ]; then
+  exit 0
+fi
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then
+  if command -v sudo >/dev/null; then SUDO="sudo"; else
+    echo "setup: these packages are missing and I am not root: ${missing[*]}" >&2
+    echo "setup: run this script as root, or install them with apt-get" >&2
+    exit 1
+  fi
+fi
+echo "setup: installing ${#missing[@]} Debian packages: ${missing[*]}"
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+echo "setup: done"
