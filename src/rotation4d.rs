@@ -1,5 +1,10 @@
 //! 4D rotation from two quaternions, `R = Ml(ql) · Mr(qr)` (REFERENCE.md §1), forward and
 //! backward. Inputs are raw (unnormalised) quaternions; normalisation is part of the stage.
+//!
+//! Convention: `Ml·Mr` acts on quaternion coordinates `(1, i, j, k)`, which we identify
+//! with `(t, x, y, z)`; so `R[a][b] = (Ml·Mr)[(a+1)%4][(b+1)%4]` in our `(x, y, z, t)` order.
+//! With it, `ql = qr = q` is exactly the 3D rotation of unit quaternion `q = (w, x, y, z)`
+//! (as in 3DGS PLY files), leaving time alone; `(1,0,0,0)` twice is the identity.
 
 use crate::numerics::{Real, normalise_quat, normalise_quat_backward};
 
@@ -82,7 +87,13 @@ pub struct RotationAux<F> {
 pub fn rotation<F: Real>(ql: [F; 4], qr: [F; 4]) -> (Mat4<F>, RotationAux<F>) {
     let (left, left_norm) = normalise_quat(ql);
     let (right, right_norm) = normalise_quat(qr);
-    let r = mat4_mul(&build(&ML, left), &build(&MR, right));
+    let m = mat4_mul(&build(&ML, left), &build(&MR, right));
+    let mut r = [[F::zero(); 4]; 4];
+    for a in 0..4 {
+        for b in 0..4 {
+            r[a][b] = m[(a + 1) % 4][(b + 1) % 4];
+        }
+    }
     (r, RotationAux { left, left_norm, right, right_norm })
 }
 
@@ -90,8 +101,14 @@ pub fn rotation<F: Real>(ql: [F; 4], qr: [F; 4]) -> (Mat4<F>, RotationAux<F>) {
 pub fn rotation_backward<F: Real>(aux: &RotationAux<F>, d_r: &Mat4<F>) -> ([F; 4], [F; 4]) {
     let ml = build(&ML, aux.left);
     let mr = build(&MR, aux.right);
-    let d_ml = mat4_mul(d_r, &transpose(&mr));
-    let d_mr = mat4_mul(&transpose(&ml), d_r);
+    let mut d_m = [[F::zero(); 4]; 4];
+    for a in 0..4 {
+        for b in 0..4 {
+            d_m[(a + 1) % 4][(b + 1) % 4] = d_r[a][b];
+        }
+    }
+    let d_ml = mat4_mul(&d_m, &transpose(&mr));
+    let d_mr = mat4_mul(&transpose(&ml), &d_m);
     let d_left = unbuild(&ML, &d_ml);
     let d_right = unbuild(&MR, &d_mr);
     (
@@ -117,6 +134,26 @@ mod tests {
         let (id, _) = rotation([1.0f64, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]);
         assert_eq!(id[1][1], 1.0);
         assert_eq!(id[0][1], 0.0);
+    }
+
+    #[test]
+    fn equal_quaternions_give_the_3d_rotation_and_keep_time() {
+        let q = [0.9f64, 0.2, -0.3, 0.25];
+        let n = (q.iter().map(|x| x * x).sum::<f64>()).sqrt();
+        let [w, x, y, z] = q.map(|v| v / n);
+        let r3 = [
+            [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
+            [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
+            [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+        ];
+        let (r, _) = rotation(q, q);
+        for a in 0..3 {
+            for b in 0..3 {
+                assert!((r[a][b] - r3[a][b]).abs() < 1e-12, "{a}{b}: {} vs {}", r[a][b], r3[a][b]);
+            }
+            assert!(r[a][3].abs() < 1e-12 && r[3][a].abs() < 1e-12);
+        }
+        assert!((r[3][3] - 1.0).abs() < 1e-12);
     }
 
     #[test]
