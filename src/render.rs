@@ -84,6 +84,7 @@ struct Context<F: Real> {
     bins: TileBins,
     final_t: Vec<F>,
     n_contrib: Vec<u32>,
+    evaluations: u64,
 }
 
 /// Upstream gradients dL/d(output) of a render; `None` means zero.
@@ -189,7 +190,7 @@ pub fn render_with<F: Real>(
             let (pr, _) = project(&cam, sl.mean, &sl.factor)?;
             let input = colour_input(model, i, &cam, t, period);
             let rgb = colour(&input);
-            let splat = Splat { mean: pr.mean, conic: pr.conic, opacity, colour: rgb, depth: pr.depth };
+            let splat = Splat::new(pr.mean, pr.conic, opacity, rgb, pr.depth);
             Some((splat, pr.extent))
         })
         .collect();
@@ -199,7 +200,7 @@ pub fn render_with<F: Real>(
     let mut radii = vec![F::zero(); n];
     for (i, p) in pre.into_iter().enumerate() {
         let Some((s, ext)) = p else { continue };
-        let Some(r) = pixel_rect(s.mean, ext, width, height) else { continue };
+        let Some(r) = pixel_rect(s.rect, width, height) else { continue };
         ids.push(i as u32);
         splats.push(s);
         rects.push(Some(r));
@@ -225,7 +226,9 @@ pub fn render_with<F: Real>(
     let mut depth = vec![F::zero(); npix];
     let mut final_t = vec![F::one(); npix];
     let mut n_contrib = vec![0u32; npix];
+    let mut evaluations = 0u64;
     for (tile, out) in tiles.iter().enumerate() {
+        evaluations += out.evaluations;
         let r = tile_rect(&bins, tile, width, height);
         let w = (r.x1 - r.x0) as usize;
         for y in r.y0..r.y1 {
@@ -256,6 +259,7 @@ pub fn render_with<F: Real>(
             bins,
             final_t,
             n_contrib,
+            evaluations,
         },
     })
 }
@@ -287,6 +291,11 @@ impl<F: Real> Rendered<F> {
     /// Number of (tile, Gaussian) pairs blended.
     pub fn tile_pairs(&self) -> usize {
         self.ctx.bins.entries.len()
+    }
+
+    /// Splat-pixel evaluations of the forward blend (for throughput figures).
+    pub fn blend_evaluations(&self) -> u64 {
+        self.ctx.evaluations
     }
 
     /// The model time this image was rendered at.

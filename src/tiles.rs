@@ -28,21 +28,17 @@ impl TileBins {
     }
 }
 
-/// Inclusive pixel range `[x0, x1] × [y0, y1]` whose centres lie within `mean ± extent`,
-/// clipped to the image; `None` if empty.
+/// An inclusive pixel box `[x0, x1, y0, y1]` clipped to the image; `None` if empty.
 #[inline]
-pub fn pixel_rect<F: Real>(mean: [F; 2], extent: [F; 2], width: u32, height: u32) -> Option<[u32; 4]> {
-    let range = |m: F, e: F, n: u32| -> Option<(u32, u32)> {
-        let lo = (m.f64() - e.f64() - 0.5).ceil().max(0.0);
-        let hi = (m.f64() + e.f64() - 0.5).floor().min(n as f64 - 1.0);
-        if !(lo <= hi) {
-            return None;
-        }
-        Some((lo as u32, hi as u32))
-    };
-    let (x0, x1) = range(mean[0], extent[0], width)?;
-    let (y0, y1) = range(mean[1], extent[1], height)?;
-    Some([x0, x1, y0, y1])
+pub fn pixel_rect(rect: [i32; 4], width: u32, height: u32) -> Option<[u32; 4]> {
+    let x0 = rect[0].max(0);
+    let x1 = rect[1].min(width as i32 - 1);
+    let y0 = rect[2].max(0);
+    let y1 = rect[3].min(height as i32 - 1);
+    if x0 > x1 || y0 > y1 {
+        return None;
+    }
+    Some([x0 as u32, x1 as u32, y0 as u32, y1 as u32])
 }
 
 /// Bin splats (given by pixel rectangle and depth) into tiles.

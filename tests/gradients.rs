@@ -134,7 +134,7 @@ fn colour_gradients_match_finite_differences() {
 
 fn splats_from(x: &[f64]) -> Vec<Splat<f64>> {
     x.chunks_exact(10)
-        .map(|c| Splat { mean: [c[0], c[1]], conic: [c[2], c[3], c[4]], opacity: c[5], colour: [c[6], c[7], c[8]], depth: c[9] })
+        .map(|c| Splat::new([c[0], c[1]], [c[2], c[3], c[4]], c[5], [c[6], c[7], c[8]], c[9]))
         .collect()
 }
 
