@@ -7,5 +7,20 @@
 pub mod camera;
 pub mod progress;
 
+pub mod blend;
+pub mod model;
+pub mod model_file;
+pub mod numerics;
+pub mod project;
+pub mod reference;
+pub mod render;
+pub mod rotation4d;
+pub mod sh;
+pub mod slice;
+pub mod tiles;
+
 pub use camera::{Camera, CameraSet, Distortion, Intrinsics, WorldToCamera};
+pub use model::{ColourDegrees, Gaussians, TimeMapping};
+pub use model_file::{ModelFileError, load_model, save_model};
 pub use progress::{NoProgress, Progress};
+pub use render::{Gradients, ImageGradients, RenderError, RenderOptions, Rendered, render, render_with};

@@ -1,0 +1,301 @@
+//! Front-to-back α-blending of depth-sorted splats in one 16×16 tile (REFERENCE.md §1),
+//! forward and backward. `α = min(0.99, opacity·exp(power))`, splats with `α < 1/255` or
+//! outside their 3σ ellipse are skipped, a pixel stops before its transmittance would fall
+//! below 1e-4. Outputs per pixel: RGB over a background, alpha `1 − T`, and depth
+//! `Σ wᵢ zᵢ` (weights `wᵢ = αᵢ Tᵢ`, not normalised by alpha).
+
+use crate::numerics::Real;
+use crate::project::EXTENT_SIGMAS;
+
+/// Largest α of one splat at one pixel.
+pub const ALPHA_MAX: f64 = 0.99;
+/// Splats with a smaller α at a pixel are skipped.
+pub const ALPHA_MIN: f64 = 1.0 / 255.0;
+/// A pixel stops blending before its transmittance drops below this.
+pub const TRANSMITTANCE_MIN: f64 = 1e-4;
+
+/// A projected, coloured splat ready for blending. Build it with [`Splat::new`], which
+/// also derives its support: the 3σ ellipse, shrunk to where `opacity·exp(power) ≥ 1/255`.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Splat<F> {
+    pub mean: [F; 2],
+    pub conic: [F; 3],
+    pub opacity: F,
+    pub colour: [F; 3],
+    pub depth: F,
+    /// Pixels with a smaller `power` are outside the support (no `exp` needed).
+    pub min_power: F,
+    /// Inclusive pixel box `[x0, x1, y0, y1]` of the support (unclipped).
+    pub rect: [i32; 4],
+}
+
+impl<F: Real> Splat<F> {
+    pub fn new(mean: [F; 2], conic: [F; 3], opacity: F, colour: [F; 3], depth: F) -> Self {
+        let max_d2 = EXTENT_SIGMAS * EXTENT_SIGMAS;
+        let op = opacity.f64().min(1.0);
+        let d2 = if op > ALPHA_MIN { (2.0 * (op / ALPHA_MIN).ln()).min(max_d2) } else { 0.0 };
+        // Covariance = conic⁻¹: Σxx = c/det, Σyy = a/det.
+        let (a, b, c) = (conic[0].f64(), conic[1].f64(), conic[2].f64());
+        let det = a * c - b * b;
+        let (sxx, syy) = if det > 0.0 { (c / det, a / det) } else { (0.0, 0.0) };
+        let (ex, ey) = ((d2 * sxx).sqrt(), (d2 * syy).sqrt());
+        let (mx, my) = (mean[0].f64(), mean[1].f64());
+        let to_i = |v: f64| v.clamp(-1e9, 1e9) as i32;
+        let rect = if d2 > 0.0 && ex.is_finite() && ey.is_finite() && mx.is_finite() && my.is_finite() {
+            [to_i((mx - ex - 0.5).ceil()), to_i((mx + ex - 0.5).floor()), to_i((my - ey - 0.5).ceil()), to_i((my + ey - 0.5).floor())]
+        } else {
+            [0, -1, 0, -1]
+        };
+        // A hair of slack so rounding never drops a pixel the α test would keep.
+        Self { mean, conic, opacity, colour, depth, min_power: F::c(-0.5 * d2 * (1.0 + 1e-6) - 1e-9), rect }
+    }
+
+    /// The support box clipped to a pixel rectangle, as `(x0, x1, y0, y1)` half-open.
+    #[inline]
+    pub fn clip(&self, r: PixelRect) -> Option<(u32, u32, u32, u32)> {
+        let x0 = self.rect[0].max(r.x0 as i32);
+        let x1 = (self.rect[1] + 1).min(r.x1 as i32);
+        let y0 = self.rect[2].max(r.y0 as i32);
+        let y1 = (self.rect[3] + 1).min(r.y1 as i32);
+        if x0 >= x1 || y0 >= y1 {
+            return None;
+        }
+        Some((x0 as u32, x1 as u32, y0 as u32, y1 as u32))
+    }
+}
+
+/// Gradient of the loss with respect to one splat's blend inputs.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SplatGrad<F> {
+    pub mean: [F; 2],
+    pub conic: [F; 3],
+    pub opacity: F,
+    pub colour: [F; 3],
+    pub depth: F,
+}
+
+impl<F: Real> SplatGrad<F> {
+    #[inline]
+    pub fn add(&mut self, o: &Self) {
+        for k in 0..2 {
+            self.mean[k] += o.mean[k];
+        }
+        for k in 0..3 {
+            self.conic[k] += o.conic[k];
+            self.colour[k] += o.colour[k];
+        }
+        self.opacity += o.opacity;
+        self.depth += o.depth;
+    }
+}
+
+/// One splat's contribution at a pixel centre: `(α, exp(power), α was clamped)`, or
+/// `None` when it is skipped.
+#[inline(always)]
+pub fn splat_alpha<F: Real>(s: &Splat<F>, px: F, py: F) -> Option<(F, F, bool)> {
+    let dx = px - s.mean[0];
+    let dy = py - s.mean[1];
+    let power = -F::c(0.5) * (s.conic[0] * dx * dx + s.conic[2] * dy * dy) - s.conic[1] * dx * dy;
+    if power > F::zero() || power < s.min_power || power < F::c(-0.5 * EXTENT_SIGMAS * EXTENT_SIGMAS) {
+        return None;
+    }
+    let g = power.exp();
+    let raw = s.opacity * g;
+    let amax = F::c(ALPHA_MAX);
+    let (alpha, clamped) = if raw > amax { (amax, true) } else { (raw, false) };
+    if alpha < F::c(ALPHA_MIN) {
+        return None;
+    }
+    Some((alpha, g, clamped))
+}
+
+/// A rectangle of pixels `[x0, x1) × [y0, y1)`.
+#[derive(Clone, Copy, Debug)]
+pub struct PixelRect {
+    pub x0: u32,
+    pub y0: u32,
+    pub x1: u32,
+    pub y1: u32,
+}
+
+impl PixelRect {
+    pub fn len(&self) -> usize {
+        ((self.x1 - self.x0) * (self.y1 - self.y0)) as usize
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Forward result of one tile, pixels row-major within the tile.
+#[derive(Clone, Debug, Default)]
+pub struct TileOut<F> {
+    pub rgb: Vec<F>,
+    pub alpha: Vec<F>,
+    pub depth: Vec<F>,
+    /// Transmittance after the last contributing splat.
+    pub final_t: Vec<F>,
+    /// Number of list entries visited up to and including the last contributing one.
+    pub n_contrib: Vec<u32>,
+    /// Splat-pixel evaluations done in this tile (a work statistic).
+    pub evaluations: u64,
+}
+
+/// Blend one tile. `splats` are the tile's splats in depth order. Splat-major: each splat
+/// visits only the pixels of its support box; per-pixel order is still front to back.
+pub fn blend_tile_forward<F: Real>(rect: PixelRect, splats: &[Splat<F>], background: [F; 3], out: &mut TileOut<F>) {
+    let n = rect.len();
+    let mut colour = vec![[F::zero(); 3]; n];
+    out.rgb.clear();
+    out.rgb.resize(3 * n, F::zero());
+    out.alpha.clear();
+    out.alpha.resize(n, F::zero());
+    out.depth.clear();
+    out.depth.resize(n, F::zero());
+    out.final_t.clear();
+    out.final_t.resize(n, F::one());
+    out.n_contrib.clear();
+    out.n_contrib.resize(n, 0);
+    let mut done = vec![false; n];
+    let mut alive = n;
+    let mut evaluations = 0u64;
+    let t_min = F::c(TRANSMITTANCE_MIN);
+    let half = F::c(0.5);
+    let w = rect.x1 - rect.x0;
+    for (k, s) in splats.iter().enumerate() {
+        if alive == 0 {
+            break;
+        }
+        let Some((x0, x1, y0, y1)) = s.clip(rect) else { continue };
+        for py in y0..y1 {
+            let fy = F::c(py as f64) + half;
+            let row = ((py - rect.y0) * w) as usize;
+            for px in x0..x1 {
+                let p = row + (px - rect.x0) as usize;
+                if done[p] {
+                    continue;
+                }
+                evaluations += 1;
+                let Some((alpha, _, _)) = splat_alpha(s, F::c(px as f64) + half, fy) else { continue };
+                let t = out.final_t[p];
+                let next_t = t * (F::one() - alpha);
+                if next_t < t_min {
+                    done[p] = true;
+                    alive -= 1;
+                    continue;
+                }
+                let wgt = alpha * t;
+                let c = &mut colour[p];
+                c[0] += s.colour[0] * wgt;
+                c[1] += s.colour[1] * wgt;
+                c[2] += s.colour[2] * wgt;
+                out.depth[p] += s.depth * wgt;
+                out.final_t[p] = next_t;
+                out.n_contrib[p] = k as u32 + 1;
+            }
+        }
+    }
+    for p in 0..n {
+        let t = out.final_t[p];
+        for ch in 0..3 {
+            out.rgb[3 * p + ch] = colour[p][ch] + t * background[ch];
+        }
+        out.alpha[p] = F::one() - t;
+    }
+    out.evaluations = evaluations;
+}
+
+/// Per-pixel upstream gradients of one tile (row-major within the tile).
+pub struct TileUpstream<'a, F> {
+    pub rgb: &'a [F],
+    pub alpha: &'a [F],
+    pub depth: &'a [F],
+}
+
+/// Backward of [`blend_tile_forward`]: adds each splat's gradient into `grads`
+/// (aligned with `splats`). `final_t`/`n_contrib` come from the forward. Splats are
+/// visited back to front; each pixel keeps its own running state.
+#[allow(clippy::too_many_arguments)]
+pub fn blend_tile_backward<F: Real>(
+    rect: PixelRect,
+    splats: &[Splat<F>],
+    background: [F; 3],
+    final_t: &[F],
+    n_contrib: &[u32],
+    up: &TileUpstream<F>,
+    grads: &mut [SplatGrad<F>],
+) {
+    #[derive(Clone, Copy, Default)]
+    struct State<F> {
+        t: F,
+        acc_c: [F; 3],
+        acc_d: F,
+        last_alpha: F,
+        last_c: [F; 3],
+        last_d: F,
+    }
+    let half = F::c(0.5);
+    let one = F::one();
+    let w = rect.x1 - rect.x0;
+    let n = rect.len();
+    let mut state: Vec<State<F>> = (0..n).map(|p| State { t: final_t[p], ..State::default() }).collect();
+    let bg_dot: Vec<F> = (0..n)
+        .map(|p| background[0] * up.rgb[3 * p] + background[1] * up.rgb[3 * p + 1] + background[2] * up.rgb[3 * p + 2])
+        .collect();
+    let k_max = n_contrib.iter().copied().max().unwrap_or(0) as usize;
+    for k in (0..k_max.min(splats.len())).rev() {
+        let s = &splats[k];
+        let Some((x0, x1, y0, y1)) = s.clip(rect) else { continue };
+        let mut gr = SplatGrad::default();
+        for py in y0..y1 {
+            let fy = F::c(py as f64) + half;
+            let row = ((py - rect.y0) * w) as usize;
+            for px in x0..x1 {
+                let p = row + (px - rect.x0) as usize;
+                if k as u32 >= n_contrib[p] {
+                    continue;
+                }
+                let fx = F::c(px as f64) + half;
+                let Some((alpha, g, clamped)) = splat_alpha(s, fx, fy) else { continue };
+                let dc = [up.rgb[3 * p], up.rgb[3 * p + 1], up.rgb[3 * p + 2]];
+                let dd = up.depth[p];
+                let st = &mut state[p];
+                let inv_one_minus = one / (one - alpha);
+                st.t = st.t * inv_one_minus;
+                let t = st.t;
+                let wgt = alpha * t;
+                gr.colour[0] += wgt * dc[0];
+                gr.colour[1] += wgt * dc[1];
+                gr.colour[2] += wgt * dc[2];
+                gr.depth += wgt * dd;
+                for ch in 0..3 {
+                    st.acc_c[ch] = st.last_alpha * st.last_c[ch] + (one - st.last_alpha) * st.acc_c[ch];
+                }
+                st.acc_d = st.last_alpha * st.last_d + (one - st.last_alpha) * st.acc_d;
+                st.last_alpha = alpha;
+                st.last_c = s.colour;
+                st.last_d = s.depth;
+                let mut d_alpha = ((s.colour[0] - st.acc_c[0]) * dc[0]
+                    + (s.colour[1] - st.acc_c[1]) * dc[1]
+                    + (s.colour[2] - st.acc_c[2]) * dc[2]
+                    + (s.depth - st.acc_d) * dd)
+                    * t;
+                d_alpha += final_t[p] * inv_one_minus * (up.alpha[p] - bg_dot[p]);
+                if clamped {
+                    continue;
+                }
+                // α = opacity · exp(power)
+                gr.opacity += g * d_alpha;
+                let d_power = s.opacity * g * d_alpha;
+                let dx = fx - s.mean[0];
+                let dy = fy - s.mean[1];
+                gr.conic[0] -= half * dx * dx * d_power;
+                gr.conic[1] -= dx * dy * d_power;
+                gr.conic[2] -= half * dy * dy * d_power;
+                gr.mean[0] += (s.conic[0] * dx + s.conic[1] * dy) * d_power;
+                gr.mean[1] += (s.conic[2] * dy + s.conic[1] * dx) * d_power;
+            }
+        }
+        grads[k].add(&gr);
+    }
+}
