@@ -10,3 +10,4 @@ pub mod colmap;
 pub mod colmap_runner;
 pub mod convert;
 pub mod poses;
+pub mod undistort;
