@@ -11,3 +11,4 @@ pub mod colmap_runner;
 pub mod convert;
 pub mod poses;
 pub mod undistort;
+pub mod import;
