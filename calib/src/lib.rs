@@ -1,4 +1,14 @@
 //! `calib`: geometry of the rig. COLMAP driving and model IO, camera models and
 //! undistortion, calibration import, point initialisation from point maps.
 //!
+//! The poses stage calls [`poses::solve`] (COLMAP) or [`import::import_calibration`] then
+//! [`poses::write_imported`]; frames are made pinhole with [`undistort::UndistortMap`].
 //! Depends on the engine crate only for the shared camera types.
+
+pub mod align;
+pub mod colmap;
+pub mod colmap_runner;
+pub mod convert;
+pub mod poses;
+pub mod undistort;
+pub mod import;

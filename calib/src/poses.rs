@@ -1,0 +1,385 @@
+//! The `poses` stage: from the first aligned frame of each video camera plus the stills,
+//! solve the rig with COLMAP (or take an imported calibration), normalise the scene, and
+//! write `work/poses/cameras.json` + `work/poses/points3d.ply`.
+//!
+//! Normalisation: `x_norm = scale · (x_world − centre)` with `centre` the mean of the video
+//! camera centres and `scale` chosen so the video cameras sit at mean distance
+//! [`PosesConfig::radius`] (default 1) from it. Poses and points in the outputs are in the
+//! normalised frame; `normalisation` in `cameras.json` maps back to COLMAP's (or the
+//! imported calibration's) frame.
+//!
+//! Cameras in `cameras.json` keep the lens distortion that was solved; turning frames and
+//! cameras into pinhole ones happens once, through [`crate::undistort`].
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+use glam::{DMat3, DVec3};
+use serde::{Deserialize, Serialize};
+use splat4d::{Camera, CameraSet, Progress, WorldToCamera};
+
+use crate::colmap::ColmapModel;
+use crate::colmap_runner::diagnose::Diagnosis;
+use crate::colmap_runner::{find_colmap, ColmapConfig, ColmapError, ColmapTimings, MatchGraph, StillsCameras, Workspace};
+use crate::convert::{self, ConvertError};
+
+/// Settings of the poses stage.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PosesConfig {
+    pub colmap: ColmapConfig,
+    /// Fewer stills than this is refused before COLMAP runs.
+    pub min_stills: usize,
+    /// Mean distance of the video cameras from the scene centre after normalisation.
+    pub radius: f64,
+}
+
+impl Default for PosesConfig {
+    fn default() -> Self {
+        Self { colmap: ColmapConfig::default(), min_stills: 4, radius: 1.0 }
+    }
+}
+
+/// What the poses stage is given.
+#[derive(Clone, Debug)]
+pub struct PosesInputs {
+    /// (camera name, its first aligned frame), e.g. `("cam0", "work/frames/cam0/000000.png")`.
+    pub video_frames: Vec<(String, PathBuf)>,
+    /// Extra photos of the scene (`stills/`).
+    pub stills: Vec<PathBuf>,
+    /// Size the engine will see the video frames at; `None`: the frames' own size.
+    pub working_size: Option<(u32, u32)>,
+    pub config: PosesConfig,
+}
+
+/// `x_norm = scale · (x_world − centre)`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Normalisation {
+    pub centre: [f64; 3],
+    pub scale: f64,
+}
+
+impl Normalisation {
+    pub const IDENTITY: Self = Self { centre: [0.0; 3], scale: 1.0 };
+
+    pub fn apply(&self, p: DVec3) -> DVec3 {
+        self.scale * (p - DVec3::from_array(self.centre))
+    }
+
+    /// The same camera in the normalised frame: `t' = scale · (R·centre + t)`.
+    pub fn apply_to_pose(&self, w2c: &WorldToCamera) -> WorldToCamera {
+        let r = w2c.rotation();
+        WorldToCamera::from_parts(r, self.scale * (r * DVec3::from_array(self.centre) + w2c.translation()))
+    }
+}
+
+/// Where the poses came from.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum PoseSource {
+    /// Solved by COLMAP; the model is in `model_dir` (relative to `work/poses/`).
+    Colmap { model_dir: String, registered_images: usize, timings: ColmapTimings },
+    /// Imported from a calibration file.
+    Import { path: PathBuf },
+}
+
+/// `work/poses/cameras.json`: a [`CameraSet`] (read it as one: extra fields are ignored)
+/// plus the normalisation, where it came from and the sparse points file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PosesFile {
+    #[serde(flatten)]
+    pub set: CameraSet,
+    pub normalisation: Normalisation,
+    pub source: PoseSource,
+    /// `points3d.ply` beside this file (normalised frame), if there are points.
+    pub points_file: Option<String>,
+    pub num_points: usize,
+}
+
+/// One sparse point, normalised frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SparsePoint {
+    pub xyz: [f64; 3],
+    pub rgb: [u8; 3],
+}
+
+/// What [`solve`] produced.
+#[derive(Clone, Debug)]
+pub struct PosesOutput {
+    pub file: PosesFile,
+    pub points: Vec<SparsePoint>,
+    pub cameras_json: PathBuf,
+    pub points_ply: Option<PathBuf>,
+}
+
+/// Errors of the poses stage.
+#[derive(Debug, thiserror::Error)]
+pub enum PosesError {
+    #[error("no video frames were given to the poses stage (is work/frames/ empty? run the frames stage first)")]
+    NoVideoFrames,
+    #[error("video camera name {0:?} appears twice")]
+    DuplicateCamera(String),
+    #[error(
+        "only {got} stills in stills/, at least {min} are needed to connect the video cameras: take \
+         more photos (8 recommended) walking in an arc between the cameras, or lower poses.min_stills"
+    )]
+    TooFewStills { got: usize, min: usize },
+    #[error("cannot read image {path}: {reason}")]
+    ImageUnreadable { path: PathBuf, reason: String },
+    #[error(
+        "image {path} is blank (pixel values vary by only {std_dev:.2} levels): COLMAP cannot find \
+         features in it. Check the lens cap, exposure and that the right file was extracted"
+    )]
+    BlankImage { path: PathBuf, std_dev: f64 },
+    #[error(
+        "the stills share one camera but differ in size ({sizes}): set poses.colmap.stills_cameras = \
+         \"per_image\" (different phones or zoom), or resize them to one size"
+    )]
+    StillSizesDiffer { sizes: String },
+    #[error("{0}")]
+    Colmap(#[from] ColmapError),
+    #[error(
+        "COLMAP found no model: no good initial image pair (no two images share enough matched \
+         features seen from different positions).\n{diagnosis}"
+    )]
+    NoInitialPair { diagnosis: Diagnosis },
+    #[error("COLMAP did not register video camera(s) {}.\n{diagnosis}", missing.join(", "))]
+    VideoNotRegistered { missing: Vec<String>, diagnosis: Diagnosis },
+    #[error(
+        "COLMAP split the images into {} separate models and the video cameras are not all in one \
+         ({}).\n{diagnosis}", groups.len(), groups.iter().enumerate().map(|(i, g)| format!("model {i}: {}", g.join(", "))).collect::<Vec<_>>().join("; ")
+    )]
+    SplitModels { groups: Vec<Vec<String>>, diagnosis: Diagnosis },
+    #[error(transparent)]
+    Convert(#[from] ConvertError),
+    #[error("cannot write {path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+}
+
+/// Pixel-value standard deviation (0–255) under which an image counts as blank.
+pub const BLANK_STD_DEV: f64 = 1.0;
+
+/// Run the poses stage with COLMAP: check inputs, build the workspace in
+/// `out_dir/colmap/`, solve, check that every video camera registered in one model, and
+/// write `out_dir/cameras.json` and `out_dir/points3d.ply`. On any error, neither file
+/// exists afterwards (a previous run's are removed first).
+pub fn solve(inputs: &PosesInputs, out_dir: &Path, progress: &dyn Progress) -> Result<PosesOutput, PosesError> {
+    let cameras_json = out_dir.join("cameras.json");
+    let points_ply = out_dir.join("points3d.ply");
+    for stale in [&cameras_json, &points_ply] {
+        if stale.exists() {
+            std::fs::remove_file(stale).map_err(|source| PosesError::Io { path: stale.clone(), source })?;
+        }
+    }
+    check_inputs(inputs)?;
+    let config = &inputs.config;
+    let binary = find_colmap(config.colmap.binary.as_deref())?;
+    let ws_root = out_dir.join("colmap");
+    let ws = Workspace::create(&ws_root, &inputs.video_frames, &inputs.stills, config.colmap.stills_cameras)?;
+    let run = match ws.run(&binary, &config.colmap, progress) {
+        Ok(run) => run,
+        Err(ColmapError::StepFailed { no_model: true, .. }) => {
+            let graph = MatchGraph::read(&ws.database()).unwrap_or_default();
+            return Err(PosesError::NoInitialPair { diagnosis: Diagnosis::new(&ws, &graph, &[]) });
+        }
+        Err(e) => return Err(e.into()),
+    };
+    let diagnosis = Diagnosis::new(&ws, &run.graph, &run.models);
+    let video: Vec<(&str, &str)> = ws
+        .images
+        .iter()
+        .filter_map(|i| i.video_camera.as_deref().map(|c| (c, i.colmap_name.as_str())))
+        .collect();
+    let model_index = run.models.iter().position(|(_, m)| video.iter().all(|(_, n)| m.image_by_name(n).is_some()));
+    let Some(model_index) = model_index else {
+        let missing: Vec<String> = diagnosis
+            .images
+            .iter()
+            .filter(|i| i.video_camera.is_some() && i.model.is_none())
+            .filter_map(|i| i.video_camera.clone())
+            .collect();
+        if !missing.is_empty() {
+            return Err(PosesError::VideoNotRegistered { missing, diagnosis });
+        }
+        let groups = (0..run.models.len())
+            .map(|m| {
+                diagnosis.images.iter().filter(|i| i.model == Some(m)).filter_map(|i| i.video_camera.clone()).collect()
+            })
+            .filter(|g: &Vec<String>| !g.is_empty())
+            .collect();
+        return Err(PosesError::SplitModels { groups, diagnosis });
+    };
+    let (model_dir, model) = &run.models[model_index];
+    let (cameras, points) = cameras_from_model(model, &video, inputs.working_size)?;
+    let rel_model = model_dir.strip_prefix(out_dir).unwrap_or(model_dir).to_string_lossy().into_owned();
+    let source = PoseSource::Colmap { model_dir: rel_model, registered_images: model.images.len(), timings: run.timings };
+    write_outputs(out_dir, cameras, points, source, config.radius)
+}
+
+/// Normalise and write an imported (or otherwise known) camera set as the poses stage's
+/// output, with no sparse points.
+pub fn write_imported(set: &CameraSet, from: &Path, out_dir: &Path, radius: f64) -> Result<PosesOutput, PosesError> {
+    let source = PoseSource::Import { path: from.to_path_buf() };
+    write_outputs(out_dir, set.cameras.clone(), Vec::new(), source, radius)
+}
+
+/// Engine cameras for the video cameras (names, COLMAP image names) of a COLMAP model, with
+/// intrinsics scaled to `working_size`, plus the model's points (COLMAP's frame).
+pub fn cameras_from_model(
+    model: &ColmapModel,
+    video: &[(&str, &str)],
+    working_size: Option<(u32, u32)>,
+) -> Result<(Vec<Camera>, Vec<SparsePoint>), PosesError> {
+    let mut cameras = Vec::new();
+    for &(cam, colmap_name) in video {
+        let image = model.image_by_name(colmap_name).ok_or_else(|| PosesError::VideoNotRegistered {
+            missing: vec![cam.to_string()],
+            diagnosis: Diagnosis { images: Vec::new(), num_models: 1 },
+        })?;
+        let colmap_cam = model.cameras.get(&image.camera_id).ok_or_else(|| {
+            PosesError::Colmap(ColmapError::Model(crate::colmap::ModelError::Malformed {
+                path: PathBuf::from("images"),
+                what: format!("image {} refers to missing camera {}", image.name, image.camera_id),
+            }))
+        })?;
+        let (mut intrinsics, distortion) = convert::to_engine(colmap_cam)?;
+        if let Some((w, h)) = working_size {
+            intrinsics = intrinsics.scaled_to(w, h);
+        }
+        cameras.push(Camera {
+            name: cam.to_string(),
+            intrinsics,
+            distortion,
+            world_to_camera: WorldToCamera::from_parts(orthonormalise(image.rotation()), image.translation()),
+        });
+    }
+    let points = model.points3d.values().map(|p| SparsePoint { xyz: p.xyz, rgb: p.rgb }).collect();
+    Ok((cameras, points))
+}
+
+/// Centre on the mean video-camera centre and scale so the cameras sit at mean distance
+/// `radius`. With one camera (or all at one spot) the points' median distance is used;
+/// with neither, the scale stays 1.
+pub fn normalisation_for(cameras: &[Camera], points: &[SparsePoint], radius: f64) -> Normalisation {
+    let centres: Vec<DVec3> = cameras.iter().map(|c| c.world_to_camera.centre()).collect();
+    if centres.is_empty() {
+        return Normalisation::IDENTITY;
+    }
+    let centre = centres.iter().copied().sum::<DVec3>() / centres.len() as f64;
+    let mut spread = centres.iter().map(|c| (*c - centre).length()).sum::<f64>() / centres.len() as f64;
+    if spread < 1e-12 {
+        let mut d: Vec<f64> = points.iter().map(|p| (DVec3::from_array(p.xyz) - centre).length()).collect();
+        d.sort_by(f64::total_cmp);
+        spread = d.get(d.len() / 2).copied().unwrap_or(0.0);
+    }
+    let scale = if spread > 1e-12 && radius > 0.0 { radius / spread } else { 1.0 };
+    Normalisation { centre: centre.to_array(), scale }
+}
+
+fn write_outputs(
+    out_dir: &Path,
+    cameras: Vec<Camera>,
+    points: Vec<SparsePoint>,
+    source: PoseSource,
+    radius: f64,
+) -> Result<PosesOutput, PosesError> {
+    let norm = normalisation_for(&cameras, &points, radius);
+    let cameras: Vec<Camera> = cameras
+        .into_iter()
+        .map(|c| Camera { world_to_camera: norm.apply_to_pose(&c.world_to_camera), ..c })
+        .collect();
+    let points: Vec<SparsePoint> = points
+        .into_iter()
+        .map(|p| SparsePoint { xyz: norm.apply(DVec3::from_array(p.xyz)).to_array(), ..p })
+        .collect();
+    std::fs::create_dir_all(out_dir).map_err(|source| PosesError::Io { path: out_dir.to_path_buf(), source })?;
+    let points_ply = (!points.is_empty()).then(|| out_dir.join("points3d.ply"));
+    if let Some(ply) = &points_ply {
+        crate::colmap::write_atomically(ply, &points_to_ply(&points))
+            .map_err(|source| PosesError::Io { path: ply.clone(), source })?;
+    }
+    let file = PosesFile {
+        set: CameraSet::new(cameras),
+        normalisation: norm,
+        source,
+        points_file: points_ply.as_ref().map(|_| "points3d.ply".to_string()),
+        num_points: points.len(),
+    };
+    let cameras_json = out_dir.join("cameras.json");
+    let text = serde_json::to_string_pretty(&file).map_err(|e| PosesError::Io {
+        path: cameras_json.clone(),
+        source: std::io::Error::other(e),
+    })?;
+    crate::colmap::write_atomically(&cameras_json, text.as_bytes())
+        .map_err(|source| PosesError::Io { path: cameras_json.clone(), source })?;
+    Ok(PosesOutput { file, points, cameras_json, points_ply })
+}
+
+/// Binary little-endian PLY: `x y z` (float) and `red green blue` (uchar) per vertex.
+pub fn points_to_ply(points: &[SparsePoint]) -> Vec<u8> {
+    let header = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment 4C4D sparse points, normalised frame\n\
+         element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
+         property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n",
+        points.len()
+    );
+    let mut out = header.into_bytes();
+    for p in points {
+        for v in p.xyz {
+            out.extend_from_slice(&(v as f32).to_le_bytes());
+        }
+        out.extend_from_slice(&p.rgb);
+    }
+    out
+}
+
+/// The nearest rotation (COLMAP's normalised quaternions are orthonormal to ~1e-16 already;
+/// this guards imported matrices too).
+pub fn orthonormalise(r: DMat3) -> DMat3 {
+    let m = nalgebra::Matrix3::from_fn(|i, j| r.col(j)[i]);
+    let svd = m.svd(true, true);
+    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else { return r };
+    let mut q = u * vt;
+    if q.determinant() < 0.0 {
+        let mut u2 = u;
+        u2.column_mut(2).neg_mut();
+        q = u2 * vt;
+    }
+    DMat3::from_cols_array(&[q[(0, 0)], q[(1, 0)], q[(2, 0)], q[(0, 1)], q[(1, 1)], q[(2, 1)], q[(0, 2)], q[(1, 2)], q[(2, 2)]])
+}
+
+fn check_inputs(inputs: &PosesInputs) -> Result<(), PosesError> {
+    if inputs.video_frames.is_empty() {
+        return Err(PosesError::NoVideoFrames);
+    }
+    let mut seen = BTreeSet::new();
+    for (name, _) in &inputs.video_frames {
+        if !seen.insert(name.as_str()) {
+            return Err(PosesError::DuplicateCamera(name.clone()));
+        }
+    }
+    if inputs.stills.len() < inputs.config.min_stills {
+        return Err(PosesError::TooFewStills { got: inputs.stills.len(), min: inputs.config.min_stills });
+    }
+    let mut still_sizes = BTreeSet::new();
+    let all = inputs.video_frames.iter().map(|(_, p)| (p, false)).chain(inputs.stills.iter().map(|p| (p, true)));
+    for (path, still) in all {
+        let img = image::open(path)
+            .map_err(|e| PosesError::ImageUnreadable { path: path.clone(), reason: e.to_string() })?
+            .into_luma8();
+        let n = img.as_raw().len().max(1) as f64;
+        let mean = img.as_raw().iter().map(|&v| v as f64).sum::<f64>() / n;
+        let var = img.as_raw().iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / n;
+        if var.sqrt() < BLANK_STD_DEV {
+            return Err(PosesError::BlankImage { path: path.clone(), std_dev: var.sqrt() });
+        }
+        if still {
+            still_sizes.insert(img.dimensions());
+        }
+    }
+    if inputs.config.colmap.stills_cameras == StillsCameras::Shared && still_sizes.len() > 1 {
+        let sizes: Vec<String> = still_sizes.iter().map(|(w, h)| format!("{w}×{h}")).collect();
+        return Err(PosesError::StillSizesDiffer { sizes: sizes.join(", ") });
+    }
+    Ok(())
+}

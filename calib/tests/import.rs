@@ -1,0 +1,127 @@
+//! Calibration import: OpenCV-style JSON/YAML, Caliscope TOML, COLMAP folders; units and
+//! axis conventions.
+
+use std::path::Path;
+
+use calib::import::{find_calibration, import_calibration, import_calibration_with, ImportOptions, Units};
+use glam::DVec3;
+use splat4d::Distortion;
+
+fn write(dir: &Path, name: &str, text: &str) -> std::path::PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+#[test]
+fn opencv_json_in_all_its_spellings_gives_the_same_camera() {
+    let tmp = tempfile::tempdir().unwrap();
+    // A camera at C = (1, 2, 0.5) m, rotated 90° about z: R = Rz(90°), t = −R·C.
+    let r = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]];
+    let c = DVec3::new(1.0, 2.0, 0.5);
+    let rm = glam::DMat3::from_cols_array_2d(&r).transpose();
+    let t = -(rm * c);
+    let k = "[[500, 0, 320], [0, 501, 240], [0, 0, 1]]";
+    let variants = [
+        format!(r#"{{"cameras": {{"cam0": {{"K": {k}, "dist": [-0.1, 0.01, 0, 0, 0], "R": {r:?}, "t": [{}, {}, {}], "size": [640, 480]}}}}}}"#, t.x, t.y, t.z),
+        format!(r#"{{"cameras": [{{"name": "cam0", "camera_matrix": {k}, "distCoeffs": [-0.1, 0.01, 0, 0], "rvec": [0, 0, {}], "tvec": [[{}], [{}], [{}]], "image_width": 640, "image_height": 480}}]}}"#, std::f64::consts::FRAC_PI_2, t.x, t.y, t.z),
+        format!(r#"{{"units": "mm", "cameras": {{"cam0": {{"K": {k}, "D": [-0.1, 0.01, 0, 0, 0], "R": {r:?}, "C": [1000, 2000, 500], "resolution": [640, 480]}}}}}}"#),
+        format!(r#"{{"convention": "camera_to_world", "cameras": {{"cam0": {{"K": {k}, "dist": [-0.1, 0.01, 0, 0, 0], "R": [[0, 1, 0], [-1, 0, 0], [0, 0, 1]], "t": [1, 2, 0.5], "size": [640, 480]}}}}}}"#),
+    ];
+    for (i, v) in variants.iter().enumerate() {
+        let p = write(tmp.path(), &format!("calibration{i}.json"), v);
+        let set = import_calibration(&p).unwrap_or_else(|e| panic!("variant {i}: {e}"));
+        let cam = &set.cameras[0];
+        assert_eq!(cam.name, "cam0");
+        assert_eq!((cam.intrinsics.fx, cam.intrinsics.fy, cam.intrinsics.width), (500.0, 501.0, 640));
+        assert_eq!(cam.distortion, Distortion::Opencv { k1: -0.1, k2: 0.01, p1: 0.0, p2: 0.0, k3: 0.0 });
+        assert!((cam.world_to_camera.centre() - c).length() < 1e-9, "variant {i}: {:?}", cam.world_to_camera.centre());
+        assert!((cam.world_to_camera.rotation() - rm).abs_diff_eq(glam::DMat3::ZERO, 1e-9), "variant {i}");
+    }
+}
+
+#[test]
+fn opencv_filestorage_yaml_with_fisheye() {
+    let tmp = tempfile::tempdir().unwrap();
+    let yaml = "%YAML:1.0\n---\ncameras:\n  gopro0:\n    model: fisheye\n    image_width: 1920\n    image_height: 1080\n    camera_matrix: !!opencv-matrix\n      rows: 3\n      cols: 3\n      dt: d\n      data: [ 900., 0., 960., 0., 900., 540., 0., 0., 1. ]\n    distortion_coefficients: !!opencv-matrix\n      rows: 4\n      cols: 1\n      dt: d\n      data: [ 0.05, -0.01, 0.002, 0. ]\n    rvec: [ 0., 0., 0. ]\n    tvec: [ 0., 0., 2. ]\n  gopro1:\n    model: fisheye\n    image_width: 1920\n    image_height: 1080\n    camera_matrix: { rows: 3, cols: 3, dt: d, data: [ 900., 0., 960., 0., 900., 540., 0., 0., 1. ] }\n    distortion_coefficients: [ 0.05, -0.01, 0.002, 0. ]\n    rvec: [ 0., 0.5, 0. ]\n    tvec: [ -1., 0., 2. ]\n";
+    let p = write(tmp.path(), "calibration.yaml", yaml);
+    let set = import_calibration(&p).unwrap();
+    assert_eq!(set.cameras.len(), 2);
+    assert_eq!(set.cameras[0].name, "gopro0");
+    assert_eq!(set.cameras[0].distortion, Distortion::Fisheye { k1: 0.05, k2: -0.01, k3: 0.002, k4: 0.0 });
+    assert_eq!(set.cameras[0].world_to_camera.translation, [0.0, 0.0, 2.0]);
+    assert_eq!(find_calibration(tmp.path()), Some(p));
+}
+
+#[test]
+fn wrong_axes_units_and_models_are_explained() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cam = |r: &str, t: &str| format!(r#"{{"K": [[500,0,320],[0,500,240],[0,0,1]], "R": {r}, "t": {t}, "size": [640,480]}}"#);
+    let left = write(tmp.path(), "left.json", &format!(r#"{{"cameras": {{"a": {}}}}}"#, cam("[[1,0,0],[0,-1,0],[0,0,1]]", "[0,0,0]")));
+    let e = import_calibration(&left).unwrap_err().to_string();
+    assert!(e.contains("OpenGL") && e.contains("left.json"), "{e}");
+    let mm = write(tmp.path(), "mm.json", &format!(r#"{{"cameras": {{"a": {}, "b": {}}}}}"#, cam("[[1,0,0],[0,1,0],[0,0,1]]", "[0,0,0]"), cam("[[1,0,0],[0,1,0],[0,0,1]]", "[800,0,0]")));
+    let e = import_calibration(&mm).unwrap_err().to_string();
+    assert!(e.contains("units"), "{e}");
+    let set = import_calibration_with(&mm, &ImportOptions { units: Some(Units::Millimetres) }).unwrap();
+    assert!((set.cameras[1].world_to_camera.centre().x + 0.8).abs() < 1e-12);
+    let rational = write(tmp.path(), "r.json", r#"{"cameras": {"a": {"K": [[500,0,320],[0,500,240],[0,0,1]], "dist": [0.1,0,0,0,0,0.3,0,0], "R": [[1,0,0],[0,1,0],[0,0,1]], "t": [0,0,0], "size": [640,480]}}}"#);
+    assert!(import_calibration(&rational).unwrap_err().to_string().contains("rational"));
+    let nosize = write(tmp.path(), "n.json", r#"{"cameras": {"a": {"K": [[500,0,320],[0,500,240],[0,0,1]], "R": [[1,0,0],[0,1,0],[0,0,1]], "t": [0,0,0]}}}"#);
+    assert!(import_calibration(&nosize).unwrap_err().to_string().contains("size"));
+    let garbage = write(tmp.path(), "g.json", "{ not json");
+    assert!(import_calibration(&garbage).unwrap_err().to_string().contains("g.json"));
+}
+
+#[test]
+fn colmap_folder_imports_one_camera_per_image() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/colmap/tiny/txt");
+    let set = import_calibration(&dir).unwrap();
+    let names: Vec<&str> = set.cameras.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["cam0", "cam1", "cam2", "still1"]);
+    assert!(set.cameras.iter().all(|c| matches!(c.distortion, Distortion::Opencv { .. })));
+}
+
+fn shared_data(name: &str) -> Option<std::path::PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data").join(name);
+    let p = if p.exists() { p } else { Path::new("/work/shared/data").join(name) };
+    if p.exists() {
+        Some(p)
+    } else {
+        eprintln!("skipping: {name} is absent (../shared/data/{name})");
+        None
+    }
+}
+
+#[test]
+fn caliscope_camera_array_from_a_real_session() {
+    let Some(dir) = shared_data("caliscope-4cam") else { return };
+    let set = import_calibration(&dir.join("camera_array.toml")).unwrap();
+    let names: Vec<&str> = set.cameras.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["cam0", "cam1", "cam2", "cam3"]);
+    let c0 = &set.cameras[0];
+    assert_eq!((c0.intrinsics.width, c0.intrinsics.height), (1280, 720));
+    assert!((c0.intrinsics.fx - 894.5288733178912).abs() < 1e-9);
+    assert!(matches!(c0.distortion, Distortion::Opencv { k1, .. } if (k1 + 0.3383569013465177).abs() < 1e-12));
+    // cam1 is the world origin in this session; the others sit 0.5–2 m away (a desk rig).
+    assert!(set.cameras[1].world_to_camera.centre().length() < 0.01);
+    for c in [&set.cameras[0], &set.cameras[2], &set.cameras[3]] {
+        let d = c.world_to_camera.centre().length();
+        assert!((0.3..3.0).contains(&d), "{}: {d} m", c.name);
+    }
+}
+
+#[test]
+fn panoptic_json_is_in_centimetres() {
+    let Some(dir) = shared_data("panoptic-5view") else { return };
+    let path = dir.join("camera_parameters.json");
+    let e = import_calibration(&path).unwrap_err().to_string();
+    assert!(e.contains("units"), "{e}");
+    let set = import_calibration_with(&path, &ImportOptions { units: Some(Units::Centimetres) }).unwrap();
+    assert!(set.cameras.len() >= 5, "{}", set.cameras.len());
+    let cam = set.cameras.iter().find(|c| c.name == "00_03").unwrap();
+    assert_eq!((cam.intrinsics.width, cam.intrinsics.height), (1920, 1080));
+    // The dome: cameras a few metres from its centre.
+    let d = cam.world_to_camera.centre().length();
+    assert!((1.0..6.0).contains(&d), "{d}");
+}

@@ -1,0 +1,97 @@
+//! The poses stage on a rendered scene with known cameras, solved by the real COLMAP.
+
+mod common;
+
+use calib::poses::{self, PosesConfig, PosesError, PosesInputs};
+use splat4d::{CameraSet, NoProgress};
+
+#[test]
+fn solves_the_rendered_rig_within_half_a_degree() {
+    if !common::colmap_available() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let rig = common::render_rig(&tmp.path().join("capture"), 8, (640, 480));
+    let inputs = PosesInputs {
+        video_frames: rig.video_paths.clone(),
+        stills: rig.still_paths.clone(),
+        working_size: Some((320, 240)),
+        config: PosesConfig::default(),
+    };
+    let out_dir = tmp.path().join("work/poses");
+    let out = match poses::solve(&inputs, &out_dir, &NoProgress) {
+        Ok(o) => o,
+        Err(e) => panic!("{e}"),
+    };
+    let cams = &out.file.set.cameras;
+    assert_eq!(cams.iter().map(|c| c.name.as_str()).collect::<Vec<_>>(), ["cam0", "cam1", "cam2", "cam3"]);
+    let (_, errors, radius) = calib::align::compare(cams, &rig.video).unwrap();
+    for e in &errors {
+        eprintln!("{}: rotation {:.4}°, centre {:.4}% of radius", e.name, e.rotation_deg, 100.0 * e.centre / radius);
+        assert!(e.rotation_deg < 0.5, "{e:?}");
+        assert!(e.centre < 0.01 * radius, "{e:?}");
+    }
+    // Intrinsics scaled to the working size: truth is hfov 70° at 640 px → fx at 320 px.
+    let truth_fx = rig.video[0].intrinsics.scaled_to(320, 240).fx;
+    for c in cams {
+        assert_eq!((c.intrinsics.width, c.intrinsics.height), (320, 240));
+        assert!((c.intrinsics.fx / truth_fx - 1.0).abs() < 0.01, "{c:?}");
+    }
+    // Normalised: video cameras at mean distance 1 from the origin.
+    let mean_r = cams.iter().map(|c| c.world_to_camera.centre().length()).sum::<f64>() / 4.0;
+    assert!((mean_r - 1.0).abs() < 1e-9, "{mean_r}");
+    // cameras.json reads as a plain CameraSet too; points file is there.
+    let set: CameraSet = serde_json::from_str(&std::fs::read_to_string(&out.cameras_json).unwrap()).unwrap();
+    assert_eq!(set.cameras.len(), cams.len());
+    for (a, b) in set.cameras.iter().zip(cams) {
+        assert_eq!(a.name, b.name);
+        assert!((a.world_to_camera.centre() - b.world_to_camera.centre()).length() < 1e-12);
+        assert!((a.intrinsics.fx - b.intrinsics.fx).abs() < 1e-9);
+    }
+    assert!(out.file.num_points > 100);
+    assert!(out.points_ply.as_ref().unwrap().is_file());
+}
+
+fn inputs_for(rig: &common::RenderedRig) -> PosesInputs {
+    PosesInputs {
+        video_frames: rig.video_paths.clone(),
+        stills: rig.still_paths.clone(),
+        working_size: None,
+        config: PosesConfig::default(),
+    }
+}
+
+#[test]
+fn bad_inputs_are_refused_before_colmap_runs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rig = common::render_rig(&tmp.path().join("capture"), 4, (160, 120));
+    let out_dir = tmp.path().join("poses");
+
+    let mut few = inputs_for(&rig);
+    few.stills.truncate(2);
+    let e = poses::solve(&few, &out_dir, &NoProgress).unwrap_err();
+    assert!(matches!(e, PosesError::TooFewStills { got: 2, min: 4 }), "{e}");
+
+    let mut blank = inputs_for(&rig);
+    let blank_path = tmp.path().join("blank.png");
+    common::blank(&blank_path, (160, 120));
+    blank.video_frames[2].1 = blank_path.clone();
+    let e = poses::solve(&blank, &out_dir, &NoProgress).unwrap_err();
+    assert!(matches!(&e, PosesError::BlankImage { path, .. } if *path == blank_path), "{e}");
+    assert!(e.to_string().contains("blank.png"));
+
+    let mut sizes = inputs_for(&rig);
+    let odd = tmp.path().join("odd.png");
+    common::noise_image(&odd, (200, 120), 3);
+    sizes.stills[1] = odd;
+    let e = poses::solve(&sizes, &out_dir, &NoProgress).unwrap_err();
+    assert!(matches!(e, PosesError::StillSizesDiffer { .. }), "{e}");
+    assert!(e.to_string().contains("per_image"));
+
+    let mut missing = inputs_for(&rig);
+    missing.config.colmap.binary = Some(tmp.path().join("no/such/colmap"));
+    let e = poses::solve(&missing, &out_dir, &NoProgress).unwrap_err();
+    assert!(e.to_string().contains("apt-get install colmap"), "{e}");
+
+    assert!(!out_dir.join("cameras.json").exists());
+}
