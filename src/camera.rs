@@ -138,7 +138,7 @@ impl WorldToCamera {
     /// (image y points down, so the camera's y axis is −up projected).
     pub fn look_at(eye: DVec3, target: DVec3, up: DVec3) -> Option<Self> {
         let z = (target - eye).try_normalize()?;
-        let x = z.cross(-up).try_normalize()?;
+        let x = z.cross(up).try_normalize()?;
         let y = z.cross(x);
         let r = DMat3::from_cols(x, y, z).transpose();
         Some(Self::from_parts(r, -(r * eye)))
