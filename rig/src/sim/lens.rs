@@ -215,7 +215,7 @@ fn bilinear(c: &Rendered, x: f32, y: f32) -> [f32; 3] {
 
 #[cfg(test)]
 mod tests {
-    use super::*;
+
     use glam::DVec2;
     use splat4d::Distortion;
 
