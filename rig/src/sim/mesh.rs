@@ -20,6 +20,8 @@ pub struct Mesh {
     /// Texture coordinates in tile units.
     pub uvs: Vec<[f32; 2]>,
     pub triangles: Vec<[u32; 3]>,
+    /// Grids added so far (offsets their texture coordinates).
+    grids: u32,
 }
 
 impl Mesh {
@@ -30,13 +32,17 @@ impl Mesh {
     }
 
     /// A grid of `nu × nv` quads spanning `origin + a·u + b·v`, `a, b ∈ [0, 1]`.
+    /// Each grid's texture coordinates start at a different place, so faces of a box differ.
     fn grid(&mut self, origin: DVec3, u: DVec3, v: DVec3, nu: u32, nv: u32) {
         let (lu, lv) = (u.length(), v.length());
         let base = self.positions.len() as u32;
+        let k = self.grids as f64;
+        self.grids += 1;
+        let (ou, ov) = (k * 7.31, k * 3.17);
         for j in 0..=nv {
             for i in 0..=nu {
                 let (a, b) = (i as f64 / nu as f64, j as f64 / nv as f64);
-                self.push(origin + u * a + v * b, [a * lu, b * lv]);
+                self.push(origin + u * a + v * b, [ou + a * lu, ov + b * lv]);
             }
         }
         let row = nu + 1;

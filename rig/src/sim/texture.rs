@@ -9,6 +9,19 @@ use super::scene::TextureSpec;
 pub struct Texture {
     size: usize,
     texels: Vec<[f32; 3]>,
+    /// Seed of the non-periodic large-scale variation (`None` for solid colours).
+    macro_seed: Option<u64>,
+}
+
+/// Non-periodic value noise on the unbounded lattice (breaks the tiling of textures).
+fn open_noise(seed: u64, x: f32, y: f32) -> f32 {
+    let (ix, iy) = (x.floor(), y.floor());
+    let (tx, ty) = (x - ix, y - iy);
+    let (sx, sy) = (tx * tx * (3.0 - 2.0 * tx), ty * ty * (3.0 - 2.0 * ty));
+    let at = |i: f32, j: f32| unit(hash(seed, i as i64 as u64, j as i64 as u64));
+    let top = at(ix, iy) + (at(ix + 1.0, iy) - at(ix, iy)) * sx;
+    let bottom = at(ix, iy + 1.0) + (at(ix + 1.0, iy + 1.0) - at(ix, iy + 1.0)) * sx;
+    top + (bottom - top) * sy
 }
 
 /// A 64-bit mix of the inputs (splitmix64 finaliser): the noise lattice values.
@@ -125,12 +138,29 @@ impl Texture {
                 });
             }
         });
-        Texture { size: n, texels }
+        Texture { size: n, texels, macro_seed: (kind != "solid").then_some(seed ^ 0x6D61_6372) }
     }
 
-    /// Bilinear sample at texture coordinates in tile units (wrapping).
+    /// Colour at texture coordinates in tile units: the tile (bilinear, wrapping) under a
+    /// non-periodic brightness and tint variation a few tiles across, so that repeated
+    /// tiles do not look alike to feature matchers.
     #[inline]
     pub fn sample(&self, u: f32, v: f32) -> [f32; 3] {
+        let c = self.sample_tile(u, v);
+        match self.macro_seed {
+            None => c,
+            Some(seed) => {
+                let m = 0.5 * open_noise(seed, u * 0.41, v * 0.41) + 0.5 * open_noise(seed ^ 1, u * 0.93, v * 0.93);
+                let tint = open_noise(seed ^ 2, u * 0.29, v * 0.29) - 0.5;
+                let g = 0.65 + 0.7 * m;
+                [(c[0] * g * (1.0 + 0.3 * tint)).min(1.0), (c[1] * g).min(1.0), (c[2] * g * (1.0 - 0.3 * tint)).min(1.0)]
+            }
+        }
+    }
+
+    /// Bilinear sample of the tile alone (wrapping).
+    #[inline]
+    fn sample_tile(&self, u: f32, v: f32) -> [f32; 3] {
         let n = self.size;
         let x = u * n as f32 - 0.5;
         let y = v * n as f32 - 0.5;
@@ -162,7 +192,7 @@ mod tests {
         let c = Texture::bake(&spec, 64, 8, 1);
         assert_ne!(a.texels, c.texels);
         // Wrapping: sampling one tile over equals sampling here.
-        let (s0, s1) = (a.sample(0.3, 0.7), a.sample(1.3, -0.3));
+        let (s0, s1) = (a.sample_tile(0.3, 0.7), a.sample_tile(1.3, -0.3));
         for k in 0..3 {
             assert!((s0[k] - s1[k]).abs() < 1e-4);
         }
