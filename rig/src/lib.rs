@@ -2,3 +2,8 @@
 //! cameras), audio and flash synchronisation, frame re-alignment and extraction.
 //!
 //! Depends on the engine crate only for the shared camera and progress types.
+
+pub mod frames;
+pub mod ingest;
+pub mod source;
+pub mod sync;
