@@ -1,11 +1,17 @@
 //! Flash detection: time a sudden brightness step seen by a camera, below one frame.
 //!
 //! Input is a per-frame brightness profile (mean luma of each image row, top to bottom).
-//! The flash is the largest frame-to-frame rise in mean brightness. With a global shutter
-//! its time is only known to lie between the last dark frame and the first bright one (the
-//! midpoint is used, error < ½ frame). With a rolling shutter row `r` of a frame stamped
-//! `t` is read at `t + r / rows · readout`, so the row where the brightness step starts in
-//! the first bright frame times the flash to a fraction of a millisecond.
+//! The flash is the largest frame-to-frame rise in mean brightness.
+//!
+//! Camera model: row `r` of a frame stamped `t` collects light during the `exposure`
+//! seconds that end at `t + r / rows · readout` (readout 0: global shutter; exposure 0:
+//! instantaneous). Then:
+//! - rolling shutter: the row where the step lies in the first lit frame times the flash to
+//!   a fraction of a millisecond (half-lit row = flash at that row's exposure midpoint);
+//! - a partly lit frame (the flash came during the exposure): lit fraction `f` puts the
+//!   flash at `t − f · exposure`;
+//! - otherwise the flash lies between the previous frame's last row and this frame's
+//!   exposure start, and the midpoint is used (error < ½ frame per camera).
 
 /// Brightness of one frame.
 #[derive(Clone, Debug, PartialEq)]
@@ -41,9 +47,10 @@ pub struct FlashEvent {
 }
 
 /// Detects the flash in `frames`. `readout_s` is the rolling-shutter readout time (top row
-/// to bottom row); 0 for a global shutter. Returns `None` when there is no rise at all or it
-/// happens on the first frame (no dark frame before it).
-pub fn detect_flash(frames: &[FrameBrightness], readout_s: f64) -> Option<FlashEvent> {
+/// to bottom row; 0 for a global shutter) and `exposure_s` the exposure time (0 when
+/// unknown). Returns `None` when there is no rise at all or it happens on the first frame
+/// (no dark frame before it).
+pub fn detect_flash(frames: &[FrameBrightness], readout_s: f64, exposure_s: f64) -> Option<FlashEvent> {
     if frames.len() < 3 {
         return None;
     }
@@ -72,12 +79,17 @@ pub fn detect_flash(frames: &[FrameBrightness], readout_s: f64) -> Option<FlashE
     let t_on = frames[k_on].timestamp;
     let t_prev = frames[k_on - 1].timestamp;
     let row_fraction = if readout_s > 0.0 { step_row(frames, k_on, contrast) } else { 0.0 };
+    let lit_fraction = ((means[k_on] - base) / contrast).clamp(0.0, 1.0);
     let time = if row_fraction > 0.0 {
-        t_on + row_fraction * readout_s
+        t_on + row_fraction * readout_s - 0.5 * exposure_s
+    } else if exposure_s > 0.0 && lit_fraction < 0.97 {
+        // The flash came during the first row's exposure.
+        t_on - lit_fraction * exposure_s
     } else {
-        // Fully lit: the flash came after the previous frame's last row and before t_on.
-        let prev_end = (t_prev + readout_s).min(t_on);
-        0.5 * (prev_end + t_on)
+        // Fully lit: after the previous frame's last row, before this exposure started.
+        let prev_end = t_prev + readout_s;
+        let this_start = (t_on - exposure_s).max(prev_end);
+        0.5 * (prev_end + this_start)
     };
     Some(FlashEvent { time, frame: k_on, row_fraction, confidence })
 }
@@ -159,7 +171,7 @@ mod tests {
     fn rolling_shutter_times_the_flash_to_a_row() {
         for &flash in &[0.3012, 0.3171, 0.3290, 0.345] {
             let f = rolling(30.0, 0.0, 0.030, flash, 540);
-            let e = detect_flash(&f, 0.030).unwrap();
+            let e = detect_flash(&f, 0.030, 0.0).unwrap();
             assert!((e.time - flash).abs() < 1e-3, "flash {flash}: {e:?}");
         }
     }
@@ -168,7 +180,7 @@ mod tests {
     fn global_shutter_is_within_half_a_frame() {
         for &flash in &[0.3012, 0.3171, 0.3299] {
             let f = rolling(30.0, 0.01, 0.0, flash, 10);
-            let e = detect_flash(&f, 0.0).unwrap();
+            let e = detect_flash(&f, 0.0, 0.0).unwrap();
             assert!((e.time - flash).abs() <= 0.5 / 30.0, "{e:?}");
         }
     }

@@ -56,6 +56,8 @@ pub struct SyncConfig {
     pub min_flash_confidence: f64,
     /// Rolling-shutter readout time (first to last row), seconds; 0 = global shutter.
     pub readout_s: f64,
+    /// Exposure time, seconds (0 = unknown); lets a partly lit frame time the flash.
+    pub exposure_s: f64,
     /// Audio correlation settings.
     pub audio: AudioSyncConfig,
     /// Known clap and microphone positions: removes the sound's travel time.
@@ -73,6 +75,7 @@ impl Default for SyncConfig {
             min_audio_confidence: 10.0,
             min_flash_confidence: 8.0,
             readout_s: 0.0,
+            exposure_s: 0.0,
             audio: AudioSyncConfig::default(),
             acoustic: None,
             manual_offsets: BTreeMap::new(),
@@ -323,7 +326,7 @@ fn flash_attempt(
     for c in &streams.cameras {
         progress.message(&format!("measuring brightness of {}", c.name));
         let profile = brightness_profile(c)?;
-        events.push(detect_flash(&profile, config.readout_s));
+        events.push(detect_flash(&profile, config.readout_s, config.exposure_s));
         progress.advance(1);
     }
     progress.finish();
