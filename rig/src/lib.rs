@@ -3,4 +3,8 @@
 //!
 //! Depends on the engine crate only for the shared camera and progress types.
 
+pub mod frames;
+pub mod ingest;
 pub mod sim;
+pub mod source;
+pub mod sync;

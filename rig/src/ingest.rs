@@ -1,0 +1,570 @@
+//! Ingest: find each camera's video files, read their exact per-frame timestamps, and
+//! describe what was found ([`Streams`], written as `work/ingest/streams.json`).
+//!
+//! GoPro chapters (`GX01xxxx.MP4`, `GX02xxxx.MP4`, …) are joined in order; any other
+//! FFmpeg-readable files in a camera folder are joined in name order. Timestamps come from
+//! the demuxer (no decoding), so ingest is fast; audio is decoded on demand by
+//! [`decode_audio`]. This module does not synchronise cameras (that is `sync`).
+
+use std::path::{Path, PathBuf};
+
+use ffmpeg_next as ffmpeg;
+use ffmpeg::media::Type;
+use serde::{Deserialize, Serialize};
+
+use crate::source::{FileSource, PixelLayout, SourceError, decode_err, init_ffmpeg};
+use splat4d::progress::Progress;
+
+/// Errors from ingesting camera folders.
+#[derive(Debug, thiserror::Error)]
+pub enum IngestError {
+    /// No cameras were given.
+    #[error("no camera folders given: put each camera's videos in raw/cam0, raw/cam1, …")]
+    NoCameras,
+    /// A camera path does not exist.
+    #[error("camera {camera}: {path} does not exist")]
+    Missing {
+        /// Camera name.
+        camera: String,
+        /// The path.
+        path: PathBuf,
+    },
+    /// A camera folder has no video file.
+    #[error("camera {camera}: no video file in {path} (looked for .mp4/.mov/.mkv/.avi/.m4v/.webm)")]
+    NoVideo {
+        /// Camera name.
+        camera: String,
+        /// The folder.
+        path: PathBuf,
+    },
+    /// A folder holds chapters of more than one GoPro recording.
+    #[error(
+        "camera {camera}: {path} holds several GoPro recordings ({recordings}); keep one recording per camera folder"
+    )]
+    SeveralRecordings {
+        /// Camera name.
+        camera: String,
+        /// The folder.
+        path: PathBuf,
+        /// Their file numbers.
+        recordings: String,
+    },
+    /// A video file has no frames.
+    #[error("camera {camera}: {path} has no video frames; re-export or remove it")]
+    NoFrames {
+        /// Camera name.
+        camera: String,
+        /// The file.
+        path: PathBuf,
+    },
+    /// Decoding failed.
+    #[error("camera {camera}: {source}")]
+    Source {
+        /// Camera name.
+        camera: String,
+        /// The decoding error.
+        source: SourceError,
+    },
+    /// Reading a folder or writing a file failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The path.
+        path: PathBuf,
+        /// The error.
+        source: std::io::Error,
+    },
+    /// A JSON file could not be parsed.
+    #[error("{path}: not a valid streams file ({source}); rerun the ingest stage")]
+    Json {
+        /// The path.
+        path: PathBuf,
+        /// The error.
+        source: serde_json::Error,
+    },
+}
+
+/// What ingest found for all cameras.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Streams {
+    /// One entry per camera, in the order given.
+    pub cameras: Vec<CameraStream>,
+    /// Mismatches between cameras (fps, resolution, missing audio) worth a look.
+    pub warnings: Vec<String>,
+}
+
+/// Where a camera's frames come from.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum SourceKind {
+    /// Video files decoded with FFmpeg.
+    File,
+    /// A live V4L2 recording (written as files, timestamps from the kernel).
+    V4l2,
+    /// A simulated camera.
+    Simulated,
+}
+
+/// One camera's stream.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct CameraStream {
+    /// Camera name (`cam0`, …).
+    pub name: String,
+    /// Where the frames come from.
+    pub kind: SourceKind,
+    /// The files, in playback order, each with the time (seconds, camera clock) at which
+    /// its own timestamp 0 sits.
+    pub chapters: Vec<Chapter>,
+    /// Video stream description.
+    pub video: VideoInfo,
+    /// Audio stream description, if the camera recorded sound.
+    pub audio: Option<AudioInfo>,
+    /// Presentation time of every frame, seconds on the camera's own clock, increasing.
+    pub timestamps: Vec<f64>,
+}
+
+/// One file of a camera's recording.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Chapter {
+    /// The file.
+    pub path: PathBuf,
+    /// Seconds added to the file's own timestamps to put them on the camera's clock.
+    pub offset_s: f64,
+}
+
+/// The video stream of a camera.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct VideoInfo {
+    /// Codec name.
+    pub codec: String,
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Frames per second from the median frame interval.
+    pub fps: f64,
+    /// True when frame intervals vary by more than 5 % (besides isolated gaps).
+    pub variable_frame_rate: bool,
+    /// Number of frames.
+    pub frame_count: usize,
+    /// Intervals longer than 1.5 median intervals: likely dropped frames.
+    pub gaps: usize,
+    /// Seconds from the first frame to the end of the last one.
+    pub duration_s: f64,
+}
+
+/// The audio stream of a camera.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct AudioInfo {
+    /// Codec name.
+    pub codec: String,
+    /// Native sample rate in Hz.
+    pub sample_rate: u32,
+    /// Channels in the file (decoded audio is mixed to mono).
+    pub channels: u16,
+}
+
+/// A decoded audio track: mono `f32` at the native rate.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AudioTrack {
+    /// Samples per second.
+    pub sample_rate: u32,
+    /// Camera-clock time (seconds) of `samples[0]`.
+    pub start_s: f64,
+    /// Mono samples.
+    pub samples: Vec<f32>,
+}
+
+impl Streams {
+    /// Looks a camera up by name.
+    pub fn camera(&self, name: &str) -> Option<&CameraStream> {
+        self.cameras.iter().find(|c| c.name == name)
+    }
+
+    /// Writes `streams.json` atomically (temporary name, then rename).
+    pub fn write_json(&self, path: &Path) -> Result<(), IngestError> {
+        write_json_atomic(path, self).map_err(|source| IngestError::Io { path: path.into(), source })
+    }
+
+    /// Reads a `streams.json`.
+    pub fn read_json(path: &Path) -> Result<Self, IngestError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| IngestError::Io { path: path.into(), source })?;
+        serde_json::from_str(&text).map_err(|source| IngestError::Json { path: path.into(), source })
+    }
+}
+
+impl CameraStream {
+    /// Chapters as (path, offset) pairs for [`FileSource::open`].
+    pub fn chapter_list(&self) -> Vec<(PathBuf, f64)> {
+        self.chapters.iter().map(|c| (c.path.clone(), c.offset_s)).collect()
+    }
+
+    /// Opens the camera's frames for decoding.
+    pub fn open(
+        &self,
+        layout: PixelLayout,
+        out_size: Option<(u32, u32)>,
+    ) -> Result<FileSource, SourceError> {
+        FileSource::open(&self.name, &self.chapter_list(), layout, out_size)
+    }
+}
+
+/// Serialises `value` as pretty JSON to `path` via a temporary file and a rename.
+pub(crate) fn write_json_atomic<T: Serialize>(path: &Path, value: &T) -> std::io::Result<()> {
+    if let Some(dir) = path.parent() {
+        if !dir.as_os_str().is_empty() {
+            std::fs::create_dir_all(dir)?;
+        }
+    }
+    let text = serde_json::to_string_pretty(value).map_err(std::io::Error::other)?;
+    let tmp = path.with_extension("json.tmp");
+    std::fs::write(&tmp, text)?;
+    std::fs::rename(&tmp, path)
+}
+
+const VIDEO_EXTENSIONS: &[&str] = &["mp4", "mov", "mkv", "avi", "m4v", "webm", "mts", "ts"];
+
+/// A GoPro chapter name `G?CCNNNN.MP4` → (recording number, chapter number).
+fn gopro_chapter(name: &str) -> Option<(u32, u32)> {
+    let b = name.as_bytes();
+    if b.len() != 12 || !name.to_ascii_lowercase().ends_with(".mp4") {
+        return None;
+    }
+    if b[0] != b'G' || !b[1].is_ascii_alphabetic() || !b[2..8].iter().all(u8::is_ascii_digit) {
+        return None;
+    }
+    let chapter = name[2..4].parse().ok()?;
+    let recording = name[4..8].parse().ok()?;
+    Some((recording, chapter))
+}
+
+/// The video files of one camera in playback order.
+pub fn camera_files(camera: &str, path: &Path) -> Result<Vec<PathBuf>, IngestError> {
+    if !path.exists() {
+        return Err(IngestError::Missing { camera: camera.into(), path: path.into() });
+    }
+    if path.is_file() {
+        return Ok(vec![path.to_path_buf()]);
+    }
+    let io = |source| IngestError::Io { path: path.into(), source };
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(path).map_err(io)? {
+        let p = entry.map_err(io)?.path();
+        let ext = p.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+        if p.is_file() && VIDEO_EXTENSIONS.contains(&ext.as_str()) {
+            files.push(p);
+        }
+    }
+    if files.is_empty() {
+        return Err(IngestError::NoVideo { camera: camera.into(), path: path.into() });
+    }
+    let name_of = |p: &PathBuf| p.file_name().and_then(|n| n.to_str()).unwrap_or("").to_string();
+    let gopro: Vec<_> = files.iter().filter_map(|p| gopro_chapter(&name_of(p)).map(|k| (k, p.clone()))).collect();
+    if !gopro.is_empty() && gopro.len() == files.len() {
+        let mut recordings: Vec<u32> = gopro.iter().map(|((r, _), _)| *r).collect();
+        recordings.sort_unstable();
+        recordings.dedup();
+        if recordings.len() > 1 {
+            let list = recordings.iter().map(|r| format!("{r:04}")).collect::<Vec<_>>().join(", ");
+            return Err(IngestError::SeveralRecordings {
+                camera: camera.into(),
+                path: path.into(),
+                recordings: list,
+            });
+        }
+        let mut gopro = gopro;
+        gopro.sort_by_key(|((_, c), _)| *c);
+        return Ok(gopro.into_iter().map(|(_, p)| p).collect());
+    }
+    files.sort_by_key(name_of);
+    Ok(files)
+}
+
+/// Timestamps and stream facts of one file, from the demuxer.
+struct FileProbe {
+    codec: String,
+    width: u32,
+    height: u32,
+    /// Presentation times (seconds, the file's own clock), sorted.
+    times: Vec<f64>,
+    /// End of the last frame (seconds, file clock).
+    end: f64,
+    audio: Option<AudioInfo>,
+}
+
+fn probe_file(path: &Path) -> Result<FileProbe, SourceError> {
+    init_ffmpeg();
+    let mut input = ffmpeg::format::input(&path).map_err(decode_err(path))?;
+    let (index, time_base, codec, width, height, rate) = {
+        let stream = input.streams().best(Type::Video).ok_or_else(|| SourceError::NoStream {
+            path: path.into(),
+            kind: "video",
+            hint: "",
+        })?;
+        let params = stream.parameters();
+        let ctx = ffmpeg::codec::context::Context::from_parameters(params).map_err(decode_err(path))?;
+        let codec = ctx.id().name().to_string();
+        let video = ctx.decoder().video().map_err(decode_err(path))?;
+        (stream.index(), f64::from(stream.time_base()), codec, video.width(), video.height(), stream.avg_frame_rate())
+    };
+    let audio = match input.streams().best(Type::Audio) {
+        Some(stream) => {
+            let ctx = ffmpeg::codec::context::Context::from_parameters(stream.parameters())
+                .map_err(decode_err(path))?;
+            let codec = ctx.id().name().to_string();
+            let dec = ctx.decoder().audio().map_err(decode_err(path))?;
+            Some(AudioInfo { codec, sample_rate: dec.rate(), channels: dec.channels() })
+        }
+        None => None,
+    };
+    let mut times = Vec::new();
+    let mut last_duration = 0.0;
+    for (stream, packet) in input.packets() {
+        if stream.index() != index {
+            continue;
+        }
+        let Some(ts) = packet.pts().or(packet.dts()) else { continue };
+        // AV_PKT_FLAG_DISCARD: decoded but not shown (edit lists), so not a frame.
+        if packet.flags().bits() & ffmpeg::ffi::AV_PKT_FLAG_DISCARD != 0 {
+            continue;
+        }
+        times.push(ts as f64 * time_base);
+        last_duration = packet.duration() as f64 * time_base;
+    }
+    times.sort_by(f64::total_cmp);
+    times.dedup();
+    let fallback = if rate.numerator() > 0 { f64::from(rate.invert()) } else { 0.0 };
+    let step = if last_duration > 0.0 { last_duration } else { fallback };
+    let end = times.last().map_or(0.0, |t| t + step);
+    Ok(FileProbe { codec, width, height, times, end, audio })
+}
+
+/// Median of the positive intervals of increasing `times`.
+pub(crate) fn median_interval(times: &[f64]) -> Option<f64> {
+    let mut d: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).filter(|d| *d > 0.0).collect();
+    if d.is_empty() {
+        return None;
+    }
+    d.sort_by(f64::total_cmp);
+    Some(d[d.len() / 2])
+}
+
+/// Probes one camera: its files, per-frame timestamps and stream facts.
+pub fn probe_camera(camera: &str, path: &Path) -> Result<CameraStream, IngestError> {
+    let files = camera_files(camera, path)?;
+    let src = |source| IngestError::Source { camera: camera.into(), source };
+    let mut chapters = Vec::new();
+    let mut timestamps = Vec::new();
+    let mut first: Option<FileProbe> = None;
+    let mut offset = 0.0;
+    for file in &files {
+        let probe = probe_file(file).map_err(src)?;
+        if probe.times.is_empty() {
+            return Err(IngestError::NoFrames { camera: camera.into(), path: file.clone() });
+        }
+        // A chapter continues where the previous one ended.
+        let chapter_offset = if chapters.is_empty() { 0.0 } else { offset - probe.times[0] };
+        timestamps.extend(probe.times.iter().map(|t| t + chapter_offset));
+        offset = chapter_offset + probe.end;
+        chapters.push(Chapter { path: file.clone(), offset_s: chapter_offset });
+        if first.is_none() {
+            first = Some(probe);
+        }
+    }
+    let Some(first) = first else {
+        return Err(IngestError::NoVideo { camera: camera.into(), path: path.into() });
+    };
+    let interval = median_interval(&timestamps).unwrap_or(1.0 / 30.0);
+    let intervals: Vec<f64> = timestamps.windows(2).map(|w| w[1] - w[0]).collect();
+    let gaps = intervals.iter().filter(|d| **d > 1.5 * interval).count();
+    let irregular =
+        intervals.iter().filter(|d| (**d - interval).abs() > 0.05 * interval && **d <= 1.5 * interval).count();
+    let variable_frame_rate = irregular > intervals.len() / 20 + 1;
+    let duration_s = offset - timestamps.first().copied().unwrap_or(0.0);
+    Ok(CameraStream {
+        name: camera.to_string(),
+        kind: SourceKind::File,
+        chapters,
+        video: VideoInfo {
+            codec: first.codec,
+            width: first.width,
+            height: first.height,
+            fps: 1.0 / interval,
+            variable_frame_rate,
+            frame_count: timestamps.len(),
+            gaps,
+            duration_s,
+        },
+        audio: first.audio,
+        timestamps,
+    })
+}
+
+/// Probes every camera folder (`(name, path)`; a path may also be a single video file)
+/// and reports mismatches between cameras in [`Streams::warnings`].
+pub fn ingest(camera_dirs: &[(String, PathBuf)], progress: &dyn Progress) -> Result<Streams, IngestError> {
+    if camera_dirs.is_empty() {
+        return Err(IngestError::NoCameras);
+    }
+    progress.start(camera_dirs.len() as u64, "cameras");
+    let mut cameras = Vec::new();
+    for (name, path) in camera_dirs {
+        progress.message(name);
+        cameras.push(probe_camera(name, path)?);
+        progress.advance(1);
+    }
+    progress.finish();
+    let warnings = mismatch_warnings(&cameras);
+    for w in &warnings {
+        tracing::warn!("{w}");
+    }
+    Ok(Streams { cameras, warnings })
+}
+
+/// Warnings about fps, resolution and audio differences between cameras.
+pub fn mismatch_warnings(cameras: &[CameraStream]) -> Vec<String> {
+    let mut warnings = Vec::new();
+    let Some(first) = cameras.first() else { return warnings };
+    for c in &cameras[1..] {
+        if (c.video.fps - first.video.fps).abs() > 0.01 * first.video.fps {
+            warnings.push(format!(
+                "{} runs at {:.3} fps but {} at {:.3} fps: frames will be matched by timestamp, with larger residuals",
+                c.name, c.video.fps, first.name, first.video.fps
+            ));
+        }
+        if (c.video.width, c.video.height) != (first.video.width, first.video.height) {
+            warnings.push(format!(
+                "{} is {}x{} but {} is {}x{}: each camera keeps its own intrinsics",
+                c.name, c.video.width, c.video.height, first.name, first.video.width, first.video.height
+            ));
+        }
+    }
+    for c in cameras {
+        if c.audio.is_none() {
+            warnings.push(format!("{} has no audio track: audio sync cannot use it", c.name));
+        }
+        if c.video.variable_frame_rate {
+            warnings.push(format!("{} has a variable frame rate: per-frame timestamps are used as they are", c.name));
+        }
+        if c.video.gaps > 0 {
+            warnings.push(format!("{}: {} gaps longer than 1.5 frames (dropped frames?)", c.name, c.video.gaps));
+        }
+    }
+    warnings
+}
+
+/// Decodes a camera's audio (all chapters) to mono `f32` at its native rate.
+///
+/// Returns `Ok(None)` when the camera has no audio stream. Each chapter's samples are
+/// placed at their timestamps and cut at the chapter's end (AAC pads its last frame).
+pub fn decode_audio(stream: &CameraStream) -> Result<Option<AudioTrack>, IngestError> {
+    let Some(info) = &stream.audio else { return Ok(None) };
+    let rate = info.sample_rate;
+    let src = |source| IngestError::Source { camera: stream.name.clone(), source };
+    let mut track: Option<AudioTrack> = None;
+    let n = stream.chapters.len();
+    for (i, chapter) in stream.chapters.iter().enumerate() {
+        let end = if i + 1 < n { Some(stream.chapters[i + 1].offset_s) } else { None };
+        let Some((start, samples)) = decode_audio_file(&chapter.path).map_err(src)? else { continue };
+        let start = start + chapter.offset_s;
+        let track = track.get_or_insert_with(|| AudioTrack { sample_rate: rate, start_s: start, samples: vec![] });
+        let at = ((start - track.start_s) * f64::from(rate)).round().max(0.0) as usize;
+        let stop = end.map_or(usize::MAX, |e| ((e - track.start_s) * f64::from(rate)).round().max(0.0) as usize);
+        track.samples.resize(at, 0.0);
+        let take = stop.saturating_sub(at).min(samples.len());
+        track.samples.extend_from_slice(&samples[..take]);
+    }
+    Ok(track)
+}
+
+/// Decodes the best audio stream of one file: (start time in the file's clock, mono samples).
+fn decode_audio_file(path: &Path) -> Result<Option<(f64, Vec<f32>)>, SourceError> {
+    init_ffmpeg();
+    let mut input = ffmpeg::format::input(&path).map_err(decode_err(path))?;
+    let Some(stream) = input.streams().best(Type::Audio) else { return Ok(None) };
+    let index = stream.index();
+    let time_base = f64::from(stream.time_base());
+    let duration = if stream.duration() > 0 { Some(stream.duration() as f64 * time_base) } else { None };
+    let ctx = ffmpeg::codec::context::Context::from_parameters(stream.parameters()).map_err(decode_err(path))?;
+    let mut decoder = ctx.decoder().audio().map_err(decode_err(path))?;
+    let mut samples = Vec::new();
+    let mut start: Option<f64> = None;
+    let mut frame = ffmpeg::frame::Audio::empty();
+    let mut drain = |decoder: &mut ffmpeg::decoder::Audio, samples: &mut Vec<f32>, start: &mut Option<f64>| {
+        while decoder.receive_frame(&mut frame).is_ok() {
+            if start.is_none() {
+                *start = frame.timestamp().or(frame.pts()).map(|p| p as f64 * time_base);
+            }
+            mix_to_mono(&frame, samples);
+        }
+    };
+    for (s, packet) in input.packets() {
+        if s.index() == index && decoder.send_packet(&packet).is_ok() {
+            drain(&mut decoder, &mut samples, &mut start);
+        }
+    }
+    let _ = decoder.send_eof();
+    drain(&mut decoder, &mut samples, &mut start);
+    let start = start.unwrap_or(0.0);
+    if let Some(d) = duration {
+        let keep = ((d - (start - (stream_start(&input, index)))) * f64::from(decoder.rate())).round();
+        if keep > 0.0 && (keep as usize) < samples.len() {
+            samples.truncate(keep as usize);
+        }
+    }
+    Ok(Some((start, samples)))
+}
+
+fn stream_start(input: &ffmpeg::format::context::Input, index: usize) -> f64 {
+    input
+        .stream(index)
+        .map(|s| {
+            let st = s.start_time();
+            if st == ffmpeg::ffi::AV_NOPTS_VALUE { 0.0 } else { st as f64 * f64::from(s.time_base()) }
+        })
+        .unwrap_or(0.0)
+}
+
+/// Appends the mono mix (channel mean) of a decoded audio frame.
+fn mix_to_mono(frame: &ffmpeg::frame::Audio, out: &mut Vec<f32>) {
+    use ffmpeg::format::Sample;
+    use ffmpeg::format::sample::Type as Layout;
+    let n = frame.samples();
+    let ch = usize::from(frame.channels().max(1));
+    let base = out.len();
+    out.resize(base + n, 0.0);
+    let dst = &mut out[base..];
+    let scale = 1.0 / ch as f32;
+    let mut add = |i: usize, v: f32| dst[i] += v * scale;
+    macro_rules! mix {
+        ($t:ty, $conv:expr, $planar:expr) => {{
+            if $planar {
+                for c in 0..ch {
+                    let plane: &[$t] = frame.plane(c);
+                    for i in 0..n {
+                        add(i, $conv(plane[i]));
+                    }
+                }
+            } else {
+                let data = frame.data(0);
+                let size = std::mem::size_of::<$t>();
+                for i in 0..n {
+                    for c in 0..ch {
+                        let at = (i * ch + c) * size;
+                        let bytes: [u8; std::mem::size_of::<$t>()] =
+                            data[at..at + size].try_into().unwrap_or([0; std::mem::size_of::<$t>()]);
+                        add(i, $conv(<$t>::from_ne_bytes(bytes)));
+                    }
+                }
+            }
+        }};
+    }
+    match frame.format() {
+        Sample::F32(l) => mix!(f32, |v: f32| v, l == Layout::Planar),
+        Sample::F64(l) => mix!(f64, |v: f64| v as f32, l == Layout::Planar),
+        Sample::I16(l) => mix!(i16, |v: i16| f32::from(v) / 32768.0, l == Layout::Planar),
+        Sample::I32(l) => mix!(i32, |v: i32| v as f32 / 2_147_483_648.0, l == Layout::Planar),
+        Sample::U8(l) => mix!(u8, |v: u8| (f32::from(v) - 128.0) / 128.0, l == Layout::Planar),
+        _ => tracing::warn!("unsupported audio sample format {:?}; treated as silence", frame.format()),
+    }
+}
