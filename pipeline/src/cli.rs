@@ -47,11 +47,26 @@ pub enum Command {
     },
     /// Simulate a capture of a built-in scene and run every stage on it.
     ///
+    /// The capture is simulated once; running the demo again on the same folder reuses it
+    /// and reruns only what is not up to date.
+    ///
     /// Example: pipeline demo /tmp/4c4d-demo
     Demo {
         /// Where to write the simulated capture and its outputs.
         #[arg(default_value = "4c4d-demo")]
         out_dir: PathBuf,
+    },
+    /// Render a scene file (TOML) into a new capture directory with simulated cameras:
+    /// videos with audio in raw/camN/, stills/, and the ground truth in groundtruth/.
+    ///
+    /// The scene format is described in docs/simulator.md; examples are in fixtures/.
+    ///
+    /// Example: pipeline simulate fixtures/tiny.toml /tmp/tiny-capture
+    Simulate {
+        /// The scene file.
+        scene: PathBuf,
+        /// The capture directory to create (must not already hold a capture).
+        capture_dir: PathBuf,
     },
 }
 

@@ -18,9 +18,9 @@ pub const CONFIG_FILE: &str = "capture.toml";
 pub struct CaptureConfig {
     pub capture: CaptureSection,
     pub ingest: StageSettings,
-    pub sync: StageSettings,
-    pub frames: StageSettings,
-    pub poses: StageSettings,
+    pub sync: rig::sync::SyncConfig,
+    pub frames: rig::frames::FramesConfig,
+    pub poses: calib::poses::PosesConfig,
     pub init: StageSettings,
     pub train: StageSettings,
     pub render: StageSettings,

@@ -7,6 +7,7 @@
 //!   raw/cam0/ … raw/camN/ video files per camera (GoPro chapters GX01xxxx.MP4, GX02xxxx.MP4, …)
 //!   stills/               extra photos for pose solving (*.jpg, *.png)
 //!   calibration.*         optional calibration to import instead of solving poses
+//!                         (calibration.json|yaml|toml, camera_array.toml, calibration/ COLMAP)
 //!   groundtruth/          written by the simulator only
 //!   work/<stage>/         outputs of each stage, with work/<stage>/stage.json
 //! ```
@@ -33,7 +34,8 @@ pub struct Capture {
     pub cameras: Vec<CameraFolder>,
     /// Files in `stills/`, sorted by name (empty when the folder is absent).
     pub stills: Vec<PathBuf>,
-    /// A `calibration.*` file or `calibration/` folder to import, if present.
+    /// A calibration to import instead of solving poses (`calibration.json|yaml|toml`,
+    /// `camera_array.toml` or a COLMAP model folder `calibration/`), if present.
     pub calibration: Option<PathBuf>,
 }
 
@@ -257,9 +259,7 @@ pub fn validate(root: &Path, expected_cameras: usize) -> Result<Capture, LayoutE
             stills.push(file);
         }
     }
-    let calibration = list_dir(root)?
-        .into_iter()
-        .find(|p| p.file_stem().and_then(|s| s.to_str()) == Some("calibration"));
+    let calibration = calib::import::find_calibration(root);
     Ok(Capture {
         root: root.to_path_buf(),
         cameras: folders,

@@ -13,6 +13,7 @@ pub mod lock;
 pub mod manifest;
 pub mod report;
 pub mod runner;
+pub mod simulate;
 pub mod stage;
 pub mod stages;
 pub mod status;
