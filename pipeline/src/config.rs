@@ -131,7 +131,9 @@ mod tests {
         let c = CaptureConfig::parse("[capture]\ncameras = 3\n", Path::new("c.toml")).unwrap();
         assert_eq!(c.capture.cameras, 3);
         assert_eq!(c.section("capture")["cameras"], 3);
-        assert_eq!(c.section("sync"), serde_json::json!({}));
+        assert_eq!(c.section("sync")["method"], "auto");
+        assert_eq!(c.section("frames")["long_side"], 960);
+        assert_eq!(c.section("train"), serde_json::json!({}));
         assert!(CaptureConfig::parse("[capture]\ncameras = 0\n", Path::new("c.toml")).is_err());
     }
 }

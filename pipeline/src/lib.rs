@@ -35,3 +35,29 @@ pub fn open_capture(dir: &Path) -> anyhow::Result<(Capture, CaptureConfig)> {
     let capture = layout::validate(dir, config.capture.cameras)?;
     Ok((capture, config))
 }
+
+/// An error with its causes, each cause shown once: library errors often repeat their
+/// source in their own message, and anyhow's `{:#}` would print it again.
+pub fn error_chain(error: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in error.chain() {
+        let cause = cause.to_string();
+        if !text.contains(&cause) {
+            if !text.is_empty() {
+                text.push_str(": ");
+            }
+            text.push_str(&cause);
+        }
+    }
+    text
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn error_chain_shows_each_cause_once() {
+        let io = std::io::Error::other("disk on fire");
+        let e = anyhow::Error::new(io).context("cannot write a.txt: disk on fire").context("stage x");
+        assert_eq!(super::error_chain(&e), "stage x: cannot write a.txt: disk on fire");
+    }
+}

@@ -26,9 +26,9 @@ fn main() -> ExitCode {
         Ok(code) => code,
         Err(e) => {
             if mode == OutputMode::Json {
-                reporter.json(&serde_json::json!({"event": "error", "error": format!("{e:#}")}));
+                reporter.json(&serde_json::json!({"event": "error", "error": pipeline::error_chain(&e)}));
             }
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", pipeline::error_chain(&e));
             ExitCode::FAILURE
         }
     }

@@ -357,7 +357,8 @@ impl Pipeline {
                     error: &error,
                 });
                 summary.failed = Some((stage.name.to_string(), error));
-                break;
+                unavailable.insert(stage.name);
+                continue;
             }
             let dir = work.join(stage.name);
             let previous = Manifest::read(&dir);
@@ -392,13 +393,13 @@ impl Pipeline {
                     summary.ran.push(stage.name.to_string());
                 }
                 Err(e) => {
-                    let error = format!("{e:#}");
+                    let error = crate::error_chain(&e);
                     reporter.event(&Event::StageFailed {
                         stage: stage.name,
                         error: &error,
                     });
                     summary.failed = Some((stage.name.to_string(), error));
-                    break;
+                    unavailable.insert(stage.name);
                 }
             }
         }
@@ -499,7 +500,7 @@ fn execute(
             }
             let failed = RunRecord {
                 state: RunState::Failed,
-                error: Some(format!("{e:#}")),
+                error: Some(crate::error_chain(&e)),
                 duration_s: Some(duration_s),
                 ..record
             };
