@@ -57,7 +57,12 @@ mod tests {
     #[test]
     fn error_chain_shows_each_cause_once() {
         let io = std::io::Error::other("disk on fire");
-        let e = anyhow::Error::new(io).context("cannot write a.txt: disk on fire").context("stage x");
-        assert_eq!(super::error_chain(&e), "stage x: cannot write a.txt: disk on fire");
+        let e = anyhow::Error::new(io)
+            .context("cannot write a.txt: disk on fire")
+            .context("stage x");
+        assert_eq!(
+            super::error_chain(&e),
+            "stage x: cannot write a.txt: disk on fire"
+        );
     }
 }

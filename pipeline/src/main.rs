@@ -26,7 +26,9 @@ fn main() -> ExitCode {
         Ok(code) => code,
         Err(e) => {
             if mode == OutputMode::Json {
-                reporter.json(&serde_json::json!({"event": "error", "error": pipeline::error_chain(&e)}));
+                reporter.json(
+                    &serde_json::json!({"event": "error", "error": pipeline::error_chain(&e)}),
+                );
             }
             eprintln!("error: {}", pipeline::error_chain(&e));
             ExitCode::FAILURE
@@ -57,7 +59,10 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
         Command::Simulate { scene, capture_dir } => {
             let scene = rig::sim::Scene::from_file(&scene)?;
             simulate::simulate_into(&scene, &capture_dir, reporter)?;
-            reporter.say(&format!("simulated capture written to {}", capture_dir.display()));
+            reporter.say(&format!(
+                "simulated capture written to {}",
+                capture_dir.display()
+            ));
             reporter.json(&serde_json::json!({"event": "simulated", "capture_dir": capture_dir}));
             Ok(ExitCode::SUCCESS)
         }
@@ -87,16 +92,30 @@ fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
 /// implemented yet are reported but do not make the demo fail; a failing stage does.
 fn demo(out_dir: &std::path::Path, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     if out_dir.join("raw").exists() {
-        reporter.say(&format!("reusing the simulated capture in {} (delete it to simulate again)", out_dir.display()));
+        reporter.say(&format!(
+            "reusing the simulated capture in {} (delete it to simulate again)",
+            out_dir.display()
+        ));
     } else {
-        reporter.say(&format!("simulating the demo capture into {} …", out_dir.display()));
+        reporter.say(&format!(
+            "simulating the demo capture into {} …",
+            out_dir.display()
+        ));
         simulate::simulate_into(&simulate::demo_scene()?, out_dir, reporter)?;
     }
     let (capture, config) = open_capture(out_dir)?;
     let summary = stages::pipeline().run(&capture, &config, &Selection::default(), reporter)?;
     report_summary(&summary, reporter);
-    reporter.say(&format!("outputs are in {}; `pipeline status {}` shows each stage", capture.work_dir().display(), out_dir.display()));
-    Ok(if summary.failed.is_none() { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+    reporter.say(&format!(
+        "outputs are in {}; `pipeline status {}` shows each stage",
+        capture.work_dir().display(),
+        out_dir.display()
+    ));
+    Ok(if summary.failed.is_none() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
 }
 
 fn report_summary(summary: &RunSummary, reporter: &Reporter) {

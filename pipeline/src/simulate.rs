@@ -14,17 +14,23 @@ pub const DEMO_SCENE: &str = include_str!("../../fixtures/demo.toml");
 /// Simulate `scene` into `capture_dir`. The capture is written to a hidden folder inside
 /// `capture_dir` and moved into place when complete; an existing capture (a `raw/`
 /// folder) is never touched.
-pub fn simulate_into(scene: &rig::sim::Scene, capture_dir: &Path, reporter: &Reporter) -> anyhow::Result<()> {
+pub fn simulate_into(
+    scene: &rig::sim::Scene,
+    capture_dir: &Path,
+    reporter: &Reporter,
+) -> anyhow::Result<()> {
     if capture_dir.join("raw").exists() {
         bail!(
             "{} already holds a capture (raw/); choose another folder or delete it first",
             capture_dir.display()
         );
     }
-    fs::create_dir_all(capture_dir).with_context(|| format!("cannot create {}", capture_dir.display()))?;
+    fs::create_dir_all(capture_dir)
+        .with_context(|| format!("cannot create {}", capture_dir.display()))?;
     let partial = capture_dir.join(".simulate.partial");
     if partial.exists() {
-        fs::remove_dir_all(&partial).with_context(|| format!("cannot clear {}", partial.display()))?;
+        fs::remove_dir_all(&partial)
+            .with_context(|| format!("cannot clear {}", partial.display()))?;
     }
     let progress = reporter.progress("simulate");
     let result = rig::sim::simulate(scene, &partial, &progress);
@@ -37,9 +43,14 @@ pub fn simulate_into(scene: &rig::sim::Scene, capture_dir: &Path, reporter: &Rep
         let entry = entry?;
         let target = capture_dir.join(entry.file_name());
         if target.exists() {
-            bail!("{} already exists; not overwriting it (the new capture is in {})", target.display(), partial.display());
+            bail!(
+                "{} already exists; not overwriting it (the new capture is in {})",
+                target.display(),
+                partial.display()
+            );
         }
-        fs::rename(entry.path(), &target).with_context(|| format!("cannot move {}", target.display()))?;
+        fs::rename(entry.path(), &target)
+            .with_context(|| format!("cannot move {}", target.display()))?;
     }
     fs::remove_dir(&partial).ok();
     Ok(())
@@ -47,5 +58,8 @@ pub fn simulate_into(scene: &rig::sim::Scene, capture_dir: &Path, reporter: &Rep
 
 /// Parse the built-in demo scene.
 pub fn demo_scene() -> anyhow::Result<rig::sim::Scene> {
-    Ok(rig::sim::Scene::from_toml_str(DEMO_SCENE, "built-in demo scene (fixtures/demo.toml)")?)
+    Ok(rig::sim::Scene::from_toml_str(
+        DEMO_SCENE,
+        "built-in demo scene (fixtures/demo.toml)",
+    )?)
 }

@@ -15,16 +15,26 @@ use crate::stage::{StageContext, StageDef};
 
 /// Every camera's video files.
 fn raw_videos(capture: &Capture) -> Vec<PathBuf> {
-    capture.cameras.iter().flat_map(|c| c.videos.iter().cloned()).collect()
+    capture
+        .cameras
+        .iter()
+        .flat_map(|c| c.videos.iter().cloned())
+        .collect()
 }
 
 fn read_streams(ctx: &StageContext) -> anyhow::Result<Streams> {
-    Ok(Streams::read_json(&ctx.stage_dir("ingest").join("streams.json"))?)
+    Ok(Streams::read_json(
+        &ctx.stage_dir("ingest").join("streams.json"),
+    )?)
 }
 
 fn ingest(ctx: &StageContext) -> anyhow::Result<()> {
-    let cameras: Vec<(String, PathBuf)> =
-        ctx.capture.cameras.iter().map(|c| (c.name.clone(), c.dir.clone())).collect();
+    let cameras: Vec<(String, PathBuf)> = ctx
+        .capture
+        .cameras
+        .iter()
+        .map(|c| (c.name.clone(), c.dir.clone()))
+        .collect();
     let streams = rig::ingest::ingest(&cameras, ctx.progress)?;
     streams.write_json(&ctx.output("streams.json"))?;
     Ok(())
@@ -35,7 +45,11 @@ fn sync(ctx: &StageContext) -> anyhow::Result<()> {
     let result = rig::sync::synchronise(&streams, &ctx.config.sync, ctx.progress)?;
     for cam in &result.cameras {
         match cam.confidence {
-            Some(c) => tracing::info!("{}: offset {:+.4} s (confidence {c:.1})", cam.name, cam.offset_s),
+            Some(c) => tracing::info!(
+                "{}: offset {:+.4} s (confidence {c:.1})",
+                cam.name,
+                cam.offset_s
+            ),
             None => tracing::info!("{}: offset {:+.4} s", cam.name, cam.offset_s),
         }
     }
@@ -46,15 +60,28 @@ fn sync(ctx: &StageContext) -> anyhow::Result<()> {
 fn frames(ctx: &StageContext) -> anyhow::Result<()> {
     let streams = read_streams(ctx)?;
     let sync = SyncResult::read_json(&ctx.stage_dir("sync").join("sync.json"))?;
-    let index = rig::frames::extract(&streams, &sync, &ctx.config.frames, &ctx.out_dir, ctx.progress)?;
-    tracing::info!("{} aligned frames at {:.3} fps", index.frames.len(), index.fps);
+    let index = rig::frames::extract(
+        &streams,
+        &sync,
+        &ctx.config.frames,
+        &ctx.out_dir,
+        ctx.progress,
+    )?;
+    tracing::info!(
+        "{} aligned frames at {:.3} fps",
+        index.frames.len(),
+        index.fps
+    );
     Ok(())
 }
 
 fn poses(ctx: &StageContext) -> anyhow::Result<()> {
     let config = &ctx.config.poses;
     if let Some(calibration) = &ctx.capture.calibration {
-        tracing::info!("importing the calibration {} instead of solving poses", calibration.display());
+        tracing::info!(
+            "importing the calibration {} instead of solving poses",
+            calibration.display()
+        );
         let set = calib::import::import_calibration(calibration)
             .with_context(|| format!("cannot import {}", calibration.display()))?;
         calib::poses::write_imported(&set, calibration, &ctx.out_dir, config.radius)?;
@@ -62,10 +89,14 @@ fn poses(ctx: &StageContext) -> anyhow::Result<()> {
     }
     let frames_dir = ctx.stage_dir("frames");
     let index: FramesIndex = serde_json::from_str(
-        &std::fs::read_to_string(frames_dir.join("frames.json")).context("cannot read frames.json")?,
+        &std::fs::read_to_string(frames_dir.join("frames.json"))
+            .context("cannot read frames.json")?,
     )
     .context("frames.json is not valid; rerun the frames stage")?;
-    let first = index.frames.first().context("the frames stage wrote no frames")?;
+    let first = index
+        .frames
+        .first()
+        .context("the frames stage wrote no frames")?;
     let video_frames = index
         .cameras
         .iter()
@@ -87,46 +118,66 @@ fn poses(ctx: &StageContext) -> anyhow::Result<()> {
 pub fn pipeline() -> Pipeline {
     Pipeline {
         stages: vec![
-            StageDef::new("ingest", "probe every camera's videos: fps, size, per-frame timestamps, audio")
-                .inputs(raw_videos)
-                .outputs(&["streams.json"])
-                .run(ingest),
-            StageDef::new("sync", "find each camera's time offset from audio (clap) or a flash")
-                .after(&["ingest"])
-                .inputs(raw_videos)
-                .outputs(&["sync.json"])
-                .run(sync),
-            StageDef::new("frames", "extract time-aligned frames at the working resolution")
-                .after(&["ingest", "sync"])
-                .inputs(raw_videos)
-                .outputs(&["frames.json"])
-                .run(frames),
-            StageDef::new("poses", "solve camera poses with COLMAP (4 views + stills) or import a calibration")
-                .after(&["frames"])
-                .inputs(|c| {
-                    let mut inputs = c.stills.clone();
-                    inputs.extend(c.calibration.clone());
-                    inputs
-                })
-                .outputs(&["cameras.json"])
-                .run(poses),
-            StageDef::new("init", "initial point cloud from MASt3R-style point maps or COLMAP points")
-                .after(&["frames", "poses"])
-                .outputs(&["points.ply"]),
+            StageDef::new(
+                "ingest",
+                "probe every camera's videos: fps, size, per-frame timestamps, audio",
+            )
+            .inputs(raw_videos)
+            .outputs(&["streams.json"])
+            .run(ingest),
+            StageDef::new(
+                "sync",
+                "find each camera's time offset from audio (clap) or a flash",
+            )
+            .after(&["ingest"])
+            .inputs(raw_videos)
+            .outputs(&["sync.json"])
+            .run(sync),
+            StageDef::new(
+                "frames",
+                "extract time-aligned frames at the working resolution",
+            )
+            .after(&["ingest", "sync"])
+            .inputs(raw_videos)
+            .outputs(&["frames.json"])
+            .run(frames),
+            StageDef::new(
+                "poses",
+                "solve camera poses with COLMAP (4 views + stills) or import a calibration",
+            )
+            .after(&["frames"])
+            .inputs(|c| {
+                let mut inputs = c.stills.clone();
+                inputs.extend(c.calibration.clone());
+                inputs
+            })
+            .outputs(&["cameras.json"])
+            .run(poses),
+            StageDef::new(
+                "init",
+                "initial point cloud from MASt3R-style point maps or COLMAP points",
+            )
+            .after(&["frames", "poses"])
+            .outputs(&["points.ply"]),
             StageDef::new("train", "train the 4C4D Gaussian model")
                 .after(&["frames", "poses", "init"])
                 .resumable(),
             StageDef::new("render", "render videos along camera paths").after(&["poses", "train"]),
-            StageDef::new("eval", "metrics on held-out views (PSNR, SSIM, DSSIM, LPIPS)")
-                .after(&["frames", "poses", "train"])
-                .inputs(|c| vec![c.root.join("groundtruth")]),
+            StageDef::new(
+                "eval",
+                "metrics on held-out views (PSNR, SSIM, DSSIM, LPIPS)",
+            )
+            .after(&["frames", "poses", "train"])
+            .inputs(|c| vec![c.root.join("groundtruth")]),
             StageDef::new("export", "PLY / .splatv exports and a browser viewer").after(&["train"]),
         ],
     }
 }
 
 /// Names of all stages, in order.
-pub const STAGE_NAMES: &[&str] = &["ingest", "sync", "frames", "poses", "init", "train", "render", "eval", "export"];
+pub const STAGE_NAMES: &[&str] = &[
+    "ingest", "sync", "frames", "poses", "init", "train", "render", "eval", "export",
+];
 
 #[cfg(test)]
 mod tests {
@@ -142,7 +193,11 @@ mod tests {
         let p = pipeline();
         for (i, stage) in p.stages.iter().enumerate() {
             for up in &stage.after {
-                let j = p.stages.iter().position(|s| s.name == *up).expect("known upstream");
+                let j = p
+                    .stages
+                    .iter()
+                    .position(|s| s.name == *up)
+                    .expect("known upstream");
                 assert!(j < i, "{} reads {} which comes later", stage.name, up);
             }
         }
