@@ -3,7 +3,7 @@
 mod common;
 
 use calib::poses::{self, PosesConfig, PosesError, PosesInputs};
-use splat4d::{CameraSet, NoProgress};
+use splat4d::{CameraSet, Distortion, NoProgress};
 
 #[test]
 fn solves_the_rendered_rig_within_half_a_degree() {
@@ -11,7 +11,9 @@ fn solves_the_rendered_rig_within_half_a_degree() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
-    let rig = common::render_rig(&tmp.path().join("capture"), 8, (640, 480));
+    // The video cameras have a real lens (barrel distortion); COLMAP solves it (OPENCV).
+    let lens = Distortion::Opencv { k1: -0.12, k2: 0.03, p1: 0.0, p2: 0.0, k3: 0.0 };
+    let rig = common::render_rig_with_lens(&tmp.path().join("capture"), 8, (640, 480), lens);
     let inputs = PosesInputs {
         video_frames: rig.video_paths.clone(),
         stills: rig.still_paths.clone(),
@@ -19,7 +21,8 @@ fn solves_the_rendered_rig_within_half_a_degree() {
         config: PosesConfig::default(),
     };
     let out_dir = tmp.path().join("work/poses");
-    let out = match poses::solve(&inputs, &out_dir, &NoProgress) {
+    let progress = common::RecordingProgress::default();
+    let out = match poses::solve(&inputs, &out_dir, &progress) {
         Ok(o) => o,
         Err(e) => panic!("{e}"),
     };
@@ -36,6 +39,16 @@ fn solves_the_rendered_rig_within_half_a_degree() {
     for c in cams {
         assert_eq!((c.intrinsics.width, c.intrinsics.height), (320, 240));
         assert!((c.intrinsics.fx / truth_fx - 1.0).abs() < 0.01, "{c:?}");
+    }
+    // COLMAP's progress reached the Progress sink, step by step.
+    let messages = progress.messages.lock().unwrap().clone();
+    assert_eq!(messages.first().map(String::as_str), Some("start 3 COLMAP steps"));
+    assert!(messages.iter().any(|m| m.starts_with("feature_extractor: Processed file [12/12]")), "{messages:?}");
+    assert!(messages.iter().any(|m| m.starts_with("mapper: Registering image")), "{messages:?}");
+    assert_eq!(progress.advanced.load(std::sync::atomic::Ordering::Relaxed), 3);
+    for c in cams {
+        let Distortion::Opencv { k1, k2, .. } = c.distortion else { panic!("{:?}", c.distortion) };
+        assert!((k1 + 0.12).abs() < 0.02 && (k2 - 0.03).abs() < 0.03, "{:?}", c.distortion);
     }
     // Normalised: video cameras at mean distance 1 from the origin.
     let mean_r = cams.iter().map(|c| c.world_to_camera.centre().length()).sum::<f64>() / 4.0;

@@ -47,10 +47,15 @@ pub struct ColmapConfig {
     pub stills_cameras: StillsCameras,
     /// Longest image side SIFT works on (COLMAP downsamples internally, poses stay exact).
     pub max_image_size: u32,
+    /// Most SIFT features kept per image (COLMAP's default 8192; fewer is faster to match).
+    pub max_num_features: u32,
     /// Threads for extraction, matching and mapping (`-1`: all cores).
     pub num_threads: i32,
     /// `Mapper.init_min_num_inliers` (COLMAP's default 100; lower helps small images).
     pub init_min_num_inliers: u32,
+    /// `Mapper.ba_refine_principal_point` (COLMAP's default off: the principal point stays
+    /// at the image centre; turn on for well-textured scenes with many matches).
+    pub refine_principal_point: bool,
 }
 
 impl Default for ColmapConfig {
@@ -61,8 +66,10 @@ impl Default for ColmapConfig {
             stills_camera_model: CameraModel::Opencv,
             stills_cameras: StillsCameras::Shared,
             max_image_size: 3200,
+            max_num_features: 8192,
             num_threads: -1,
             init_min_num_inliers: 100,
+            refine_principal_point: false,
         }
     }
 }
@@ -253,6 +260,7 @@ impl Workspace {
                 ("--SiftExtraction.use_gpu", "0".as_ref()),
                 ("--SiftExtraction.num_threads", threads.as_ref()),
                 ("--SiftExtraction.max_image_size", config.max_image_size.to_string().as_ref()),
+                ("--SiftExtraction.max_num_features", config.max_num_features.to_string().as_ref()),
             ]);
             self.run_step(binary, "feature_extractor", &format!("feature_extractor_{group}"), step_args, progress)?;
             if same_model {
@@ -280,6 +288,7 @@ impl Workspace {
             ("--output_path", sparse.as_os_str()),
             ("--Mapper.num_threads", threads.as_ref()),
             ("--Mapper.init_min_num_inliers", config.init_min_num_inliers.to_string().as_ref()),
+            ("--Mapper.ba_refine_principal_point", if config.refine_principal_point { "1" } else { "0" }.as_ref()),
         ]);
         let mapped = self.run_step(binary, "mapper", "mapper", step_args, progress);
         timings.mapping_s = t0.elapsed().as_secs_f64();

@@ -132,12 +132,17 @@ pub fn camera(name: &str, eye: DVec3, intrinsics: Intrinsics, distortion: Distor
 /// The rig: 4 video cameras on an arc of radius 2.6 m (0°, 40°, 80°, 120°), and `n_stills`
 /// stills between and around them at other heights.
 pub fn rig(n_stills: usize, size: (u32, u32)) -> (Vec<Camera>, Vec<Camera>) {
+    rig_with_lens(n_stills, size, Distortion::None)
+}
+
+/// [`rig`] with lens distortion on the video cameras.
+pub fn rig_with_lens(n_stills: usize, size: (u32, u32), lens: Distortion) -> (Vec<Camera>, Vec<Camera>) {
     let video_intr = Intrinsics::from_hfov(size.0, size.1, 70.0);
     let video: Vec<Camera> = (0..4)
         .map(|i| {
             let a = (i as f64 * 40.0).to_radians();
             let eye = DVec3::new(2.6 * a.cos(), 2.6 * a.sin(), 1.5);
-            camera(&format!("cam{i}"), eye, video_intr, Distortion::None)
+            camera(&format!("cam{i}"), eye, video_intr, lens)
         })
         .collect();
     let still_intr = Intrinsics::from_hfov(size.0, size.1, 62.0);
@@ -196,10 +201,36 @@ pub struct RenderedRig {
 }
 
 pub fn render_rig(dir: &Path, n_stills: usize, size: (u32, u32)) -> RenderedRig {
-    let (video, stills) = rig(n_stills, size);
+    render_rig_with_lens(dir, n_stills, size, Distortion::None)
+}
+
+pub fn render_rig_with_lens(dir: &Path, n_stills: usize, size: (u32, u32), lens: Distortion) -> RenderedRig {
+    let (video, stills) = rig_with_lens(n_stills, size, lens);
     let all: Vec<Camera> = video.iter().chain(&stills).cloned().collect();
     let paths = render_to(dir, &all);
     let video_paths = video.iter().zip(&paths).map(|(c, p)| (c.name.clone(), p.clone())).collect();
     let still_paths = paths[video.len()..].to_vec();
     RenderedRig { video, stills, video_paths, still_paths }
+}
+
+/// A [`splat4d::Progress`] that records every call, to check what a stage reports.
+#[derive(Default)]
+pub struct RecordingProgress {
+    pub messages: std::sync::Mutex<Vec<String>>,
+    pub advanced: std::sync::atomic::AtomicU64,
+}
+
+impl splat4d::Progress for RecordingProgress {
+    fn start(&self, total: u64, unit: &str) {
+        self.messages.lock().unwrap().push(format!("start {total} {unit}"));
+    }
+    fn advance(&self, n: u64) {
+        self.advanced.fetch_add(n, std::sync::atomic::Ordering::Relaxed);
+    }
+    fn message(&self, msg: &str) {
+        self.messages.lock().unwrap().push(msg.to_string());
+    }
+    fn finish(&self) {
+        self.messages.lock().unwrap().push("finish".into());
+    }
 }
