@@ -20,7 +20,9 @@ use splat4d::{Camera, CameraSet, Progress, WorldToCamera};
 
 use crate::colmap::ColmapModel;
 use crate::colmap_runner::diagnose::Diagnosis;
-use crate::colmap_runner::{find_colmap, ColmapConfig, ColmapError, ColmapTimings, MatchGraph, StillsCameras, Workspace};
+use crate::colmap_runner::{
+    ColmapConfig, ColmapError, ColmapTimings, MatchGraph, StillsCameras, Workspace, find_colmap,
+};
 use crate::convert::{self, ConvertError};
 
 /// Settings of the poses stage.
@@ -36,7 +38,11 @@ pub struct PosesConfig {
 
 impl Default for PosesConfig {
     fn default() -> Self {
-        Self { colmap: ColmapConfig::default(), min_stills: 4, radius: 1.0 }
+        Self {
+            colmap: ColmapConfig::default(),
+            min_stills: 4,
+            radius: 1.0,
+        }
     }
 }
 
@@ -60,7 +66,10 @@ pub struct Normalisation {
 }
 
 impl Normalisation {
-    pub const IDENTITY: Self = Self { centre: [0.0; 3], scale: 1.0 };
+    pub const IDENTITY: Self = Self {
+        centre: [0.0; 3],
+        scale: 1.0,
+    };
 
     pub fn apply(&self, p: DVec3) -> DVec3 {
         self.scale * (p - DVec3::from_array(self.centre))
@@ -69,7 +78,10 @@ impl Normalisation {
     /// The same camera in the normalised frame: `t' = scale · (R·centre + t)`.
     pub fn apply_to_pose(&self, w2c: &WorldToCamera) -> WorldToCamera {
         let r = w2c.rotation();
-        WorldToCamera::from_parts(r, self.scale * (r * DVec3::from_array(self.centre) + w2c.translation()))
+        WorldToCamera::from_parts(
+            r,
+            self.scale * (r * DVec3::from_array(self.centre) + w2c.translation()),
+        )
     }
 }
 
@@ -78,7 +90,11 @@ impl Normalisation {
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum PoseSource {
     /// Solved by COLMAP; the model is in `model_dir` (relative to `work/poses/`).
-    Colmap { model_dir: String, registered_images: usize, timings: ColmapTimings },
+    Colmap {
+        model_dir: String,
+        registered_images: usize,
+        timings: ColmapTimings,
+    },
     /// Imported from a calibration file.
     Import { path: PathBuf },
 }
@@ -115,7 +131,9 @@ pub struct PosesOutput {
 /// Errors of the poses stage.
 #[derive(Debug, thiserror::Error)]
 pub enum PosesError {
-    #[error("no video frames were given to the poses stage (is work/frames/ empty? run the frames stage first)")]
+    #[error(
+        "no video frames were given to the poses stage (is work/frames/ empty? run the frames stage first)"
+    )]
     NoVideoFrames,
     #[error("video camera name {0:?} appears twice")]
     DuplicateCamera(String),
@@ -144,16 +162,25 @@ pub enum PosesError {
     )]
     NoInitialPair { diagnosis: Diagnosis },
     #[error("COLMAP did not register video camera(s) {}.\n{diagnosis}", missing.join(", "))]
-    VideoNotRegistered { missing: Vec<String>, diagnosis: Diagnosis },
+    VideoNotRegistered {
+        missing: Vec<String>,
+        diagnosis: Diagnosis,
+    },
     #[error(
         "COLMAP split the images into {} separate models and the video cameras are not all in one \
          ({}).\n{diagnosis}", groups.len(), groups.iter().enumerate().map(|(i, g)| format!("model {i}: {}", g.join(", "))).collect::<Vec<_>>().join("; ")
     )]
-    SplitModels { groups: Vec<Vec<String>>, diagnosis: Diagnosis },
+    SplitModels {
+        groups: Vec<Vec<String>>,
+        diagnosis: Diagnosis,
+    },
     #[error(transparent)]
     Convert(#[from] ConvertError),
     #[error("cannot write {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
 }
 
 /// Pixel-value standard deviation (0–255) under which an image counts as blank.
@@ -163,24 +190,38 @@ pub const BLANK_STD_DEV: f64 = 1.0;
 /// `out_dir/colmap/`, solve, check that every video camera registered in one model, and
 /// write `out_dir/cameras.json` and `out_dir/points3d.ply`. On any error, neither file
 /// exists afterwards (a previous run's are removed first).
-pub fn solve(inputs: &PosesInputs, out_dir: &Path, progress: &dyn Progress) -> Result<PosesOutput, PosesError> {
+pub fn solve(
+    inputs: &PosesInputs,
+    out_dir: &Path,
+    progress: &dyn Progress,
+) -> Result<PosesOutput, PosesError> {
     let cameras_json = out_dir.join("cameras.json");
     let points_ply = out_dir.join("points3d.ply");
     for stale in [&cameras_json, &points_ply] {
         if stale.exists() {
-            std::fs::remove_file(stale).map_err(|source| PosesError::Io { path: stale.clone(), source })?;
+            std::fs::remove_file(stale).map_err(|source| PosesError::Io {
+                path: stale.clone(),
+                source,
+            })?;
         }
     }
     check_inputs(inputs)?;
     let config = &inputs.config;
     let binary = find_colmap(config.colmap.binary.as_deref())?;
     let ws_root = out_dir.join("colmap");
-    let ws = Workspace::create(&ws_root, &inputs.video_frames, &inputs.stills, config.colmap.stills_cameras)?;
+    let ws = Workspace::create(
+        &ws_root,
+        &inputs.video_frames,
+        &inputs.stills,
+        config.colmap.stills_cameras,
+    )?;
     let run = match ws.run(&binary, &config.colmap, progress) {
         Ok(run) => run,
         Err(ColmapError::StepFailed { no_model: true, .. }) => {
             let graph = MatchGraph::read(&ws.database()).unwrap_or_default();
-            return Err(PosesError::NoInitialPair { diagnosis: Diagnosis::new(&ws, &graph, &[]) });
+            return Err(PosesError::NoInitialPair {
+                diagnosis: Diagnosis::new(&ws, &graph, &[]),
+            });
         }
         Err(e) => return Err(e.into()),
     };
@@ -188,9 +229,16 @@ pub fn solve(inputs: &PosesInputs, out_dir: &Path, progress: &dyn Progress) -> R
     let video: Vec<(&str, &str)> = ws
         .images
         .iter()
-        .filter_map(|i| i.video_camera.as_deref().map(|c| (c, i.colmap_name.as_str())))
+        .filter_map(|i| {
+            i.video_camera
+                .as_deref()
+                .map(|c| (c, i.colmap_name.as_str()))
+        })
         .collect();
-    let model_index = run.models.iter().position(|(_, m)| video.iter().all(|(_, n)| m.image_by_name(n).is_some()));
+    let model_index = run
+        .models
+        .iter()
+        .position(|(_, m)| video.iter().all(|(_, n)| m.image_by_name(n).is_some()));
     let Some(model_index) = model_index else {
         let missing: Vec<String> = diagnosis
             .images
@@ -203,7 +251,12 @@ pub fn solve(inputs: &PosesInputs, out_dir: &Path, progress: &dyn Progress) -> R
         }
         let groups = (0..run.models.len())
             .map(|m| {
-                diagnosis.images.iter().filter(|i| i.model == Some(m)).filter_map(|i| i.video_camera.clone()).collect()
+                diagnosis
+                    .images
+                    .iter()
+                    .filter(|i| i.model == Some(m))
+                    .filter_map(|i| i.video_camera.clone())
+                    .collect()
             })
             .filter(|g: &Vec<String>| !g.is_empty())
             .collect();
@@ -211,15 +264,30 @@ pub fn solve(inputs: &PosesInputs, out_dir: &Path, progress: &dyn Progress) -> R
     };
     let (model_dir, model) = &run.models[model_index];
     let (cameras, points) = cameras_from_model(model, &video, inputs.working_size)?;
-    let rel_model = model_dir.strip_prefix(out_dir).unwrap_or(model_dir).to_string_lossy().into_owned();
-    let source = PoseSource::Colmap { model_dir: rel_model, registered_images: model.images.len(), timings: run.timings };
+    let rel_model = model_dir
+        .strip_prefix(out_dir)
+        .unwrap_or(model_dir)
+        .to_string_lossy()
+        .into_owned();
+    let source = PoseSource::Colmap {
+        model_dir: rel_model,
+        registered_images: model.images.len(),
+        timings: run.timings,
+    };
     write_outputs(out_dir, cameras, points, source, config.radius)
 }
 
 /// Normalise and write an imported (or otherwise known) camera set as the poses stage's
 /// output, with no sparse points.
-pub fn write_imported(set: &CameraSet, from: &Path, out_dir: &Path, radius: f64) -> Result<PosesOutput, PosesError> {
-    let source = PoseSource::Import { path: from.to_path_buf() };
+pub fn write_imported(
+    set: &CameraSet,
+    from: &Path,
+    out_dir: &Path,
+    radius: f64,
+) -> Result<PosesOutput, PosesError> {
+    let source = PoseSource::Import {
+        path: from.to_path_buf(),
+    };
     write_outputs(out_dir, set.cameras.clone(), Vec::new(), source, radius)
 }
 
@@ -232,14 +300,23 @@ pub fn cameras_from_model(
 ) -> Result<(Vec<Camera>, Vec<SparsePoint>), PosesError> {
     let mut cameras = Vec::new();
     for &(cam, colmap_name) in video {
-        let image = model.image_by_name(colmap_name).ok_or_else(|| PosesError::VideoNotRegistered {
-            missing: vec![cam.to_string()],
-            diagnosis: Diagnosis { images: Vec::new(), num_models: 1 },
-        })?;
+        let image =
+            model
+                .image_by_name(colmap_name)
+                .ok_or_else(|| PosesError::VideoNotRegistered {
+                    missing: vec![cam.to_string()],
+                    diagnosis: Diagnosis {
+                        images: Vec::new(),
+                        num_models: 1,
+                    },
+                })?;
         let colmap_cam = model.cameras.get(&image.camera_id).ok_or_else(|| {
             PosesError::Colmap(ColmapError::Model(crate::colmap::ModelError::Malformed {
                 path: PathBuf::from("images"),
-                what: format!("image {} refers to missing camera {}", image.name, image.camera_id),
+                what: format!(
+                    "image {} refers to missing camera {}",
+                    image.name, image.camera_id
+                ),
             }))
         })?;
         let (mut intrinsics, distortion) = convert::to_engine(colmap_cam)?;
@@ -250,10 +327,20 @@ pub fn cameras_from_model(
             name: cam.to_string(),
             intrinsics,
             distortion,
-            world_to_camera: WorldToCamera::from_parts(orthonormalise(image.rotation()), image.translation()),
+            world_to_camera: WorldToCamera::from_parts(
+                orthonormalise(image.rotation()),
+                image.translation(),
+            ),
         });
     }
-    let points = model.points3d.values().map(|p| SparsePoint { xyz: p.xyz, rgb: p.rgb }).collect();
+    let points = model
+        .points3d
+        .values()
+        .map(|p| SparsePoint {
+            xyz: p.xyz,
+            rgb: p.rgb,
+        })
+        .collect();
     Ok((cameras, points))
 }
 
@@ -266,14 +353,25 @@ pub fn normalisation_for(cameras: &[Camera], points: &[SparsePoint], radius: f64
         return Normalisation::IDENTITY;
     }
     let centre = centres.iter().copied().sum::<DVec3>() / centres.len() as f64;
-    let mut spread = centres.iter().map(|c| (*c - centre).length()).sum::<f64>() / centres.len() as f64;
+    let mut spread =
+        centres.iter().map(|c| (*c - centre).length()).sum::<f64>() / centres.len() as f64;
     if spread < 1e-12 {
-        let mut d: Vec<f64> = points.iter().map(|p| (DVec3::from_array(p.xyz) - centre).length()).collect();
+        let mut d: Vec<f64> = points
+            .iter()
+            .map(|p| (DVec3::from_array(p.xyz) - centre).length())
+            .collect();
         d.sort_by(f64::total_cmp);
         spread = d.get(d.len() / 2).copied().unwrap_or(0.0);
     }
-    let scale = if spread > 1e-12 && radius > 0.0 { radius / spread } else { 1.0 };
-    Normalisation { centre: centre.to_array(), scale }
+    let scale = if spread > 1e-12 && radius > 0.0 {
+        radius / spread
+    } else {
+        1.0
+    };
+    Normalisation {
+        centre: centre.to_array(),
+        scale,
+    }
 }
 
 fn write_outputs(
@@ -286,17 +384,30 @@ fn write_outputs(
     let norm = normalisation_for(&cameras, &points, radius);
     let cameras: Vec<Camera> = cameras
         .into_iter()
-        .map(|c| Camera { world_to_camera: norm.apply_to_pose(&c.world_to_camera), ..c })
+        .map(|c| Camera {
+            world_to_camera: norm.apply_to_pose(&c.world_to_camera),
+            ..c
+        })
         .collect();
     let points: Vec<SparsePoint> = points
         .into_iter()
-        .map(|p| SparsePoint { xyz: norm.apply(DVec3::from_array(p.xyz)).to_array(), ..p })
+        .map(|p| SparsePoint {
+            xyz: norm.apply(DVec3::from_array(p.xyz)).to_array(),
+            ..p
+        })
         .collect();
-    std::fs::create_dir_all(out_dir).map_err(|source| PosesError::Io { path: out_dir.to_path_buf(), source })?;
+    std::fs::create_dir_all(out_dir).map_err(|source| PosesError::Io {
+        path: out_dir.to_path_buf(),
+        source,
+    })?;
     let points_ply = (!points.is_empty()).then(|| out_dir.join("points3d.ply"));
     if let Some(ply) = &points_ply {
-        crate::colmap::write_atomically(ply, &points_to_ply(&points))
-            .map_err(|source| PosesError::Io { path: ply.clone(), source })?;
+        crate::colmap::write_atomically(ply, &points_to_ply(&points)).map_err(|source| {
+            PosesError::Io {
+                path: ply.clone(),
+                source,
+            }
+        })?;
     }
     let file = PosesFile {
         set: CameraSet::new(cameras),
@@ -310,9 +421,18 @@ fn write_outputs(
         path: cameras_json.clone(),
         source: std::io::Error::other(e),
     })?;
-    crate::colmap::write_atomically(&cameras_json, text.as_bytes())
-        .map_err(|source| PosesError::Io { path: cameras_json.clone(), source })?;
-    Ok(PosesOutput { file, points, cameras_json, points_ply })
+    crate::colmap::write_atomically(&cameras_json, text.as_bytes()).map_err(|source| {
+        PosesError::Io {
+            path: cameras_json.clone(),
+            source,
+        }
+    })?;
+    Ok(PosesOutput {
+        file,
+        points,
+        cameras_json,
+        points_ply,
+    })
 }
 
 /// Binary little-endian PLY: `x y z` (float) and `red green blue` (uchar) per vertex.
@@ -338,14 +458,26 @@ pub fn points_to_ply(points: &[SparsePoint]) -> Vec<u8> {
 pub fn orthonormalise(r: DMat3) -> DMat3 {
     let m = nalgebra::Matrix3::from_fn(|i, j| r.col(j)[i]);
     let svd = m.svd(true, true);
-    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else { return r };
+    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else {
+        return r;
+    };
     let mut q = u * vt;
     if q.determinant() < 0.0 {
         let mut u2 = u;
         u2.column_mut(2).neg_mut();
         q = u2 * vt;
     }
-    DMat3::from_cols_array(&[q[(0, 0)], q[(1, 0)], q[(2, 0)], q[(0, 1)], q[(1, 1)], q[(2, 1)], q[(0, 2)], q[(1, 2)], q[(2, 2)]])
+    DMat3::from_cols_array(&[
+        q[(0, 0)],
+        q[(1, 0)],
+        q[(2, 0)],
+        q[(0, 1)],
+        q[(1, 1)],
+        q[(2, 1)],
+        q[(0, 2)],
+        q[(1, 2)],
+        q[(2, 2)],
+    ])
 }
 
 fn check_inputs(inputs: &PosesInputs) -> Result<(), PosesError> {
@@ -359,27 +491,50 @@ fn check_inputs(inputs: &PosesInputs) -> Result<(), PosesError> {
         }
     }
     if inputs.stills.len() < inputs.config.min_stills {
-        return Err(PosesError::TooFewStills { got: inputs.stills.len(), min: inputs.config.min_stills });
+        return Err(PosesError::TooFewStills {
+            got: inputs.stills.len(),
+            min: inputs.config.min_stills,
+        });
     }
     let mut still_sizes = BTreeSet::new();
-    let all = inputs.video_frames.iter().map(|(_, p)| (p, false)).chain(inputs.stills.iter().map(|p| (p, true)));
+    let all = inputs
+        .video_frames
+        .iter()
+        .map(|(_, p)| (p, false))
+        .chain(inputs.stills.iter().map(|p| (p, true)));
     for (path, still) in all {
         let img = image::open(path)
-            .map_err(|e| PosesError::ImageUnreadable { path: path.clone(), reason: e.to_string() })?
+            .map_err(|e| PosesError::ImageUnreadable {
+                path: path.clone(),
+                reason: e.to_string(),
+            })?
             .into_luma8();
         let n = img.as_raw().len().max(1) as f64;
         let mean = img.as_raw().iter().map(|&v| v as f64).sum::<f64>() / n;
-        let var = img.as_raw().iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / n;
+        let var = img
+            .as_raw()
+            .iter()
+            .map(|&v| (v as f64 - mean).powi(2))
+            .sum::<f64>()
+            / n;
         if var.sqrt() < BLANK_STD_DEV {
-            return Err(PosesError::BlankImage { path: path.clone(), std_dev: var.sqrt() });
+            return Err(PosesError::BlankImage {
+                path: path.clone(),
+                std_dev: var.sqrt(),
+            });
         }
         if still {
             still_sizes.insert(img.dimensions());
         }
     }
     if inputs.config.colmap.stills_cameras == StillsCameras::Shared && still_sizes.len() > 1 {
-        let sizes: Vec<String> = still_sizes.iter().map(|(w, h)| format!("{w}×{h}")).collect();
-        return Err(PosesError::StillSizesDiffer { sizes: sizes.join(", ") });
+        let sizes: Vec<String> = still_sizes
+            .iter()
+            .map(|(w, h)| format!("{w}×{h}"))
+            .collect();
+        return Err(PosesError::StillSizesDiffer {
+            sizes: sizes.join(", "),
+        });
     }
     Ok(())
 }

@@ -12,7 +12,13 @@ fn solves_the_rendered_rig_within_half_a_degree() {
     }
     let tmp = tempfile::tempdir().unwrap();
     // The video cameras have a real lens (barrel distortion); COLMAP solves it (OPENCV).
-    let lens = Distortion::Opencv { k1: -0.12, k2: 0.03, p1: 0.0, p2: 0.0, k3: 0.0 };
+    let lens = Distortion::Opencv {
+        k1: -0.12,
+        k2: 0.03,
+        p1: 0.0,
+        p2: 0.0,
+        k3: 0.0,
+    };
     let rig = common::render_rig_with_lens(&tmp.path().join("capture"), 8, (640, 480), lens);
     let inputs = PosesInputs {
         video_frames: rig.video_paths.clone(),
@@ -27,10 +33,18 @@ fn solves_the_rendered_rig_within_half_a_degree() {
         Err(e) => panic!("{e}"),
     };
     let cams = &out.file.set.cameras;
-    assert_eq!(cams.iter().map(|c| c.name.as_str()).collect::<Vec<_>>(), ["cam0", "cam1", "cam2", "cam3"]);
+    assert_eq!(
+        cams.iter().map(|c| c.name.as_str()).collect::<Vec<_>>(),
+        ["cam0", "cam1", "cam2", "cam3"]
+    );
     let (_, errors, radius) = calib::align::compare(cams, &rig.video).unwrap();
     for e in &errors {
-        eprintln!("{}: rotation {:.4}°, centre {:.4}% of radius", e.name, e.rotation_deg, 100.0 * e.centre / radius);
+        eprintln!(
+            "{}: rotation {:.4}°, centre {:.4}% of radius",
+            e.name,
+            e.rotation_deg,
+            100.0 * e.centre / radius
+        );
         assert!(e.rotation_deg < 0.5, "{e:?}");
         assert!(e.centre < 0.01 * radius, "{e:?}");
     }
@@ -42,19 +56,46 @@ fn solves_the_rendered_rig_within_half_a_degree() {
     }
     // COLMAP's progress reached the Progress sink, step by step.
     let messages = progress.messages.lock().unwrap().clone();
-    assert_eq!(messages.first().map(String::as_str), Some("start 3 COLMAP steps"));
-    assert!(messages.iter().any(|m| m.starts_with("feature_extractor: Processed file [12/12]")), "{messages:?}");
-    assert!(messages.iter().any(|m| m.starts_with("mapper: Registering image")), "{messages:?}");
-    assert_eq!(progress.advanced.load(std::sync::atomic::Ordering::Relaxed), 3);
+    assert_eq!(
+        messages.first().map(String::as_str),
+        Some("start 3 COLMAP steps")
+    );
+    assert!(
+        messages
+            .iter()
+            .any(|m| m.starts_with("feature_extractor: Processed file [12/12]")),
+        "{messages:?}"
+    );
+    assert!(
+        messages
+            .iter()
+            .any(|m| m.starts_with("mapper: Registering image")),
+        "{messages:?}"
+    );
+    assert_eq!(
+        progress.advanced.load(std::sync::atomic::Ordering::Relaxed),
+        3
+    );
     for c in cams {
-        let Distortion::Opencv { k1, k2, .. } = c.distortion else { panic!("{:?}", c.distortion) };
-        assert!((k1 + 0.12).abs() < 0.02 && (k2 - 0.03).abs() < 0.03, "{:?}", c.distortion);
+        let Distortion::Opencv { k1, k2, .. } = c.distortion else {
+            panic!("{:?}", c.distortion)
+        };
+        assert!(
+            (k1 + 0.12).abs() < 0.02 && (k2 - 0.03).abs() < 0.03,
+            "{:?}",
+            c.distortion
+        );
     }
     // Normalised: video cameras at mean distance 1 from the origin.
-    let mean_r = cams.iter().map(|c| c.world_to_camera.centre().length()).sum::<f64>() / 4.0;
+    let mean_r = cams
+        .iter()
+        .map(|c| c.world_to_camera.centre().length())
+        .sum::<f64>()
+        / 4.0;
     assert!((mean_r - 1.0).abs() < 1e-9, "{mean_r}");
     // cameras.json reads as a plain CameraSet too; points file is there.
-    let set: CameraSet = serde_json::from_str(&std::fs::read_to_string(&out.cameras_json).unwrap()).unwrap();
+    let set: CameraSet =
+        serde_json::from_str(&std::fs::read_to_string(&out.cameras_json).unwrap()).unwrap();
     assert_eq!(set.cameras.len(), cams.len());
     for (a, b) in set.cameras.iter().zip(cams) {
         assert_eq!(a.name, b.name);
@@ -83,14 +124,20 @@ fn bad_inputs_are_refused_before_colmap_runs() {
     let mut few = inputs_for(&rig);
     few.stills.truncate(2);
     let e = poses::solve(&few, &out_dir, &NoProgress).unwrap_err();
-    assert!(matches!(e, PosesError::TooFewStills { got: 2, min: 4 }), "{e}");
+    assert!(
+        matches!(e, PosesError::TooFewStills { got: 2, min: 4 }),
+        "{e}"
+    );
 
     let mut blank = inputs_for(&rig);
     let blank_path = tmp.path().join("blank.png");
     common::blank(&blank_path, (160, 120));
     blank.video_frames[2].1 = blank_path.clone();
     let e = poses::solve(&blank, &out_dir, &NoProgress).unwrap_err();
-    assert!(matches!(&e, PosesError::BlankImage { path, .. } if *path == blank_path), "{e}");
+    assert!(
+        matches!(&e, PosesError::BlankImage { path, .. } if *path == blank_path),
+        "{e}"
+    );
     assert!(e.to_string().contains("blank.png"));
 
     let mut sizes = inputs_for(&rig);

@@ -10,14 +10,19 @@ use splat4d::{Camera, Intrinsics, NoProgress, WorldToCamera};
 
 fn data_dir() -> Option<PathBuf> {
     let rel = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/strecha-herzjesu-p8");
-    [rel, PathBuf::from("/work/shared/data/strecha-herzjesu-p8")].into_iter().find(|p| p.is_dir())
+    [rel, PathBuf::from("/work/shared/data/strecha-herzjesu-p8")]
+        .into_iter()
+        .find(|p| p.is_dir())
 }
 
 /// A `NNNN.jpg.camera` file: K (3 rows), a zero row, R (3 rows), C, size. R's rows are the
 /// camera axes in world coordinates transposed, i.e. the file's R maps camera → world.
 fn read_gt(path: &Path, name: &str, scale: f64) -> Camera {
     let text = std::fs::read_to_string(path).unwrap();
-    let v: Vec<f64> = text.split_whitespace().map(|t| t.parse().unwrap()).collect();
+    let v: Vec<f64> = text
+        .split_whitespace()
+        .map(|t| t.parse().unwrap())
+        .collect();
     assert_eq!(v.len(), 3 * 3 + 3 + 3 * 3 + 3 + 2, "{}", path.display());
     let k = &v[0..9];
     let r_file = DMat3::from_cols_slice(&v[12..21]).transpose(); // rows as written
@@ -26,8 +31,15 @@ fn read_gt(path: &Path, name: &str, scale: f64) -> Camera {
     let r = r_file.transpose(); // world-to-camera
     Camera {
         name: name.into(),
-        intrinsics: Intrinsics { width: w as u32, height: h as u32, fx: k[0], fy: k[4], cx: k[2], cy: k[5] }
-            .scaled_to((w * scale) as u32, (h * scale) as u32),
+        intrinsics: Intrinsics {
+            width: w as u32,
+            height: h as u32,
+            fx: k[0],
+            fy: k[4],
+            cx: k[2],
+            cy: k[5],
+        }
+        .scaled_to((w * scale) as u32, (h * scale) as u32),
         distortion: Default::default(),
         world_to_camera: WorldToCamera::from_parts(r, -(r * c)),
     }
@@ -52,8 +64,15 @@ fn herzjesu_p8_poses_match_ground_truth() {
             .map(|i| {
                 let (dir, small) = (&dir, &small);
                 s.spawn(move || {
-                    let img = image::open(dir.join(format!("images/{i:04}.jpg"))).unwrap().into_rgb8();
-                    let img = image::imageops::resize(&img, 768, 512, image::imageops::FilterType::Triangle);
+                    let img = image::open(dir.join(format!("images/{i:04}.jpg")))
+                        .unwrap()
+                        .into_rgb8();
+                    let img = image::imageops::resize(
+                        &img,
+                        768,
+                        512,
+                        image::imageops::FilterType::Triangle,
+                    );
                     let p = small.join(format!("{i:04}.png"));
                     img.save(&p).unwrap();
                     p
@@ -64,8 +83,14 @@ fn herzjesu_p8_poses_match_ground_truth() {
     });
     let video_ids = [0usize, 2, 4, 6];
     let inputs = PosesInputs {
-        video_frames: video_ids.iter().map(|&i| (format!("view{i}"), paths[i].clone())).collect(),
-        stills: [1usize, 3, 5, 7].iter().map(|&i| paths[i].clone()).collect(),
+        video_frames: video_ids
+            .iter()
+            .map(|&i| (format!("view{i}"), paths[i].clone()))
+            .collect(),
+        stills: [1usize, 3, 5, 7]
+            .iter()
+            .map(|&i| paths[i].clone())
+            .collect(),
         working_size: None,
         config: PosesConfig {
             colmap: calib::colmap_runner::ColmapConfig {
@@ -83,10 +108,21 @@ fn herzjesu_p8_poses_match_ground_truth() {
     };
     let gt: Vec<Camera> = video_ids
         .iter()
-        .map(|&i| read_gt(&dir.join(format!("gt_dense_cameras/{i:04}.jpg.camera")), &format!("view{i}"), scale))
+        .map(|&i| {
+            read_gt(
+                &dir.join(format!("gt_dense_cameras/{i:04}.jpg.camera")),
+                &format!("view{i}"),
+                scale,
+            )
+        })
         .collect();
     let (_, errors, radius) = calib::align::compare(&out.file.set.cameras, &gt).unwrap();
-    if let PoseSource::Colmap { timings, registered_images, .. } = &out.file.source {
+    if let PoseSource::Colmap {
+        timings,
+        registered_images,
+        ..
+    } = &out.file.source
+    {
         eprintln!("registered {registered_images}/8; timings {timings:?}");
     }
     for (e, (c, g)) in errors.iter().zip(out.file.set.cameras.iter().zip(&gt)) {
