@@ -176,6 +176,17 @@ pub enum PosesError {
     },
     #[error(transparent)]
     Convert(#[from] ConvertError),
+    #[error(
+        "camera {camera} was calibrated at {}×{} but the working size is {}×{}: a different aspect \
+         ratio means a crop, which cannot be handled by scaling; calibrate at the recording's \
+         aspect ratio or set the working size to match",
+        calibrated.0, calibrated.1, working.0, working.1
+    )]
+    AspectMismatch {
+        camera: String,
+        calibrated: (u32, u32),
+        working: (u32, u32),
+    },
     #[error("cannot write {path}: {source}")]
     Io {
         path: PathBuf,
@@ -278,17 +289,49 @@ pub fn solve(
 }
 
 /// Normalise and write an imported (or otherwise known) camera set as the poses stage's
-/// output, with no sparse points.
+/// output, with no sparse points; intrinsics scaled to `working_size` when given.
 pub fn write_imported(
     set: &CameraSet,
     from: &Path,
     out_dir: &Path,
+    working_size: Option<(u32, u32)>,
     radius: f64,
 ) -> Result<PosesOutput, PosesError> {
+    let stale = out_dir.join("points3d.ply");
+    if stale.exists() {
+        std::fs::remove_file(&stale).map_err(|source| PosesError::Io {
+            path: stale,
+            source,
+        })?;
+    }
+    let mut cameras = set.cameras.clone();
+    for c in &mut cameras {
+        c.intrinsics = scale_intrinsics(&c.name, &c.intrinsics, working_size)?;
+    }
     let source = PoseSource::Import {
         path: from.to_path_buf(),
     };
-    write_outputs(out_dir, set.cameras.clone(), Vec::new(), source, radius)
+    write_outputs(out_dir, cameras, Vec::new(), source, radius)
+}
+
+/// Intrinsics for the working size; refuses a change of aspect ratio (a crop, not a resize).
+pub fn scale_intrinsics(
+    camera: &str,
+    intr: &splat4d::Intrinsics,
+    working_size: Option<(u32, u32)>,
+) -> Result<splat4d::Intrinsics, PosesError> {
+    let Some((w, h)) = working_size else {
+        return Ok(*intr);
+    };
+    let (sx, sy) = (w as f64 / intr.width as f64, h as f64 / intr.height as f64);
+    if (sx / sy - 1.0).abs() > 0.01 {
+        return Err(PosesError::AspectMismatch {
+            camera: camera.to_string(),
+            calibrated: (intr.width, intr.height),
+            working: (w, h),
+        });
+    }
+    Ok(intr.scaled_to(w, h))
 }
 
 /// Engine cameras for the video cameras (names, COLMAP image names) of a COLMAP model, with
@@ -319,10 +362,8 @@ pub fn cameras_from_model(
                 ),
             }))
         })?;
-        let (mut intrinsics, distortion) = convert::to_engine(colmap_cam)?;
-        if let Some((w, h)) = working_size {
-            intrinsics = intrinsics.scaled_to(w, h);
-        }
+        let (intrinsics, distortion) = convert::to_engine(colmap_cam)?;
+        let intrinsics = scale_intrinsics(cam, &intrinsics, working_size)?;
         cameras.push(Camera {
             name: cam.to_string(),
             intrinsics,

@@ -237,3 +237,27 @@ fn panoptic_json_is_in_centimetres() {
     let d = cam.world_to_camera.centre().length();
     assert!((1.0..6.0).contains(&d), "{d}");
 }
+
+#[test]
+fn an_imported_calibration_becomes_the_poses_output() {
+    let tmp = tempfile::tempdir().unwrap();
+    let json = r#"{"cameras": [
+        {"name": "cam0", "K": [[800,0,640],[0,800,360],[0,0,1]], "R": [[1,0,0],[0,1,0],[0,0,1]], "t": [0,0,0], "size": [1280,720]},
+        {"name": "cam1", "K": [[800,0,640],[0,800,360],[0,0,1]], "R": [[1,0,0],[0,1,0],[0,0,1]], "t": [-0.6,0,0], "size": [1280,720]}]}"#;
+    let p = write(tmp.path(), "calibration.json", json);
+    let set = import_calibration(&p).unwrap();
+    let out_dir = tmp.path().join("work/poses");
+    std::fs::create_dir_all(&out_dir).unwrap();
+    std::fs::write(out_dir.join("points3d.ply"), "stale").unwrap();
+    let out = calib::poses::write_imported(&set, &p, &out_dir, Some((640, 360)), 1.0).unwrap();
+    let cams = &out.file.set.cameras;
+    assert_eq!(cams[0].intrinsics.fx, 400.0);
+    // Centre between the two cameras, each 1 from it after normalisation.
+    for c in cams {
+        assert!((c.world_to_camera.centre().length() - 1.0).abs() < 1e-12);
+    }
+    assert!((out.file.normalisation.scale - 1.0 / 0.3).abs() < 1e-12);
+    assert!(out.cameras_json.is_file() && !out_dir.join("points3d.ply").exists());
+    let e = calib::poses::write_imported(&set, &p, &out_dir, Some((640, 480)), 1.0).unwrap_err();
+    assert!(e.to_string().contains("aspect"), "{e}");
+}

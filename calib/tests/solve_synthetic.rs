@@ -155,3 +155,34 @@ fn bad_inputs_are_refused_before_colmap_runs() {
 
     assert!(!out_dir.join("cameras.json").exists());
 }
+
+#[test]
+fn workspace_gives_each_video_camera_its_own_folder() {
+    use calib::colmap_runner::{StillsCameras, Workspace};
+    let tmp = tempfile::tempdir().unwrap();
+    let rig = common::render_rig(&tmp.path().join("capture"), 2, (64, 48));
+    for (mode, still) in [
+        (StillsCameras::Shared, "stills/001_still1.png"),
+        (StillsCameras::PerImage, "stills/001/001_still1.png"),
+    ] {
+        let ws = Workspace::create(
+            &tmp.path().join("ws"),
+            &rig.video_paths,
+            &rig.still_paths,
+            mode,
+        )
+        .unwrap();
+        let names: Vec<&str> = ws.images.iter().map(|i| i.colmap_name.as_str()).collect();
+        assert_eq!(
+            names[..4],
+            [
+                "video/cam0/cam0.png",
+                "video/cam1/cam1.png",
+                "video/cam2/cam2.png",
+                "video/cam3/cam3.png"
+            ]
+        );
+        assert_eq!(names[5], still);
+        assert!(ws.image_dir().join(still).is_file());
+    }
+}
