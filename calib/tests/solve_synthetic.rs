@@ -33,6 +33,7 @@ fn solves_the_rendered_rig_within_half_a_degree() {
         Err(e) => panic!("{e}"),
     };
     let cams = &out.file.set.cameras;
+    eprintln!("source: {:?}", out.file.source);
     assert_eq!(
         cams.iter().map(|c| c.name.as_str()).collect::<Vec<_>>(),
         ["cam0", "cam1", "cam2", "cam3"]
