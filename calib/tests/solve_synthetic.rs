@@ -19,7 +19,7 @@ fn solves_the_rendered_rig_within_half_a_degree() {
         p2: 0.0,
         k3: 0.0,
     };
-    let rig = common::render_rig_with_lens(&tmp.path().join("capture"), 8, (640, 480), lens);
+    let rig = common::render_rig_with_lens(&tmp.path().join("capture"), 8, (480, 360), lens);
     let inputs = PosesInputs {
         video_frames: rig.video_paths.clone(),
         stills: rig.still_paths.clone(),
@@ -49,7 +49,7 @@ fn solves_the_rendered_rig_within_half_a_degree() {
         assert!(e.rotation_deg < 0.5, "{e:?}");
         assert!(e.centre < 0.01 * radius, "{e:?}");
     }
-    // Intrinsics scaled to the working size: truth is hfov 70° at 640 px → fx at 320 px.
+    // Intrinsics scaled to the working size: truth is hfov 70° at 480 px → fx at 320 px.
     let truth_fx = rig.video[0].intrinsics.scaled_to(320, 240).fx;
     for c in cams {
         assert_eq!((c.intrinsics.width, c.intrinsics.height), (320, 240));
