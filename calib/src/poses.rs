@@ -246,33 +246,7 @@ pub fn solve(
                 .map(|c| (c, i.colmap_name.as_str()))
         })
         .collect();
-    let model_index = run
-        .models
-        .iter()
-        .position(|(_, m)| video.iter().all(|(_, n)| m.image_by_name(n).is_some()));
-    let Some(model_index) = model_index else {
-        let missing: Vec<String> = diagnosis
-            .images
-            .iter()
-            .filter(|i| i.video_camera.is_some() && i.model.is_none())
-            .filter_map(|i| i.video_camera.clone())
-            .collect();
-        if !missing.is_empty() {
-            return Err(PosesError::VideoNotRegistered { missing, diagnosis });
-        }
-        let groups = (0..run.models.len())
-            .map(|m| {
-                diagnosis
-                    .images
-                    .iter()
-                    .filter(|i| i.model == Some(m))
-                    .filter_map(|i| i.video_camera.clone())
-                    .collect()
-            })
-            .filter(|g: &Vec<String>| !g.is_empty())
-            .collect();
-        return Err(PosesError::SplitModels { groups, diagnosis });
-    };
+    let model_index = pick_model(&run.models, &video, diagnosis)?;
     let (model_dir, model) = &run.models[model_index];
     let (cameras, points) = cameras_from_model(model, &video, inputs.working_size)?;
     let rel_model = model_dir
@@ -286,6 +260,45 @@ pub fn solve(
         timings: run.timings,
     };
     write_outputs(out_dir, cameras, points, source, config.radius)
+}
+
+/// The model holding every video camera (the largest such); otherwise the error that says
+/// which video cameras did not register, or how they were split across models.
+pub fn pick_model(
+    models: &[(PathBuf, ColmapModel)],
+    video: &[(&str, &str)],
+    diagnosis: Diagnosis,
+) -> Result<usize, PosesError> {
+    if let Some(i) = models
+        .iter()
+        .position(|(_, m)| video.iter().all(|(_, n)| m.image_by_name(n).is_some()))
+    {
+        return Ok(i);
+    }
+    let model_of = |colmap_name: &str| {
+        models
+            .iter()
+            .position(|(_, m)| m.image_by_name(colmap_name).is_some())
+    };
+    let missing: Vec<String> = video
+        .iter()
+        .filter(|(_, n)| model_of(n).is_none())
+        .map(|(c, _)| c.to_string())
+        .collect();
+    if !missing.is_empty() {
+        return Err(PosesError::VideoNotRegistered { missing, diagnosis });
+    }
+    let groups = (0..models.len())
+        .map(|m| {
+            video
+                .iter()
+                .filter(|(_, n)| model_of(n) == Some(m))
+                .map(|(c, _)| c.to_string())
+                .collect::<Vec<_>>()
+        })
+        .filter(|g| !g.is_empty())
+        .collect();
+    Err(PosesError::SplitModels { groups, diagnosis })
 }
 
 /// Normalise and write an imported (or otherwise known) camera set as the poses stage's
@@ -578,4 +591,111 @@ fn check_inputs(inputs: &PosesInputs) -> Result<(), PosesError> {
         });
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::colmap::ColmapImage;
+
+    fn model_with(names: &[&str]) -> (PathBuf, ColmapModel) {
+        let mut m = ColmapModel::default();
+        for (i, n) in names.iter().enumerate() {
+            m.images.insert(
+                i as u32 + 1,
+                ColmapImage {
+                    id: i as u32 + 1,
+                    qvec: [1.0, 0.0, 0.0, 0.0],
+                    tvec: [0.0; 3],
+                    camera_id: 1,
+                    name: n.to_string(),
+                    points2d: Vec::new(),
+                },
+            );
+        }
+        (PathBuf::from("sparse/x"), m)
+    }
+
+    #[test]
+    fn picks_the_model_with_all_video_cameras_or_explains_why_none() {
+        let video = [
+            ("cam0", "v/0.png"),
+            ("cam1", "v/1.png"),
+            ("cam2", "v/2.png"),
+        ];
+        let diag = || Diagnosis {
+            images: Vec::new(),
+            num_models: 2,
+        };
+        let models = [
+            model_with(&["s/a.png", "v/0.png"]),
+            model_with(&["v/0.png", "v/1.png", "v/2.png"]),
+        ];
+        assert_eq!(pick_model(&models, &video, diag()).unwrap(), 1);
+
+        let split = [
+            model_with(&["v/0.png", "v/1.png", "s/a.png"]),
+            model_with(&["v/2.png", "s/b.png"]),
+        ];
+        match pick_model(&split, &video, diag()).unwrap_err() {
+            PosesError::SplitModels { groups, .. } => {
+                assert_eq!(groups, [vec!["cam0", "cam1"], vec!["cam2"]]);
+            }
+            e => panic!("{e}"),
+        }
+        let e = pick_model(&split, &video, diag()).unwrap_err().to_string();
+        assert!(e.contains("model 0: cam0, cam1; model 1: cam2"), "{e}");
+
+        let missing = [model_with(&["v/0.png", "v/2.png"])];
+        match pick_model(&missing, &video, diag()).unwrap_err() {
+            PosesError::VideoNotRegistered { missing, .. } => assert_eq!(missing, ["cam1"]),
+            e => panic!("{e}"),
+        }
+        match pick_model(&[], &video, diag()).unwrap_err() {
+            PosesError::VideoNotRegistered { missing, .. } => assert_eq!(missing.len(), 3),
+            e => panic!("{e}"),
+        }
+    }
+
+    #[test]
+    fn normalisation_puts_cameras_at_the_radius_and_keeps_projections() {
+        use glam::DVec3;
+        let intr = splat4d::Intrinsics::from_hfov(64, 48, 60.0);
+        let cams: Vec<Camera> = [
+            DVec3::new(5.0, 1.0, 2.0),
+            DVec3::new(1.0, 6.0, 2.0),
+            DVec3::new(-3.0, 2.0, 3.0),
+        ]
+        .iter()
+        .enumerate()
+        .map(|(i, &e)| Camera {
+            name: format!("c{i}"),
+            intrinsics: intr,
+            distortion: Default::default(),
+            world_to_camera: WorldToCamera::look_at(e, DVec3::new(1.0, 2.0, 0.0), DVec3::Z)
+                .unwrap(),
+        })
+        .collect();
+        let norm = normalisation_for(&cams, &[], 1.0);
+        let p = DVec3::new(1.2, 2.1, 0.3);
+        for c in &cams {
+            let moved = Camera {
+                world_to_camera: norm.apply_to_pose(&c.world_to_camera),
+                ..c.clone()
+            };
+            assert!(
+                (moved.world_to_camera.centre() - norm.apply(c.world_to_camera.centre())).length()
+                    < 1e-12
+            );
+            let (a, da) = c.project(p).unwrap();
+            let (b, db) = moved.project(norm.apply(p)).unwrap();
+            assert!((a - b).length() < 1e-9 && (db - da * norm.scale).abs() < 1e-9);
+        }
+        let mean: f64 = cams
+            .iter()
+            .map(|c| norm.apply(c.world_to_camera.centre()).length())
+            .sum::<f64>()
+            / 3.0;
+        assert!((mean - 1.0).abs() < 1e-12);
+    }
 }
