@@ -21,7 +21,8 @@ use splat4d::{Camera, CameraSet, Progress, WorldToCamera};
 use crate::colmap::ColmapModel;
 use crate::colmap_runner::diagnose::Diagnosis;
 use crate::colmap_runner::{
-    ColmapConfig, ColmapError, ColmapTimings, MatchGraph, StillsCameras, Workspace, find_colmap,
+    ColmapConfig, ColmapError, ColmapTimings, MatchGraph, StillsCameras, VideoCameras, Workspace,
+    find_colmap,
 };
 use crate::convert::{self, ConvertError};
 
@@ -154,6 +155,11 @@ pub enum PosesError {
          \"per_image\" (different phones or zoom), or resize them to one size"
     )]
     StillSizesDiffer { sizes: String },
+    #[error(
+        "the video cameras share one camera (poses.colmap.video_cameras = \"shared\") but their \
+         frames differ in size ({sizes}): use \"separate\""
+    )]
+    VideoSizesDiffer { sizes: String },
     #[error("{0}")]
     Colmap(#[from] ColmapError),
     #[error(
@@ -225,6 +231,7 @@ pub fn solve(
         &inputs.video_frames,
         &inputs.stills,
         config.colmap.stills_cameras,
+        config.colmap.video_cameras,
     )?;
     let run = match ws.run(&binary, &config.colmap, progress) {
         Ok(run) => run,
@@ -551,6 +558,7 @@ fn check_inputs(inputs: &PosesInputs) -> Result<(), PosesError> {
         });
     }
     let mut still_sizes = BTreeSet::new();
+    let mut video_sizes = BTreeSet::new();
     let all = inputs
         .video_frames
         .iter()
@@ -579,7 +587,18 @@ fn check_inputs(inputs: &PosesInputs) -> Result<(), PosesError> {
         }
         if still {
             still_sizes.insert(img.dimensions());
+        } else {
+            video_sizes.insert(img.dimensions());
         }
+    }
+    if inputs.config.colmap.video_cameras == VideoCameras::Shared && video_sizes.len() > 1 {
+        let sizes: Vec<String> = video_sizes
+            .iter()
+            .map(|(w, h)| format!("{w}×{h}"))
+            .collect();
+        return Err(PosesError::VideoSizesDiffer {
+            sizes: sizes.join(", "),
+        });
     }
     if inputs.config.colmap.stills_cameras == StillsCameras::Shared && still_sizes.len() > 1 {
         let sizes: Vec<String> = still_sizes

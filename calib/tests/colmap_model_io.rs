@@ -271,6 +271,7 @@ fn regenerate_fixture() {
         &frames,
         &[],
         calib::colmap_runner::StillsCameras::Shared,
+        calib::colmap_runner::VideoCameras::Separate,
     )
     .unwrap();
     let config = calib::colmap_runner::ColmapConfig {

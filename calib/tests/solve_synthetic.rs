@@ -171,6 +171,7 @@ fn workspace_gives_each_video_camera_its_own_folder() {
             &rig.video_paths,
             &rig.still_paths,
             mode,
+            calib::colmap_runner::VideoCameras::Separate,
         )
         .unwrap();
         let names: Vec<&str> = ws.images.iter().map(|i| i.colmap_name.as_str()).collect();
@@ -186,4 +187,79 @@ fn workspace_gives_each_video_camera_its_own_folder() {
         assert_eq!(names[5], still);
         assert!(ws.image_dir().join(still).is_file());
     }
+}
+
+#[test]
+fn fisheye_video_cameras_solve_with_opencv_fisheye() {
+    if !common::colmap_available() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let lens = Distortion::Fisheye {
+        k1: 0.08,
+        k2: -0.02,
+        k3: 0.0,
+        k4: 0.0,
+    };
+    let rig = common::render_rig_with_lens(&tmp.path().join("capture"), 8, (480, 360), lens);
+    let mut config = PosesConfig::default();
+    config.colmap.camera_model = calib::colmap::CameraModel::OpencvFisheye;
+    // Four identical cameras in the same lens mode: one shared lens, fitted from 4 views.
+    // (One image per camera leaves 8 fisheye intrinsics to a single view: rotation errors
+    // up to ~1.2° were seen that way.)
+    config.colmap.video_cameras = calib::colmap_runner::VideoCameras::Shared;
+    let inputs = PosesInputs {
+        video_frames: rig.video_paths.clone(),
+        stills: rig.still_paths.clone(),
+        working_size: None,
+        config,
+    };
+    let out = poses::solve(&inputs, &tmp.path().join("poses"), &NoProgress)
+        .unwrap_or_else(|e| panic!("{e}"));
+    eprintln!("source: {:?}", out.file.source);
+    let cams = &out.file.set.cameras;
+    let (_, errors, radius) = calib::align::compare(cams, &rig.video).unwrap();
+    for (e, c) in errors.iter().zip(cams) {
+        eprintln!(
+            "{}: rotation {:.4}°, centre {:.4}% of radius, {:?}",
+            e.name,
+            e.rotation_deg,
+            100.0 * e.centre / radius,
+            c.distortion
+        );
+        assert!(e.rotation_deg < 0.5 && e.centre < 0.01 * radius, "{e:?}");
+        assert!(
+            matches!(c.distortion, Distortion::Fisheye { .. }),
+            "{:?}",
+            c.distortion
+        );
+        // The k's trade off against each other; the lens mapping itself must match: rays in
+        // the camera frame land on the same pixels (within 1.5 px over the image).
+        let truth = &rig.video[0];
+        let mut worst: f64 = 0.0;
+        for y in (0..=360).step_by(30) {
+            for x in (0..=480).step_by(30) {
+                let px = glam::DVec2::new(x as f64, y as f64);
+                let ray = truth
+                    .distortion
+                    .undistort(truth.intrinsics.to_normalised(px));
+                let solved = c.intrinsics.to_pixels(c.distortion.distort(ray));
+                worst = worst.max((solved - px).length());
+            }
+        }
+        eprintln!("{}: worst lens mapping error {worst:.2} px", c.name);
+        assert!(worst < 1.5, "{worst}");
+    }
+    // All four share one lens; the stills were solved with their own (OPENCV) camera.
+    assert!(cams.iter().all(|c| c.distortion == cams[0].distortion));
+    assert!(
+        tmp.path()
+            .join("poses/colmap/logs/feature_extractor_video.log")
+            .is_file()
+    );
+    assert!(
+        tmp.path()
+            .join("poses/colmap/logs/feature_extractor_stills.log")
+            .is_file()
+    );
 }

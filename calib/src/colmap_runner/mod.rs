@@ -45,6 +45,9 @@ pub struct ColmapConfig {
     pub stills_camera_model: CameraModel,
     /// Whether all stills share one camera (same phone/lens and size) or get one each.
     pub stills_cameras: StillsCameras,
+    /// Whether each video camera gets its own intrinsics (default) or all share one
+    /// (identical cameras at identical settings: 4 images constrain the lens, not 1).
+    pub video_cameras: VideoCameras,
     /// Longest image side SIFT works on (COLMAP downsamples internally, poses stay exact).
     pub max_image_size: u32,
     /// Most SIFT features kept per image (COLMAP's default 8192; fewer is faster to match).
@@ -65,6 +68,7 @@ impl Default for ColmapConfig {
             camera_model: CameraModel::Opencv,
             stills_camera_model: CameraModel::Opencv,
             stills_cameras: StillsCameras::Shared,
+            video_cameras: VideoCameras::Separate,
             max_image_size: 3200,
             max_num_features: 8192,
             num_threads: -1,
@@ -82,6 +86,16 @@ pub enum StillsCameras {
     Shared,
     /// One camera per still (different phones, zoom levels or sizes).
     PerImage,
+}
+
+/// Whether the video cameras share one COLMAP camera (intrinsics and distortion).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VideoCameras {
+    /// One camera per video camera.
+    Separate,
+    /// One camera for all video cameras (same model, lens mode and resolution).
+    Shared,
 }
 
 /// Seconds spent in each COLMAP step.
@@ -195,12 +209,14 @@ pub fn find_colmap(configured: Option<&Path>) -> Result<PathBuf, ColmapError> {
 impl Workspace {
     /// Lay out a fresh workspace at `root` (anything there before is removed, so a rerun
     /// never mixes old features or matches in): one folder per video camera, stills in
-    /// `stills/` (shared camera) or one folder each. Images are copied.
+    /// `stills/` (shared camera) or one folder each; with [`VideoCameras::Shared`] all video
+    /// frames in `video/`. Images are copied.
     pub fn create(
         root: &Path,
         video_frames: &[(String, PathBuf)],
         stills: &[PathBuf],
         stills_cameras: StillsCameras,
+        video_cameras: VideoCameras,
     ) -> Result<Self, ColmapError> {
         if root.exists() {
             std::fs::remove_dir_all(root).map_err(io_err(root))?;
@@ -209,7 +225,10 @@ impl Workspace {
         for (cam, src) in video_frames {
             let ext = extension(src);
             images.push(WorkspaceImage {
-                colmap_name: format!("video/{cam}/{cam}.{ext}"),
+                colmap_name: match video_cameras {
+                    VideoCameras::Separate => format!("video/{cam}/{cam}.{ext}"),
+                    VideoCameras::Shared => format!("video/{cam}.{ext}"),
+                },
                 source: src.clone(),
                 video_camera: Some(cam.clone()),
             });
