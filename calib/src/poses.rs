@@ -636,6 +636,22 @@ mod tests {
     }
 
     #[test]
+    fn config_reads_from_toml_with_defaults() {
+        let text = "min_stills = 6\n[colmap]\ncamera_model = \"OPENCV_FISHEYE\"\nvideo_cameras = \"shared\"\n";
+        let c: PosesConfig = toml::from_str(text).unwrap();
+        assert_eq!(c.min_stills, 6);
+        assert_eq!(c.radius, 1.0);
+        assert_eq!(
+            c.colmap.camera_model,
+            crate::colmap::CameraModel::OpencvFisheye
+        );
+        assert_eq!(c.colmap.video_cameras, VideoCameras::Shared);
+        assert_eq!(c.colmap.stills_cameras, StillsCameras::Shared);
+        assert!(toml::from_str::<PosesConfig>("min_still = 3").is_err());
+        assert!(toml::from_str::<PosesConfig>("[colmap]\ncamera_model = \"BROWN\"").is_err());
+    }
+
+    #[test]
     fn picks_the_model_with_all_video_cameras_or_explains_why_none() {
         let video = [
             ("cam0", "v/0.png"),

@@ -48,9 +48,47 @@ pub enum UndistortError {
 pub struct UndistortMap {
     source: Camera,
     pinhole: Camera,
-    /// For each output pixel, row-major: the source position in index space
-    /// (pixel centre at integer), or NaN when outside the source image.
-    map: Vec<[f32; 2]>,
+    /// For each output pixel, row-major: where and how to sample the source.
+    map: Vec<Tap>,
+}
+
+/// A bilinear tap: the top-left source pixel index, the steps to its right and lower
+/// neighbours (0 at the image edge), and the weights of those neighbours.
+#[derive(Clone, Copy, Debug)]
+struct Tap {
+    /// `u32::MAX`: outside the source image.
+    index: u32,
+    right: u32,
+    down: u32,
+    wx: f32,
+    wy: f32,
+}
+
+impl Tap {
+    const OUTSIDE: Tap = Tap {
+        index: u32::MAX,
+        right: 0,
+        down: 0,
+        wx: 0.0,
+        wy: 0.0,
+    };
+
+    /// The tap for source position `(sx, sy)` in index space (pixel centre at integer).
+    fn at(sx: f64, sy: f64, w: u32, h: u32) -> Tap {
+        let inside = sx >= -0.5 && sy >= -0.5 && sx <= w as f64 - 0.5 && sy <= h as f64 - 0.5;
+        if !inside || !sx.is_finite() || !sy.is_finite() {
+            return Tap::OUTSIDE;
+        }
+        let (xc, yc) = (sx.clamp(0.0, (w - 1) as f64), sy.clamp(0.0, (h - 1) as f64));
+        let (x0, y0) = (xc.floor() as u32, yc.floor() as u32);
+        Tap {
+            index: y0 * w + x0,
+            right: u32::from(x0 + 1 < w),
+            down: if y0 + 1 < h { w } else { 0 },
+            wx: (xc - x0 as f64) as f32,
+            wy: (yc - y0 as f64) as f32,
+        }
+    }
 }
 
 /// The pinhole camera [`UndistortMap::new`] would produce, without building the map.
@@ -132,22 +170,14 @@ impl UndistortMap {
         let src = camera.intrinsics;
         let dst = pinhole.intrinsics;
         let d = camera.distortion;
-        let mut map = vec![[0.0f32; 2]; w as usize * h as usize];
+        let mut map = vec![Tap::OUTSIDE; w as usize * h as usize];
         map.par_chunks_mut(w.max(1) as usize)
             .enumerate()
             .for_each(|(y, row)| {
                 for (x, m) in row.iter_mut().enumerate() {
                     let n = dst.to_normalised(DVec2::new(x as f64 + 0.5, y as f64 + 0.5));
                     let p = src.to_pixels(d.distort(n)) - DVec2::splat(0.5);
-                    let inside = p.x >= -0.5
-                        && p.y >= -0.5
-                        && p.x <= w as f64 - 0.5
-                        && p.y <= h as f64 - 0.5;
-                    *m = if inside && p.is_finite() {
-                        [p.x as f32, p.y as f32]
-                    } else {
-                        [f32::NAN; 2]
-                    };
+                    *m = Tap::at(p.x, p.y, w, h);
                 }
             });
         Self {
@@ -202,21 +232,22 @@ impl UndistortMap {
         out.par_chunks_mut(row_len.max(1))
             .enumerate()
             .for_each(|(y, row)| {
-                for x in 0..w as usize {
-                    let [sx, sy] = self.map[y * w as usize + x];
-                    if sx.is_nan() {
+                let taps = &self.map[y * w as usize..(y + 1) * w as usize];
+                for (out_px, tap) in row.chunks_exact_mut(c).zip(taps) {
+                    if tap.index == u32::MAX {
                         continue;
                     }
-                    let (xc, yc) = (sx.clamp(0.0, (w - 1) as f32), sy.clamp(0.0, (h - 1) as f32));
-                    let (x0, y0) = (xc.floor() as usize, yc.floor() as usize);
-                    let (x1, y1) = ((x0 + 1).min(w as usize - 1), (y0 + 1).min(h as usize - 1));
-                    let (fx, fy) = (xc - x0 as f32, yc - y0 as f32);
+                    let i00 = tap.index as usize * c;
+                    let i01 = i00 + tap.right as usize * c;
+                    let i10 = i00 + tap.down as usize * c;
+                    let i11 = i10 + tap.right as usize * c;
+                    let (wx, wy) = (tap.wx, tap.wy);
+                    let (p00, p01) = (&src[i00..i00 + c], &src[i01..i01 + c]);
+                    let (p10, p11) = (&src[i10..i10 + c], &src[i11..i11 + c]);
                     for k in 0..c {
-                        let at =
-                            |xx: usize, yy: usize| src[(yy * w as usize + xx) * c + k].to_f32();
-                        let top = at(x0, y0) * (1.0 - fx) + at(x1, y0) * fx;
-                        let bottom = at(x0, y1) * (1.0 - fx) + at(x1, y1) * fx;
-                        row[x * c + k] = S::from_f32(top * (1.0 - fy) + bottom * fy);
+                        let top = p00[k].to_f32() + (p01[k].to_f32() - p00[k].to_f32()) * wx;
+                        let bottom = p10[k].to_f32() + (p11[k].to_f32() - p10[k].to_f32()) * wx;
+                        out_px[k] = S::from_f32(top + (bottom - top) * wy);
                     }
                 }
             });
