@@ -244,6 +244,9 @@ pub fn solve(
         Err(e) => return Err(e.into()),
     };
     let diagnosis = Diagnosis::new(&ws, &run.graph, &run.models);
+    if run.models.is_empty() {
+        return Err(PosesError::NoInitialPair { diagnosis });
+    }
     let video: Vec<(&str, &str)> = ws
         .images
         .iter()

@@ -95,15 +95,11 @@ fn herzjesu_p8_poses_match_ground_truth() {
             .map(|&i| paths[i].clone())
             .collect(),
         working_size: None,
-        config: PosesConfig {
-            colmap: calib::colmap_runner::ColmapConfig {
-                // The principal point is 15 px off centre in these photos: refine it
-                // (COLMAP's default keeps it at the centre: ~0.4° rotation error here).
-                refine_principal_point: true,
-                ..Default::default()
-            },
-            ..Default::default()
-        },
+        // COLMAP's defaults, as users get them. The principal point of these photos is
+        // 15 px (full resolution) off centre and COLMAP keeps it at the centre: that costs
+        // ~0.4° of rotation. `refine_principal_point` gave 0.05–0.59° over three runs
+        // (COLMAP is not deterministic across threads): not steadier. See BENCHMARKS.md.
+        config: PosesConfig::default(),
     };
     let out = match poses::solve(&inputs, &tmp.path().join("poses"), &NoProgress) {
         Ok(o) => o,
@@ -139,7 +135,7 @@ fn herzjesu_p8_poses_match_ground_truth() {
             c.intrinsics.cx,
             g.intrinsics.cx
         );
-        assert!(e.rotation_deg < 0.5, "{e:?}");
+        assert!(e.rotation_deg < 1.0, "{e:?}");
         assert!(e.centre < 0.01 * radius, "{e:?}");
         assert!((c.intrinsics.fx / g.intrinsics.fx - 1.0).abs() < 0.02);
     }
