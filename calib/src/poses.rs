@@ -113,6 +113,22 @@ pub struct PosesFile {
     pub num_points: usize,
 }
 
+impl PosesFile {
+    /// Read `work/poses/cameras.json`.
+    pub fn read(path: &Path) -> Result<Self, PosesError> {
+        let io = |source| PosesError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let text = std::fs::read_to_string(path).map_err(io)?;
+        serde_json::from_str(&text).map_err(|e| {
+            io(std::io::Error::other(format!(
+                "not a poses cameras.json: {e}"
+            )))
+        })
+    }
+}
+
 /// One sparse point, normalised frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SparsePoint {
@@ -636,6 +652,71 @@ mod tests {
             );
         }
         (PathBuf::from("sparse/x"), m)
+    }
+
+    #[test]
+    fn points_ply_has_a_header_and_15_bytes_per_point() {
+        let pts = [
+            SparsePoint {
+                xyz: [1.0, -2.0, 0.5],
+                rgb: [255, 0, 7],
+            },
+            SparsePoint {
+                xyz: [0.0, 0.0, 0.0],
+                rgb: [1, 2, 3],
+            },
+        ];
+        let ply = points_to_ply(&pts);
+        let text = String::from_utf8_lossy(&ply);
+        let end = text.find("end_header\n").unwrap() + "end_header\n".len();
+        assert!(text.starts_with("ply\nformat binary_little_endian 1.0\n"));
+        assert!(text[..end].contains("element vertex 2\n"));
+        assert_eq!(ply.len() - end, 2 * 15);
+        assert_eq!(
+            f32::from_le_bytes(ply[end + 4..end + 8].try_into().unwrap()),
+            -2.0
+        );
+        assert_eq!(&ply[end + 12..end + 15], &[255, 0, 7]);
+    }
+
+    #[test]
+    fn poses_file_round_trips_and_reads_as_a_camera_set() {
+        let dir = std::env::temp_dir().join(format!("calib_poses_file_{}", std::process::id()));
+        let cam = Camera {
+            name: "cam0".into(),
+            intrinsics: splat4d::Intrinsics::from_hfov(64, 48, 60.0),
+            distortion: Default::default(),
+            world_to_camera: WorldToCamera::IDENTITY,
+        };
+        let other = Camera {
+            name: "cam1".into(),
+            world_to_camera: WorldToCamera::from_parts(
+                glam::DMat3::IDENTITY,
+                glam::DVec3::new(-2.0, 0.0, 0.0),
+            ),
+            ..cam.clone()
+        };
+        let out = write_outputs(
+            &dir,
+            vec![cam, other],
+            vec![SparsePoint {
+                xyz: [1.0, 0.0, 3.0],
+                rgb: [9, 9, 9],
+            }],
+            PoseSource::Import {
+                path: "x.json".into(),
+            },
+            1.0,
+        )
+        .unwrap();
+        let back = PosesFile::read(&out.cameras_json).unwrap();
+        assert_eq!(back.normalisation, out.file.normalisation);
+        assert_eq!(back.num_points, 1);
+        let set: CameraSet =
+            serde_json::from_str(&std::fs::read_to_string(&out.cameras_json).unwrap()).unwrap();
+        assert_eq!(set.cameras.len(), 2);
+        assert!(PosesFile::read(&dir.join("missing.json")).is_err());
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
