@@ -28,7 +28,11 @@ pub fn umeyama(src: &[DVec3], dst: &[DVec3]) -> Option<Similarity> {
     }
     let mu_s = src.iter().copied().sum::<DVec3>() / n as f64;
     let mu_d = dst.iter().copied().sum::<DVec3>() / n as f64;
-    let var_s = src.iter().map(|p| (*p - mu_s).length_squared()).sum::<f64>() / n as f64;
+    let var_s = src
+        .iter()
+        .map(|p| (*p - mu_s).length_squared())
+        .sum::<f64>()
+        / n as f64;
     let mut cov = nalgebra::Matrix3::<f64>::zeros();
     for (s, d) in src.iter().zip(dst) {
         let (s, d) = (*s - mu_s, *d - mu_d);
@@ -42,16 +46,30 @@ pub fn umeyama(src: &[DVec3], dst: &[DVec3]) -> Option<Similarity> {
         sign[(2, 2)] = -1.0;
     }
     let r = u * sign * vt;
-    let trace_ds = (0..3).map(|i| svd.singular_values[i] * sign[(i, i)]).sum::<f64>();
+    let trace_ds = (0..3)
+        .map(|i| svd.singular_values[i] * sign[(i, i)])
+        .sum::<f64>();
     if var_s < 1e-300 || !trace_ds.is_finite() {
         return None;
     }
     let scale = trace_ds / var_s;
     let rotation = DMat3::from_cols_array(&[
-        r[(0, 0)], r[(1, 0)], r[(2, 0)], r[(0, 1)], r[(1, 1)], r[(2, 1)], r[(0, 2)], r[(1, 2)], r[(2, 2)],
+        r[(0, 0)],
+        r[(1, 0)],
+        r[(2, 0)],
+        r[(0, 1)],
+        r[(1, 1)],
+        r[(2, 1)],
+        r[(0, 2)],
+        r[(1, 2)],
+        r[(2, 2)],
     ]);
     let translation = mu_d - scale * (rotation * mu_s);
-    Some(Similarity { scale, rotation, translation })
+    Some(Similarity {
+        scale,
+        rotation,
+        translation,
+    })
 }
 
 /// Errors of one solved camera against its reference after alignment.
@@ -67,11 +85,22 @@ pub struct PoseError {
 /// Align `solved` to `reference` by their centres (matched by name) and measure each
 /// camera's rotation and centre error. Also returns the reference rig radius (mean distance
 /// of the reference centres from their mean) to express centre errors relative to it.
-pub fn compare(solved: &[Camera], reference: &[Camera]) -> Option<(Similarity, Vec<PoseError>, f64)> {
-    let pairs: Vec<(&Camera, &Camera)> =
-        solved.iter().filter_map(|s| reference.iter().find(|r| r.name == s.name).map(|r| (s, r))).collect();
-    let src: Vec<DVec3> = pairs.iter().map(|(s, _)| s.world_to_camera.centre()).collect();
-    let dst: Vec<DVec3> = pairs.iter().map(|(_, r)| r.world_to_camera.centre()).collect();
+pub fn compare(
+    solved: &[Camera],
+    reference: &[Camera],
+) -> Option<(Similarity, Vec<PoseError>, f64)> {
+    let pairs: Vec<(&Camera, &Camera)> = solved
+        .iter()
+        .filter_map(|s| reference.iter().find(|r| r.name == s.name).map(|r| (s, r)))
+        .collect();
+    let src: Vec<DVec3> = pairs
+        .iter()
+        .map(|(s, _)| s.world_to_camera.centre())
+        .collect();
+    let dst: Vec<DVec3> = pairs
+        .iter()
+        .map(|(_, r)| r.world_to_camera.centre())
+        .collect();
     let sim = umeyama(&src, &dst)?;
     let mean = dst.iter().copied().sum::<DVec3>() / dst.len() as f64;
     let radius = dst.iter().map(|c| (*c - mean).length()).sum::<f64>() / dst.len() as f64;
@@ -81,11 +110,13 @@ pub fn compare(solved: &[Camera], reference: &[Camera]) -> Option<(Similarity, V
             // World-to-camera rotation in the reference frame: R_s · Sᵀ.
             let r_aligned = s.world_to_camera.rotation() * sim.rotation.transpose();
             let residual = r_aligned * r.world_to_camera.rotation().transpose();
-            let cos = ((residual.x_axis.x + residual.y_axis.y + residual.z_axis.z - 1.0) / 2.0).clamp(-1.0, 1.0);
+            let cos = ((residual.x_axis.x + residual.y_axis.y + residual.z_axis.z - 1.0) / 2.0)
+                .clamp(-1.0, 1.0);
             PoseError {
                 name: s.name.clone(),
                 rotation_deg: cos.acos().to_degrees(),
-                centre: (sim.apply(s.world_to_camera.centre()) - r.world_to_camera.centre()).length(),
+                centre: (sim.apply(s.world_to_camera.centre()) - r.world_to_camera.centre())
+                    .length(),
             }
         })
         .collect();
@@ -100,9 +131,18 @@ mod tests {
     #[test]
     fn recovers_a_known_similarity_and_zero_errors() {
         let rot = DMat3::from_euler(glam::EulerRot::XYZ, 0.3, -0.7, 1.1);
-        let truth = Similarity { scale: 2.5, rotation: rot, translation: DVec3::new(1.0, -2.0, 0.5) };
+        let truth = Similarity {
+            scale: 2.5,
+            rotation: rot,
+            translation: DVec3::new(1.0, -2.0, 0.5),
+        };
         let intr = Intrinsics::from_hfov(64, 48, 60.0);
-        let eyes = [DVec3::new(3.0, 0.0, 1.0), DVec3::new(0.0, 3.0, 1.5), DVec3::new(-3.0, 0.5, 1.0), DVec3::new(0.5, -3.0, 2.0)];
+        let eyes = [
+            DVec3::new(3.0, 0.0, 1.0),
+            DVec3::new(0.0, 3.0, 1.5),
+            DVec3::new(-3.0, 0.5, 1.0),
+            DVec3::new(0.5, -3.0, 2.0),
+        ];
         let reference: Vec<Camera> = eyes
             .iter()
             .enumerate()
@@ -118,8 +158,12 @@ mod tests {
             .iter()
             .map(|c| {
                 let r = c.world_to_camera.rotation() * rot;
-                let centre = rot.transpose() * (c.world_to_camera.centre() - truth.translation) / truth.scale;
-                Camera { world_to_camera: WorldToCamera::from_parts(r, -(r * centre)), ..c.clone() }
+                let centre = rot.transpose() * (c.world_to_camera.centre() - truth.translation)
+                    / truth.scale;
+                Camera {
+                    world_to_camera: WorldToCamera::from_parts(r, -(r * centre)),
+                    ..c.clone()
+                }
             })
             .collect();
         let (sim, errors, radius) = compare(&solved, &reference).unwrap();

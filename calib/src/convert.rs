@@ -16,9 +16,19 @@ pub enum ConvertError {
         "COLMAP camera {camera_id} uses model {model}, which the engine cannot represent{detail}; \
          run COLMAP with camera model OPENCV (or OPENCV_FISHEYE for wide lenses) instead"
     )]
-    Unsupported { camera_id: u32, model: CameraModel, detail: String },
-    #[error("COLMAP camera {camera_id} has an image size of {width}×{height} that does not fit in 32 bits")]
-    Size { camera_id: u32, width: u64, height: u64 },
+    Unsupported {
+        camera_id: u32,
+        model: CameraModel,
+        detail: String,
+    },
+    #[error(
+        "COLMAP camera {camera_id} has an image size of {width}×{height} that does not fit in 32 bits"
+    )]
+    Size {
+        camera_id: u32,
+        width: u64,
+        height: u64,
+    },
 }
 
 /// The engine's intrinsics and distortion for a COLMAP camera.
@@ -26,26 +36,87 @@ pub fn to_engine(cam: &ColmapCamera) -> Result<(Intrinsics, Distortion), Convert
     let p = &cam.params;
     let (width, height) = match (u32::try_from(cam.width), u32::try_from(cam.height)) {
         (Ok(w), Ok(h)) => (w, h),
-        _ => return Err(ConvertError::Size { camera_id: cam.id, width: cam.width, height: cam.height }),
+        _ => {
+            return Err(ConvertError::Size {
+                camera_id: cam.id,
+                width: cam.width,
+                height: cam.height,
+            });
+        }
     };
-    let (fx, fy, cx, cy, rest) =
-        if cam.model.has_single_focal() { (p[0], p[0], p[1], p[2], &p[3..]) } else { (p[0], p[1], p[2], p[3], &p[4..]) };
-    let intr = Intrinsics { width, height, fx, fy, cx, cy };
-    let unsupported = |detail: &str| ConvertError::Unsupported { camera_id: cam.id, model: cam.model, detail: detail.into() };
+    let (fx, fy, cx, cy, rest) = if cam.model.has_single_focal() {
+        (p[0], p[0], p[1], p[2], &p[3..])
+    } else {
+        (p[0], p[1], p[2], p[3], &p[4..])
+    };
+    let intr = Intrinsics {
+        width,
+        height,
+        fx,
+        fy,
+        cx,
+        cy,
+    };
+    let unsupported = |detail: &str| ConvertError::Unsupported {
+        camera_id: cam.id,
+        model: cam.model,
+        detail: detail.into(),
+    };
     let dist = match cam.model {
         CameraModel::SimplePinhole | CameraModel::Pinhole => Distortion::None,
-        CameraModel::SimpleRadial => Distortion::Opencv { k1: rest[0], k2: 0.0, p1: 0.0, p2: 0.0, k3: 0.0 },
-        CameraModel::Radial => Distortion::Opencv { k1: rest[0], k2: rest[1], p1: 0.0, p2: 0.0, k3: 0.0 },
-        CameraModel::Opencv => Distortion::Opencv { k1: rest[0], k2: rest[1], p1: rest[2], p2: rest[3], k3: 0.0 },
+        CameraModel::SimpleRadial => Distortion::Opencv {
+            k1: rest[0],
+            k2: 0.0,
+            p1: 0.0,
+            p2: 0.0,
+            k3: 0.0,
+        },
+        CameraModel::Radial => Distortion::Opencv {
+            k1: rest[0],
+            k2: rest[1],
+            p1: 0.0,
+            p2: 0.0,
+            k3: 0.0,
+        },
+        CameraModel::Opencv => Distortion::Opencv {
+            k1: rest[0],
+            k2: rest[1],
+            p1: rest[2],
+            p2: rest[3],
+            k3: 0.0,
+        },
         CameraModel::FullOpencv => {
             if rest[5..8].iter().any(|&k| k != 0.0) {
-                return Err(unsupported(" (its rational coefficients k4..k6 are not zero)"));
+                return Err(unsupported(
+                    " (its rational coefficients k4..k6 are not zero)",
+                ));
             }
-            Distortion::Opencv { k1: rest[0], k2: rest[1], p1: rest[2], p2: rest[3], k3: rest[4] }
+            Distortion::Opencv {
+                k1: rest[0],
+                k2: rest[1],
+                p1: rest[2],
+                p2: rest[3],
+                k3: rest[4],
+            }
         }
-        CameraModel::OpencvFisheye => Distortion::Fisheye { k1: rest[0], k2: rest[1], k3: rest[2], k4: rest[3] },
-        CameraModel::SimpleRadialFisheye => Distortion::Fisheye { k1: rest[0], k2: 0.0, k3: 0.0, k4: 0.0 },
-        CameraModel::RadialFisheye => Distortion::Fisheye { k1: rest[0], k2: rest[1], k3: 0.0, k4: 0.0 },
+        CameraModel::OpencvFisheye => Distortion::Fisheye {
+            k1: rest[0],
+            k2: rest[1],
+            k3: rest[2],
+            k4: rest[3],
+        },
+        CameraModel::SimpleRadialFisheye => Distortion::Fisheye {
+            k1: rest[0],
+            k2: 0.0,
+            k3: 0.0,
+            k4: 0.0,
+        },
+        CameraModel::RadialFisheye => Distortion::Fisheye {
+            k1: rest[0],
+            k2: rest[1],
+            k3: 0.0,
+            k4: 0.0,
+        },
         CameraModel::Fov | CameraModel::ThinPrismFisheye | CameraModel::RadTanThinPrismFisheye => {
             return Err(unsupported(""));
         }
@@ -56,18 +127,38 @@ pub fn to_engine(cam: &ColmapCamera) -> Result<(Intrinsics, Distortion), Convert
 /// The COLMAP model and parameters for engine intrinsics and distortion
 /// (PINHOLE, OPENCV, FULL_OPENCV when k3 ≠ 0, or OPENCV_FISHEYE).
 pub fn from_engine(id: u32, intr: &Intrinsics, dist: &Distortion) -> ColmapCamera {
-    let Intrinsics { width, height, fx, fy, cx, cy } = *intr;
+    let Intrinsics {
+        width,
+        height,
+        fx,
+        fy,
+        cx,
+        cy,
+    } = *intr;
     let (model, params) = match *dist {
         Distortion::None => (CameraModel::Pinhole, vec![fx, fy, cx, cy]),
-        Distortion::Opencv { k1, k2, p1, p2, k3 } if k3 == 0.0 => {
-            (CameraModel::Opencv, vec![fx, fy, cx, cy, k1, k2, p1, p2])
-        }
         Distortion::Opencv { k1, k2, p1, p2, k3 } => {
-            (CameraModel::FullOpencv, vec![fx, fy, cx, cy, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0])
+            if k3 == 0.0 {
+                (CameraModel::Opencv, vec![fx, fy, cx, cy, k1, k2, p1, p2])
+            } else {
+                (
+                    CameraModel::FullOpencv,
+                    vec![fx, fy, cx, cy, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0],
+                )
+            }
         }
-        Distortion::Fisheye { k1, k2, k3, k4 } => (CameraModel::OpencvFisheye, vec![fx, fy, cx, cy, k1, k2, k3, k4]),
+        Distortion::Fisheye { k1, k2, k3, k4 } => (
+            CameraModel::OpencvFisheye,
+            vec![fx, fy, cx, cy, k1, k2, k3, k4],
+        ),
     };
-    ColmapCamera { id, model, width: width as u64, height: height as u64, params }
+    ColmapCamera {
+        id,
+        model,
+        width: width as u64,
+        height: height as u64,
+        params,
+    }
 }
 
 #[cfg(test)]
@@ -76,12 +167,36 @@ mod tests {
 
     #[test]
     fn engine_cameras_round_trip_through_colmap_models() {
-        let intr = Intrinsics { width: 640, height: 480, fx: 500.0, fy: 501.0, cx: 320.5, cy: 240.25 };
+        let intr = Intrinsics {
+            width: 640,
+            height: 480,
+            fx: 500.0,
+            fy: 501.0,
+            cx: 320.5,
+            cy: 240.25,
+        };
         for dist in [
             Distortion::None,
-            Distortion::Opencv { k1: -0.1, k2: 0.02, p1: 1e-3, p2: -2e-3, k3: 0.0 },
-            Distortion::Opencv { k1: -0.1, k2: 0.02, p1: 1e-3, p2: -2e-3, k3: 0.004 },
-            Distortion::Fisheye { k1: 0.05, k2: -0.01, k3: 0.002, k4: -1e-4 },
+            Distortion::Opencv {
+                k1: -0.1,
+                k2: 0.02,
+                p1: 1e-3,
+                p2: -2e-3,
+                k3: 0.0,
+            },
+            Distortion::Opencv {
+                k1: -0.1,
+                k2: 0.02,
+                p1: 1e-3,
+                p2: -2e-3,
+                k3: 0.004,
+            },
+            Distortion::Fisheye {
+                k1: 0.05,
+                k2: -0.01,
+                k3: 0.002,
+                k4: -1e-4,
+            },
         ] {
             let cam = from_engine(7, &intr, &dist);
             assert_eq!(cam.params.len(), cam.model.num_params());
@@ -91,11 +206,34 @@ mod tests {
 
     #[test]
     fn single_focal_models_and_unsupported_ones() {
-        let c = ColmapCamera::new(1, CameraModel::SimpleRadial, 100, 80, vec![90.0, 50.0, 40.0, 0.1]).unwrap();
+        let c = ColmapCamera::new(
+            1,
+            CameraModel::SimpleRadial,
+            100,
+            80,
+            vec![90.0, 50.0, 40.0, 0.1],
+        )
+        .unwrap();
         let (i, d) = to_engine(&c).unwrap();
         assert_eq!((i.fx, i.fy, i.cx, i.cy), (90.0, 90.0, 50.0, 40.0));
-        assert_eq!(d, Distortion::Opencv { k1: 0.1, k2: 0.0, p1: 0.0, p2: 0.0, k3: 0.0 });
-        let c = ColmapCamera::new(2, CameraModel::Fov, 100, 80, vec![90.0, 90.0, 50.0, 40.0, 0.9]).unwrap();
+        assert_eq!(
+            d,
+            Distortion::Opencv {
+                k1: 0.1,
+                k2: 0.0,
+                p1: 0.0,
+                p2: 0.0,
+                k3: 0.0
+            }
+        );
+        let c = ColmapCamera::new(
+            2,
+            CameraModel::Fov,
+            100,
+            80,
+            vec![90.0, 90.0, 50.0, 40.0, 0.9],
+        )
+        .unwrap();
         let e = to_engine(&c).unwrap_err().to_string();
         assert!(e.contains("FOV") && e.contains("OPENCV"), "{e}");
     }

@@ -37,8 +37,12 @@ impl Units {
     fn parse(s: &str) -> Option<Self> {
         match s.trim().to_ascii_lowercase().as_str() {
             "m" | "metre" | "metres" | "meter" | "meters" => Some(Units::Metres),
-            "cm" | "centimetre" | "centimetres" | "centimeter" | "centimeters" => Some(Units::Centimetres),
-            "mm" | "millimetre" | "millimetres" | "millimeter" | "millimeters" => Some(Units::Millimetres),
+            "cm" | "centimetre" | "centimetres" | "centimeter" | "centimeters" => {
+                Some(Units::Centimetres)
+            }
+            "mm" | "millimetre" | "millimetres" | "millimeter" | "millimeters" => {
+                Some(Units::Millimetres)
+            }
             _ => None,
         }
     }
@@ -54,16 +58,27 @@ pub struct ImportOptions {
 #[derive(Debug, thiserror::Error)]
 pub enum ImportError {
     #[error("cannot read calibration {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("calibration {path} is not valid {format}: {message}")]
-    Syntax { path: PathBuf, format: &'static str, message: String },
+    Syntax {
+        path: PathBuf,
+        format: &'static str,
+        message: String,
+    },
     #[error(
         "{path}: unknown calibration format; use a COLMAP model folder, .json, .yaml/.yml, or a \
          Caliscope camera_array.toml"
     )]
     UnknownFormat { path: PathBuf },
     #[error("{path}: camera {camera}: {message}")]
-    Camera { path: PathBuf, camera: String, message: String },
+    Camera {
+        path: PathBuf,
+        camera: String,
+        message: String,
+    },
     #[error("{path}: {message}")]
     Invalid { path: PathBuf, message: String },
     #[error(transparent)]
@@ -73,18 +88,27 @@ pub enum ImportError {
 }
 
 /// Names a calibration is looked for under in a capture directory, in order.
-pub const CALIBRATION_NAMES: [&str; 6] =
-    ["calibration.json", "calibration.yaml", "calibration.yml", "calibration.toml", "camera_array.toml", "calibration"];
+pub const CALIBRATION_NAMES: [&str; 6] = [
+    "calibration.json",
+    "calibration.yaml",
+    "calibration.yml",
+    "calibration.toml",
+    "camera_array.toml",
+    "calibration",
+];
 
 /// The calibration file or COLMAP folder in a capture directory, if there is one.
 pub fn find_calibration(capture_dir: &Path) -> Option<PathBuf> {
-    CALIBRATION_NAMES.iter().map(|n| capture_dir.join(n)).find(|p| {
-        if p.is_dir() {
-            ColmapModel::detect_format(p).is_some()
-        } else {
-            p.is_file()
-        }
-    })
+    CALIBRATION_NAMES
+        .iter()
+        .map(|n| capture_dir.join(n))
+        .find(|p| {
+            if p.is_dir() {
+                ColmapModel::detect_format(p).is_some()
+            } else {
+                p.is_file()
+            }
+        })
 }
 
 /// Import a calibration (units from the file, metres when it says nothing).
@@ -93,27 +117,45 @@ pub fn import_calibration(path: &Path) -> Result<CameraSet, ImportError> {
 }
 
 /// Import a calibration with explicit options.
-pub fn import_calibration_with(path: &Path, options: &ImportOptions) -> Result<CameraSet, ImportError> {
+pub fn import_calibration_with(
+    path: &Path,
+    options: &ImportOptions,
+) -> Result<CameraSet, ImportError> {
     if path.is_dir() {
         // COLMAP's scale is arbitrary: no unit check.
         return from_colmap(path);
     }
     let set = {
-        let ext = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
-        let text = std::fs::read_to_string(path).map_err(|source| ImportError::Io { path: path.to_path_buf(), source })?;
-        let syntax = |format: &'static str, message: String| ImportError::Syntax { path: path.to_path_buf(), format, message };
+        let ext = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase())
+            .unwrap_or_default();
+        let text = std::fs::read_to_string(path).map_err(|source| ImportError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let syntax = |format: &'static str, message: String| ImportError::Syntax {
+            path: path.to_path_buf(),
+            format,
+            message,
+        };
         let value: Value = match ext.as_str() {
             "json" => serde_json::from_str(&text).map_err(|e| syntax("JSON", e.to_string()))?,
             "yaml" | "yml" => {
-                let y: serde_yaml::Value =
-                    serde_yaml::from_str(&opencv_yaml_to_yaml(&text)).map_err(|e| syntax("YAML", e.to_string()))?;
+                let y: serde_yaml::Value = serde_yaml::from_str(&opencv_yaml_to_yaml(&text))
+                    .map_err(|e| syntax("YAML", e.to_string()))?;
                 serde_json::to_value(y).map_err(|e| syntax("YAML", e.to_string()))?
             }
             "toml" => {
-                let t: toml::Value = toml::from_str(&text).map_err(|e| syntax("TOML", e.to_string()))?;
+                let t: toml::Value =
+                    toml::from_str(&text).map_err(|e| syntax("TOML", e.to_string()))?;
                 serde_json::to_value(t).map_err(|e| syntax("TOML", e.to_string()))?
             }
-            _ => return Err(ImportError::UnknownFormat { path: path.to_path_buf() }),
+            _ => {
+                return Err(ImportError::UnknownFormat {
+                    path: path.to_path_buf(),
+                });
+            }
         };
         from_value(path, &value, options)?
     };
@@ -126,17 +168,29 @@ fn from_colmap(dir: &Path) -> Result<CameraSet, ImportError> {
     let model = ColmapModel::read(dir)?;
     let mut cameras = Vec::new();
     for image in model.images.values() {
-        let cam = model.cameras.get(&image.camera_id).ok_or_else(|| ImportError::Invalid {
-            path: dir.to_path_buf(),
-            message: format!("image {} uses camera {} which is not in cameras", image.name, image.camera_id),
-        })?;
+        let cam = model
+            .cameras
+            .get(&image.camera_id)
+            .ok_or_else(|| ImportError::Invalid {
+                path: dir.to_path_buf(),
+                message: format!(
+                    "image {} uses camera {} which is not in cameras",
+                    image.name, image.camera_id
+                ),
+            })?;
         let (intrinsics, distortion) = convert::to_engine(cam)?;
-        let name = Path::new(&image.name).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let name = Path::new(&image.name)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
         cameras.push(Camera {
             name,
             intrinsics,
             distortion,
-            world_to_camera: WorldToCamera::from_parts(crate::poses::orthonormalise(image.rotation()), image.translation()),
+            world_to_camera: WorldToCamera::from_parts(
+                crate::poses::orthonormalise(image.rotation()),
+                image.translation(),
+            ),
         });
     }
     cameras.sort_by(|a, b| a.name.cmp(&b.name));
@@ -147,7 +201,10 @@ fn from_colmap(dir: &Path) -> Result<CameraSet, ImportError> {
 fn opencv_yaml_to_yaml(text: &str) -> String {
     text.lines()
         .filter(|l| !l.trim_start().starts_with('%'))
-        .map(|l| l.replace("!!opencv-matrix", "").replace("!!opencv-nd-matrix", ""))
+        .map(|l| {
+            l.replace("!!opencv-matrix", "")
+                .replace("!!opencv-nd-matrix", "")
+        })
         .collect::<Vec<_>>()
         .join("\n")
 }
@@ -184,9 +241,23 @@ fn name_of(c: &Value) -> Option<String> {
     c.get("name").and_then(Value::as_str).map(str::to_string)
 }
 
-const K_KEYS: [&str; 5] = ["K", "camera_matrix", "cameraMatrix", "matrix", "intrinsic_matrix"];
-const DIST_KEYS: [&str; 8] =
-    ["dist", "distortion", "distortions", "distCoef", "distCoeffs", "dist_coeffs", "distortion_coefficients", "D"];
+const K_KEYS: [&str; 5] = [
+    "K",
+    "camera_matrix",
+    "cameraMatrix",
+    "matrix",
+    "intrinsic_matrix",
+];
+const DIST_KEYS: [&str; 8] = [
+    "dist",
+    "distortion",
+    "distortions",
+    "distCoef",
+    "distCoeffs",
+    "dist_coeffs",
+    "distortion_coefficients",
+    "D",
+];
 const R_KEYS: [&str; 4] = ["R", "rotation", "rotation_matrix", "Rot"];
 const RVEC_KEYS: [&str; 3] = ["rvec", "rotation_vector", "rodrigues"];
 const T_KEYS: [&str; 5] = ["t", "T", "tvec", "translation", "translation_vector"];
@@ -232,7 +303,8 @@ fn from_value(path: &Path, v: &Value, options: &ImportOptions) -> Result<CameraS
     if entries.is_empty() {
         return Err(ImportError::Invalid {
             path: path.to_path_buf(),
-            message: "no cameras found (expected `cameras` with K, dist, R or rvec, t per camera)".into(),
+            message: "no cameras found (expected `cameras` with K, dist, R or rvec, t per camera)"
+                .into(),
         });
     }
     let mut cameras = Vec::new();
@@ -240,8 +312,16 @@ fn from_value(path: &Path, v: &Value, options: &ImportOptions) -> Result<CameraS
         if c.get("ignore").and_then(Value::as_bool) == Some(true) {
             continue;
         }
-        let err = |message: String| ImportError::Camera { path: path.to_path_buf(), camera: name.clone(), message };
-        let convention = c.get("convention").and_then(Value::as_str).or(top_convention).unwrap_or("world_to_camera");
+        let err = |message: String| ImportError::Camera {
+            path: path.to_path_buf(),
+            camera: name.clone(),
+            message,
+        };
+        let convention = c
+            .get("convention")
+            .and_then(Value::as_str)
+            .or(top_convention)
+            .unwrap_or("world_to_camera");
         let cam = camera_from_value(&name, c, units, convention).map_err(err)?;
         cameras.push(cam);
     }
@@ -249,13 +329,26 @@ fn from_value(path: &Path, v: &Value, options: &ImportOptions) -> Result<CameraS
     Ok(CameraSet::new(cameras))
 }
 
-fn camera_from_value(name: &str, c: &Value, units: Units, convention: &str) -> Result<Camera, String> {
-    let k = get(c, &K_KEYS).and_then(numbers).filter(|k| k.len() == 9).ok_or("K must be a 3×3 matrix")?;
+fn camera_from_value(
+    name: &str,
+    c: &Value,
+    units: Units,
+    convention: &str,
+) -> Result<Camera, String> {
+    let k = get(c, &K_KEYS)
+        .and_then(numbers)
+        .filter(|k| k.len() == 9)
+        .ok_or("K must be a 3×3 matrix")?;
     if k[3].abs() > 1e-9 || k[6].abs() > 1e-9 || k[7].abs() > 1e-9 || (k[8] - 1.0).abs() > 1e-9 {
-        return Err(format!("K {k:?} is not of the form [[fx, s, cx], [0, fy, cy], [0, 0, 1]]"));
+        return Err(format!(
+            "K {k:?} is not of the form [[fx, s, cx], [0, fy, cy], [0, 0, 1]]"
+        ));
     }
     if k[1].abs() > 1e-6 * k[0].abs() {
-        return Err(format!("K has skew {} which the engine does not model; recalibrate with zero skew", k[1]));
+        return Err(format!(
+            "K has skew {} which the engine does not model; recalibrate with zero skew",
+            k[1]
+        ));
     }
     let size = get(c, &["size", "resolution", "image_size", "imageSize"])
         .and_then(numbers)
@@ -266,22 +359,49 @@ fn camera_from_value(name: &str, c: &Value, units: Units, convention: &str) -> R
             Some(vec![w, h])
         })
         .ok_or("image size missing: add size = [width, height] (the size K applies to)")?;
-    if size.iter().any(|&s| s < 1.0 || s.fract() != 0.0 || s > u32::MAX as f64) {
-        return Err(format!("image size {size:?} is not a positive whole number of pixels"));
+    if size
+        .iter()
+        .any(|&s| s < 1.0 || s.fract() != 0.0 || s > u32::MAX as f64)
+    {
+        return Err(format!(
+            "image size {size:?} is not a positive whole number of pixels"
+        ));
     }
-    let intrinsics = Intrinsics { width: size[0] as u32, height: size[1] as u32, fx: k[0], fy: k[4], cx: k[2], cy: k[5] };
-    let model = get(c, &["model", "distortion_model", "camera_model"]).and_then(Value::as_str).unwrap_or("opencv");
-    let fisheye = matches!(model.to_ascii_lowercase().as_str(), "fisheye" | "equidistant" | "opencv_fisheye" | "kannala_brandt");
-    let d = get(c, &DIST_KEYS).map(|v| numbers(v).ok_or("distortion must be a list of numbers")).transpose()?.unwrap_or_default();
+    let intrinsics = Intrinsics {
+        width: size[0] as u32,
+        height: size[1] as u32,
+        fx: k[0],
+        fy: k[4],
+        cx: k[2],
+        cy: k[5],
+    };
+    let model = get(c, &["model", "distortion_model", "camera_model"])
+        .and_then(Value::as_str)
+        .unwrap_or("opencv");
+    let fisheye = matches!(
+        model.to_ascii_lowercase().as_str(),
+        "fisheye" | "equidistant" | "opencv_fisheye" | "kannala_brandt"
+    );
+    let d = get(c, &DIST_KEYS)
+        .map(|v| numbers(v).ok_or("distortion must be a list of numbers"))
+        .transpose()?
+        .unwrap_or_default();
     let distortion = distortion_from(&d, fisheye)?;
 
     let r = if let Some(rv) = get(c, &R_KEYS).and_then(numbers) {
         match rv.len() {
             9 => DMat3::from_cols_slice(&rv).transpose(), // rows in the file
             3 => rodrigues(DVec3::new(rv[0], rv[1], rv[2])),
-            n => return Err(format!("R has {n} numbers; expected a 3×3 matrix or a 3-vector (Rodrigues)")),
+            n => {
+                return Err(format!(
+                    "R has {n} numbers; expected a 3×3 matrix or a 3-vector (Rodrigues)"
+                ));
+            }
         }
-    } else if let Some(rv) = get(c, &RVEC_KEYS).and_then(numbers).filter(|v| v.len() == 3) {
+    } else if let Some(rv) = get(c, &RVEC_KEYS)
+        .and_then(numbers)
+        .filter(|v| v.len() == 3)
+    {
         rodrigues(DVec3::new(rv[0], rv[1], rv[2]))
     } else {
         return Err("rotation missing: give R (3×3) or rvec (3)".into());
@@ -296,25 +416,43 @@ fn camera_from_value(name: &str, c: &Value, units: Units, convention: &str) -> R
     } else {
         None
     };
-    let centre = get(c, &C_KEYS).and_then(numbers).filter(|v| v.len() == 3).map(|v| DVec3::new(v[0], v[1], v[2]) * to_m);
+    let centre = get(c, &C_KEYS)
+        .and_then(numbers)
+        .filter(|v| v.len() == 3)
+        .map(|v| DVec3::new(v[0], v[1], v[2]) * to_m);
     let w2c = match convention.to_ascii_lowercase().as_str() {
         "world_to_camera" | "w2c" | "opencv" => {
             let t = match (translation, centre) {
                 (Some(t), _) => t,
                 (None, Some(c)) => -(r * c),
-                (None, None) => return Err("translation missing: give t (world-to-camera) or C (camera centre)".into()),
+                (None, None) => {
+                    return Err(
+                        "translation missing: give t (world-to-camera) or C (camera centre)".into(),
+                    );
+                }
             };
             WorldToCamera::from_parts(r, t)
         }
         "camera_to_world" | "c2w" => {
             // R, t map camera → world: invert.
-            let t = translation.or(centre).ok_or("translation missing: give t")?;
+            let t = translation
+                .or(centre)
+                .ok_or("translation missing: give t")?;
             let rt = r.transpose();
             WorldToCamera::from_parts(rt, -(rt * t))
         }
-        other => return Err(format!("unknown convention {other:?}; use \"world_to_camera\" or \"camera_to_world\"")),
+        other => {
+            return Err(format!(
+                "unknown convention {other:?}; use \"world_to_camera\" or \"camera_to_world\""
+            ));
+        }
     };
-    Ok(Camera { name: name.to_string(), intrinsics, distortion, world_to_camera: w2c })
+    Ok(Camera {
+        name: name.to_string(),
+        intrinsics,
+        distortion,
+        world_to_camera: w2c,
+    })
 }
 
 fn distortion_from(d: &[f64], fisheye: bool) -> Result<Distortion, String> {
@@ -324,19 +462,41 @@ fn distortion_from(d: &[f64], fisheye: bool) -> Result<Distortion, String> {
     let at = |i: usize| d.get(i).copied().unwrap_or(0.0);
     if fisheye {
         if d.len() > 4 {
-            return Err(format!("fisheye distortion has {} coefficients, expected 4 (k1..k4)", d.len()));
+            return Err(format!(
+                "fisheye distortion has {} coefficients, expected 4 (k1..k4)",
+                d.len()
+            ));
         }
-        return Ok(Distortion::Fisheye { k1: at(0), k2: at(1), k3: at(2), k4: at(3) });
+        return Ok(Distortion::Fisheye {
+            k1: at(0),
+            k2: at(1),
+            k3: at(2),
+            k4: at(3),
+        });
     }
     match d.len() {
-        4 | 5 => Ok(Distortion::Opencv { k1: at(0), k2: at(1), p1: at(2), p2: at(3), k3: at(4) }),
-        n if n > 5 && d[5..].iter().all(|&x| x == 0.0) => {
-            Ok(Distortion::Opencv { k1: at(0), k2: at(1), p1: at(2), p2: at(3), k3: at(4) })
-        }
+        4 | 5 => Ok(Distortion::Opencv {
+            k1: at(0),
+            k2: at(1),
+            p1: at(2),
+            p2: at(3),
+            k3: at(4),
+        }),
+        n if n > 5 && d[5..].iter().all(|&x| x == 0.0) => Ok(Distortion::Opencv {
+            k1: at(0),
+            k2: at(1),
+            p1: at(2),
+            p2: at(3),
+            k3: at(4),
+        }),
         n => Err(format!(
             "distortion has {n} coefficients{}; the engine supports OpenCV's k1 k2 p1 p2 [k3] or fisheye k1..k4 \
              (set model = \"fisheye\" for the latter)",
-            if n > 5 { " with non-zero rational/thin-prism terms" } else { "" }
+            if n > 5 {
+                " with non-zero rational/thin-prism terms"
+            } else {
+                ""
+            }
         )),
     }
 }
@@ -351,9 +511,14 @@ pub fn rodrigues(v: DVec3) -> DMat3 {
 }
 
 fn check_rotation(r: &DMat3) -> Result<(), String> {
-    let err = (*r * r.transpose() - DMat3::IDENTITY).to_cols_array().iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    let err = (*r * r.transpose() - DMat3::IDENTITY)
+        .to_cols_array()
+        .iter()
+        .fold(0.0f64, |m, x| m.max(x.abs()));
     if err > 1e-3 {
-        return Err(format!("R is not a rotation (RRᵀ differs from I by {err:.2e}); is it a full 3×3 rotation matrix?"));
+        return Err(format!(
+            "R is not a rotation (RRᵀ differs from I by {err:.2e}); is it a full 3×3 rotation matrix?"
+        ));
     }
     if r.determinant() < 0.0 {
         return Err(
@@ -367,7 +532,11 @@ fn check_rotation(r: &DMat3) -> Result<(), String> {
 
 /// Refuse rigs whose size is implausible in metres: a sign of wrong units.
 fn check_scale(path: &Path, set: &CameraSet) -> Result<(), ImportError> {
-    let centres: Vec<DVec3> = set.cameras.iter().map(|c| c.world_to_camera.centre()).collect();
+    let centres: Vec<DVec3> = set
+        .cameras
+        .iter()
+        .map(|c| c.world_to_camera.centre())
+        .collect();
     let mut widest = 0.0f64;
     for (i, a) in centres.iter().enumerate() {
         for b in &centres[i + 1..] {

@@ -9,6 +9,6 @@ pub mod align;
 pub mod colmap;
 pub mod colmap_runner;
 pub mod convert;
+pub mod import;
 pub mod poses;
 pub mod undistort;
-pub mod import;

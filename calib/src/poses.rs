@@ -20,7 +20,10 @@ use splat4d::{Camera, CameraSet, Progress, WorldToCamera};
 
 use crate::colmap::ColmapModel;
 use crate::colmap_runner::diagnose::Diagnosis;
-use crate::colmap_runner::{find_colmap, ColmapConfig, ColmapError, ColmapTimings, MatchGraph, StillsCameras, Workspace};
+use crate::colmap_runner::{
+    ColmapConfig, ColmapError, ColmapTimings, MatchGraph, StillsCameras, VideoCameras, Workspace,
+    find_colmap,
+};
 use crate::convert::{self, ConvertError};
 
 /// Settings of the poses stage.
@@ -36,7 +39,11 @@ pub struct PosesConfig {
 
 impl Default for PosesConfig {
     fn default() -> Self {
-        Self { colmap: ColmapConfig::default(), min_stills: 4, radius: 1.0 }
+        Self {
+            colmap: ColmapConfig::default(),
+            min_stills: 4,
+            radius: 1.0,
+        }
     }
 }
 
@@ -60,7 +67,10 @@ pub struct Normalisation {
 }
 
 impl Normalisation {
-    pub const IDENTITY: Self = Self { centre: [0.0; 3], scale: 1.0 };
+    pub const IDENTITY: Self = Self {
+        centre: [0.0; 3],
+        scale: 1.0,
+    };
 
     pub fn apply(&self, p: DVec3) -> DVec3 {
         self.scale * (p - DVec3::from_array(self.centre))
@@ -69,7 +79,10 @@ impl Normalisation {
     /// The same camera in the normalised frame: `t' = scale · (R·centre + t)`.
     pub fn apply_to_pose(&self, w2c: &WorldToCamera) -> WorldToCamera {
         let r = w2c.rotation();
-        WorldToCamera::from_parts(r, self.scale * (r * DVec3::from_array(self.centre) + w2c.translation()))
+        WorldToCamera::from_parts(
+            r,
+            self.scale * (r * DVec3::from_array(self.centre) + w2c.translation()),
+        )
     }
 }
 
@@ -78,7 +91,11 @@ impl Normalisation {
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum PoseSource {
     /// Solved by COLMAP; the model is in `model_dir` (relative to `work/poses/`).
-    Colmap { model_dir: String, registered_images: usize, timings: ColmapTimings },
+    Colmap {
+        model_dir: String,
+        registered_images: usize,
+        timings: ColmapTimings,
+    },
     /// Imported from a calibration file.
     Import { path: PathBuf },
 }
@@ -94,6 +111,22 @@ pub struct PosesFile {
     /// `points3d.ply` beside this file (normalised frame), if there are points.
     pub points_file: Option<String>,
     pub num_points: usize,
+}
+
+impl PosesFile {
+    /// Read `work/poses/cameras.json`.
+    pub fn read(path: &Path) -> Result<Self, PosesError> {
+        let io = |source| PosesError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let text = std::fs::read_to_string(path).map_err(io)?;
+        serde_json::from_str(&text).map_err(|e| {
+            io(std::io::Error::other(format!(
+                "not a poses cameras.json: {e}"
+            )))
+        })
+    }
 }
 
 /// One sparse point, normalised frame.
@@ -115,7 +148,9 @@ pub struct PosesOutput {
 /// Errors of the poses stage.
 #[derive(Debug, thiserror::Error)]
 pub enum PosesError {
-    #[error("no video frames were given to the poses stage (is work/frames/ empty? run the frames stage first)")]
+    #[error(
+        "no video frames were given to the poses stage (is work/frames/ empty? run the frames stage first)"
+    )]
     NoVideoFrames,
     #[error("video camera name {0:?} appears twice")]
     DuplicateCamera(String),
@@ -136,6 +171,11 @@ pub enum PosesError {
          \"per_image\" (different phones or zoom), or resize them to one size"
     )]
     StillSizesDiffer { sizes: String },
+    #[error(
+        "the video cameras share one camera (poses.colmap.video_cameras = \"shared\") but their \
+         frames differ in size ({sizes}): use \"separate\""
+    )]
+    VideoSizesDiffer { sizes: String },
     #[error("{0}")]
     Colmap(#[from] ColmapError),
     #[error(
@@ -144,16 +184,36 @@ pub enum PosesError {
     )]
     NoInitialPair { diagnosis: Diagnosis },
     #[error("COLMAP did not register video camera(s) {}.\n{diagnosis}", missing.join(", "))]
-    VideoNotRegistered { missing: Vec<String>, diagnosis: Diagnosis },
+    VideoNotRegistered {
+        missing: Vec<String>,
+        diagnosis: Diagnosis,
+    },
     #[error(
         "COLMAP split the images into {} separate models and the video cameras are not all in one \
          ({}).\n{diagnosis}", groups.len(), groups.iter().enumerate().map(|(i, g)| format!("model {i}: {}", g.join(", "))).collect::<Vec<_>>().join("; ")
     )]
-    SplitModels { groups: Vec<Vec<String>>, diagnosis: Diagnosis },
+    SplitModels {
+        groups: Vec<Vec<String>>,
+        diagnosis: Diagnosis,
+    },
     #[error(transparent)]
     Convert(#[from] ConvertError),
+    #[error(
+        "camera {camera} was calibrated at {}×{} but the working size is {}×{}: a different aspect \
+         ratio means a crop, which cannot be handled by scaling; calibrate at the recording's \
+         aspect ratio or set the working size to match",
+        calibrated.0, calibrated.1, working.0, working.1
+    )]
+    AspectMismatch {
+        camera: String,
+        calibrated: (u32, u32),
+        working: (u32, u32),
+    },
     #[error("cannot write {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
 }
 
 /// Pixel-value standard deviation (0–255) under which an image counts as blank.
@@ -163,64 +223,154 @@ pub const BLANK_STD_DEV: f64 = 1.0;
 /// `out_dir/colmap/`, solve, check that every video camera registered in one model, and
 /// write `out_dir/cameras.json` and `out_dir/points3d.ply`. On any error, neither file
 /// exists afterwards (a previous run's are removed first).
-pub fn solve(inputs: &PosesInputs, out_dir: &Path, progress: &dyn Progress) -> Result<PosesOutput, PosesError> {
+pub fn solve(
+    inputs: &PosesInputs,
+    out_dir: &Path,
+    progress: &dyn Progress,
+) -> Result<PosesOutput, PosesError> {
     let cameras_json = out_dir.join("cameras.json");
     let points_ply = out_dir.join("points3d.ply");
     for stale in [&cameras_json, &points_ply] {
         if stale.exists() {
-            std::fs::remove_file(stale).map_err(|source| PosesError::Io { path: stale.clone(), source })?;
+            std::fs::remove_file(stale).map_err(|source| PosesError::Io {
+                path: stale.clone(),
+                source,
+            })?;
         }
     }
     check_inputs(inputs)?;
     let config = &inputs.config;
     let binary = find_colmap(config.colmap.binary.as_deref())?;
     let ws_root = out_dir.join("colmap");
-    let ws = Workspace::create(&ws_root, &inputs.video_frames, &inputs.stills, config.colmap.stills_cameras)?;
+    let ws = Workspace::create(
+        &ws_root,
+        &inputs.video_frames,
+        &inputs.stills,
+        config.colmap.stills_cameras,
+        config.colmap.video_cameras,
+    )?;
     let run = match ws.run(&binary, &config.colmap, progress) {
         Ok(run) => run,
         Err(ColmapError::StepFailed { no_model: true, .. }) => {
             let graph = MatchGraph::read(&ws.database()).unwrap_or_default();
-            return Err(PosesError::NoInitialPair { diagnosis: Diagnosis::new(&ws, &graph, &[]) });
+            return Err(PosesError::NoInitialPair {
+                diagnosis: Diagnosis::new(&ws, &graph, &[]),
+            });
         }
         Err(e) => return Err(e.into()),
     };
     let diagnosis = Diagnosis::new(&ws, &run.graph, &run.models);
+    if run.models.is_empty() {
+        return Err(PosesError::NoInitialPair { diagnosis });
+    }
     let video: Vec<(&str, &str)> = ws
         .images
         .iter()
-        .filter_map(|i| i.video_camera.as_deref().map(|c| (c, i.colmap_name.as_str())))
+        .filter_map(|i| {
+            i.video_camera
+                .as_deref()
+                .map(|c| (c, i.colmap_name.as_str()))
+        })
         .collect();
-    let model_index = run.models.iter().position(|(_, m)| video.iter().all(|(_, n)| m.image_by_name(n).is_some()));
-    let Some(model_index) = model_index else {
-        let missing: Vec<String> = diagnosis
-            .images
-            .iter()
-            .filter(|i| i.video_camera.is_some() && i.model.is_none())
-            .filter_map(|i| i.video_camera.clone())
-            .collect();
-        if !missing.is_empty() {
-            return Err(PosesError::VideoNotRegistered { missing, diagnosis });
-        }
-        let groups = (0..run.models.len())
-            .map(|m| {
-                diagnosis.images.iter().filter(|i| i.model == Some(m)).filter_map(|i| i.video_camera.clone()).collect()
-            })
-            .filter(|g: &Vec<String>| !g.is_empty())
-            .collect();
-        return Err(PosesError::SplitModels { groups, diagnosis });
-    };
+    let model_index = pick_model(&run.models, &video, diagnosis)?;
     let (model_dir, model) = &run.models[model_index];
     let (cameras, points) = cameras_from_model(model, &video, inputs.working_size)?;
-    let rel_model = model_dir.strip_prefix(out_dir).unwrap_or(model_dir).to_string_lossy().into_owned();
-    let source = PoseSource::Colmap { model_dir: rel_model, registered_images: model.images.len(), timings: run.timings };
+    let rel_model = model_dir
+        .strip_prefix(out_dir)
+        .unwrap_or(model_dir)
+        .to_string_lossy()
+        .into_owned();
+    let source = PoseSource::Colmap {
+        model_dir: rel_model,
+        registered_images: model.images.len(),
+        timings: run.timings,
+    };
     write_outputs(out_dir, cameras, points, source, config.radius)
 }
 
+/// The model holding every video camera (the largest such); otherwise the error that says
+/// which video cameras did not register, or how they were split across models.
+pub fn pick_model(
+    models: &[(PathBuf, ColmapModel)],
+    video: &[(&str, &str)],
+    diagnosis: Diagnosis,
+) -> Result<usize, PosesError> {
+    if let Some(i) = models
+        .iter()
+        .position(|(_, m)| video.iter().all(|(_, n)| m.image_by_name(n).is_some()))
+    {
+        return Ok(i);
+    }
+    let model_of = |colmap_name: &str| {
+        models
+            .iter()
+            .position(|(_, m)| m.image_by_name(colmap_name).is_some())
+    };
+    let missing: Vec<String> = video
+        .iter()
+        .filter(|(_, n)| model_of(n).is_none())
+        .map(|(c, _)| c.to_string())
+        .collect();
+    if !missing.is_empty() {
+        return Err(PosesError::VideoNotRegistered { missing, diagnosis });
+    }
+    let groups = (0..models.len())
+        .map(|m| {
+            video
+                .iter()
+                .filter(|(_, n)| model_of(n) == Some(m))
+                .map(|(c, _)| c.to_string())
+                .collect::<Vec<_>>()
+        })
+        .filter(|g| !g.is_empty())
+        .collect();
+    Err(PosesError::SplitModels { groups, diagnosis })
+}
+
 /// Normalise and write an imported (or otherwise known) camera set as the poses stage's
-/// output, with no sparse points.
-pub fn write_imported(set: &CameraSet, from: &Path, out_dir: &Path, radius: f64) -> Result<PosesOutput, PosesError> {
-    let source = PoseSource::Import { path: from.to_path_buf() };
-    write_outputs(out_dir, set.cameras.clone(), Vec::new(), source, radius)
+/// output, with no sparse points; intrinsics scaled to `working_size` when given.
+pub fn write_imported(
+    set: &CameraSet,
+    from: &Path,
+    out_dir: &Path,
+    working_size: Option<(u32, u32)>,
+    radius: f64,
+) -> Result<PosesOutput, PosesError> {
+    let stale = out_dir.join("points3d.ply");
+    if stale.exists() {
+        std::fs::remove_file(&stale).map_err(|source| PosesError::Io {
+            path: stale,
+            source,
+        })?;
+    }
+    let mut cameras = set.cameras.clone();
+    for c in &mut cameras {
+        c.intrinsics = scale_intrinsics(&c.name, &c.intrinsics, working_size)?;
+    }
+    let source = PoseSource::Import {
+        path: from.to_path_buf(),
+    };
+    write_outputs(out_dir, cameras, Vec::new(), source, radius)
+}
+
+/// Intrinsics for the working size; refuses a change of aspect ratio (a crop, not a resize).
+pub fn scale_intrinsics(
+    camera: &str,
+    intr: &splat4d::Intrinsics,
+    working_size: Option<(u32, u32)>,
+) -> Result<splat4d::Intrinsics, PosesError> {
+    let Some((w, h)) = working_size else {
+        return Ok(*intr);
+    };
+    let (sx, sy) = (w as f64 / intr.width as f64, h as f64 / intr.height as f64);
+    if (sx / sy - 1.0).abs() > 0.01 {
+        return Err(PosesError::AspectMismatch {
+            camera: camera.to_string(),
+            calibrated: (intr.width, intr.height),
+            working: (w, h),
+        });
+    }
+    Ok(intr.scaled_to(w, h))
 }
 
 /// Engine cameras for the video cameras (names, COLMAP image names) of a COLMAP model, with
@@ -232,28 +382,45 @@ pub fn cameras_from_model(
 ) -> Result<(Vec<Camera>, Vec<SparsePoint>), PosesError> {
     let mut cameras = Vec::new();
     for &(cam, colmap_name) in video {
-        let image = model.image_by_name(colmap_name).ok_or_else(|| PosesError::VideoNotRegistered {
-            missing: vec![cam.to_string()],
-            diagnosis: Diagnosis { images: Vec::new(), num_models: 1 },
-        })?;
+        let image =
+            model
+                .image_by_name(colmap_name)
+                .ok_or_else(|| PosesError::VideoNotRegistered {
+                    missing: vec![cam.to_string()],
+                    diagnosis: Diagnosis {
+                        images: Vec::new(),
+                        num_models: 1,
+                    },
+                })?;
         let colmap_cam = model.cameras.get(&image.camera_id).ok_or_else(|| {
             PosesError::Colmap(ColmapError::Model(crate::colmap::ModelError::Malformed {
                 path: PathBuf::from("images"),
-                what: format!("image {} refers to missing camera {}", image.name, image.camera_id),
+                what: format!(
+                    "image {} refers to missing camera {}",
+                    image.name, image.camera_id
+                ),
             }))
         })?;
-        let (mut intrinsics, distortion) = convert::to_engine(colmap_cam)?;
-        if let Some((w, h)) = working_size {
-            intrinsics = intrinsics.scaled_to(w, h);
-        }
+        let (intrinsics, distortion) = convert::to_engine(colmap_cam)?;
+        let intrinsics = scale_intrinsics(cam, &intrinsics, working_size)?;
         cameras.push(Camera {
             name: cam.to_string(),
             intrinsics,
             distortion,
-            world_to_camera: WorldToCamera::from_parts(orthonormalise(image.rotation()), image.translation()),
+            world_to_camera: WorldToCamera::from_parts(
+                orthonormalise(image.rotation()),
+                image.translation(),
+            ),
         });
     }
-    let points = model.points3d.values().map(|p| SparsePoint { xyz: p.xyz, rgb: p.rgb }).collect();
+    let points = model
+        .points3d
+        .values()
+        .map(|p| SparsePoint {
+            xyz: p.xyz,
+            rgb: p.rgb,
+        })
+        .collect();
     Ok((cameras, points))
 }
 
@@ -266,14 +433,25 @@ pub fn normalisation_for(cameras: &[Camera], points: &[SparsePoint], radius: f64
         return Normalisation::IDENTITY;
     }
     let centre = centres.iter().copied().sum::<DVec3>() / centres.len() as f64;
-    let mut spread = centres.iter().map(|c| (*c - centre).length()).sum::<f64>() / centres.len() as f64;
+    let mut spread =
+        centres.iter().map(|c| (*c - centre).length()).sum::<f64>() / centres.len() as f64;
     if spread < 1e-12 {
-        let mut d: Vec<f64> = points.iter().map(|p| (DVec3::from_array(p.xyz) - centre).length()).collect();
+        let mut d: Vec<f64> = points
+            .iter()
+            .map(|p| (DVec3::from_array(p.xyz) - centre).length())
+            .collect();
         d.sort_by(f64::total_cmp);
         spread = d.get(d.len() / 2).copied().unwrap_or(0.0);
     }
-    let scale = if spread > 1e-12 && radius > 0.0 { radius / spread } else { 1.0 };
-    Normalisation { centre: centre.to_array(), scale }
+    let scale = if spread > 1e-12 && radius > 0.0 {
+        radius / spread
+    } else {
+        1.0
+    };
+    Normalisation {
+        centre: centre.to_array(),
+        scale,
+    }
 }
 
 fn write_outputs(
@@ -286,17 +464,30 @@ fn write_outputs(
     let norm = normalisation_for(&cameras, &points, radius);
     let cameras: Vec<Camera> = cameras
         .into_iter()
-        .map(|c| Camera { world_to_camera: norm.apply_to_pose(&c.world_to_camera), ..c })
+        .map(|c| Camera {
+            world_to_camera: norm.apply_to_pose(&c.world_to_camera),
+            ..c
+        })
         .collect();
     let points: Vec<SparsePoint> = points
         .into_iter()
-        .map(|p| SparsePoint { xyz: norm.apply(DVec3::from_array(p.xyz)).to_array(), ..p })
+        .map(|p| SparsePoint {
+            xyz: norm.apply(DVec3::from_array(p.xyz)).to_array(),
+            ..p
+        })
         .collect();
-    std::fs::create_dir_all(out_dir).map_err(|source| PosesError::Io { path: out_dir.to_path_buf(), source })?;
+    std::fs::create_dir_all(out_dir).map_err(|source| PosesError::Io {
+        path: out_dir.to_path_buf(),
+        source,
+    })?;
     let points_ply = (!points.is_empty()).then(|| out_dir.join("points3d.ply"));
     if let Some(ply) = &points_ply {
-        crate::colmap::write_atomically(ply, &points_to_ply(&points))
-            .map_err(|source| PosesError::Io { path: ply.clone(), source })?;
+        crate::colmap::write_atomically(ply, &points_to_ply(&points)).map_err(|source| {
+            PosesError::Io {
+                path: ply.clone(),
+                source,
+            }
+        })?;
     }
     let file = PosesFile {
         set: CameraSet::new(cameras),
@@ -310,9 +501,18 @@ fn write_outputs(
         path: cameras_json.clone(),
         source: std::io::Error::other(e),
     })?;
-    crate::colmap::write_atomically(&cameras_json, text.as_bytes())
-        .map_err(|source| PosesError::Io { path: cameras_json.clone(), source })?;
-    Ok(PosesOutput { file, points, cameras_json, points_ply })
+    crate::colmap::write_atomically(&cameras_json, text.as_bytes()).map_err(|source| {
+        PosesError::Io {
+            path: cameras_json.clone(),
+            source,
+        }
+    })?;
+    Ok(PosesOutput {
+        file,
+        points,
+        cameras_json,
+        points_ply,
+    })
 }
 
 /// Binary little-endian PLY: `x y z` (float) and `red green blue` (uchar) per vertex.
@@ -338,14 +538,26 @@ pub fn points_to_ply(points: &[SparsePoint]) -> Vec<u8> {
 pub fn orthonormalise(r: DMat3) -> DMat3 {
     let m = nalgebra::Matrix3::from_fn(|i, j| r.col(j)[i]);
     let svd = m.svd(true, true);
-    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else { return r };
+    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else {
+        return r;
+    };
     let mut q = u * vt;
     if q.determinant() < 0.0 {
         let mut u2 = u;
         u2.column_mut(2).neg_mut();
         q = u2 * vt;
     }
-    DMat3::from_cols_array(&[q[(0, 0)], q[(1, 0)], q[(2, 0)], q[(0, 1)], q[(1, 1)], q[(2, 1)], q[(0, 2)], q[(1, 2)], q[(2, 2)]])
+    DMat3::from_cols_array(&[
+        q[(0, 0)],
+        q[(1, 0)],
+        q[(2, 0)],
+        q[(0, 1)],
+        q[(1, 1)],
+        q[(2, 1)],
+        q[(0, 2)],
+        q[(1, 2)],
+        q[(2, 2)],
+    ])
 }
 
 fn check_inputs(inputs: &PosesInputs) -> Result<(), PosesError> {
@@ -359,27 +571,250 @@ fn check_inputs(inputs: &PosesInputs) -> Result<(), PosesError> {
         }
     }
     if inputs.stills.len() < inputs.config.min_stills {
-        return Err(PosesError::TooFewStills { got: inputs.stills.len(), min: inputs.config.min_stills });
+        return Err(PosesError::TooFewStills {
+            got: inputs.stills.len(),
+            min: inputs.config.min_stills,
+        });
     }
     let mut still_sizes = BTreeSet::new();
-    let all = inputs.video_frames.iter().map(|(_, p)| (p, false)).chain(inputs.stills.iter().map(|p| (p, true)));
+    let mut video_sizes = BTreeSet::new();
+    let all = inputs
+        .video_frames
+        .iter()
+        .map(|(_, p)| (p, false))
+        .chain(inputs.stills.iter().map(|p| (p, true)));
     for (path, still) in all {
         let img = image::open(path)
-            .map_err(|e| PosesError::ImageUnreadable { path: path.clone(), reason: e.to_string() })?
+            .map_err(|e| PosesError::ImageUnreadable {
+                path: path.clone(),
+                reason: e.to_string(),
+            })?
             .into_luma8();
         let n = img.as_raw().len().max(1) as f64;
         let mean = img.as_raw().iter().map(|&v| v as f64).sum::<f64>() / n;
-        let var = img.as_raw().iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / n;
+        let var = img
+            .as_raw()
+            .iter()
+            .map(|&v| (v as f64 - mean).powi(2))
+            .sum::<f64>()
+            / n;
         if var.sqrt() < BLANK_STD_DEV {
-            return Err(PosesError::BlankImage { path: path.clone(), std_dev: var.sqrt() });
+            return Err(PosesError::BlankImage {
+                path: path.clone(),
+                std_dev: var.sqrt(),
+            });
         }
         if still {
             still_sizes.insert(img.dimensions());
+        } else {
+            video_sizes.insert(img.dimensions());
         }
     }
+    if inputs.config.colmap.video_cameras == VideoCameras::Shared && video_sizes.len() > 1 {
+        let sizes: Vec<String> = video_sizes
+            .iter()
+            .map(|(w, h)| format!("{w}×{h}"))
+            .collect();
+        return Err(PosesError::VideoSizesDiffer {
+            sizes: sizes.join(", "),
+        });
+    }
     if inputs.config.colmap.stills_cameras == StillsCameras::Shared && still_sizes.len() > 1 {
-        let sizes: Vec<String> = still_sizes.iter().map(|(w, h)| format!("{w}×{h}")).collect();
-        return Err(PosesError::StillSizesDiffer { sizes: sizes.join(", ") });
+        let sizes: Vec<String> = still_sizes
+            .iter()
+            .map(|(w, h)| format!("{w}×{h}"))
+            .collect();
+        return Err(PosesError::StillSizesDiffer {
+            sizes: sizes.join(", "),
+        });
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::colmap::ColmapImage;
+
+    fn model_with(names: &[&str]) -> (PathBuf, ColmapModel) {
+        let mut m = ColmapModel::default();
+        for (i, n) in names.iter().enumerate() {
+            m.images.insert(
+                i as u32 + 1,
+                ColmapImage {
+                    id: i as u32 + 1,
+                    qvec: [1.0, 0.0, 0.0, 0.0],
+                    tvec: [0.0; 3],
+                    camera_id: 1,
+                    name: n.to_string(),
+                    points2d: Vec::new(),
+                },
+            );
+        }
+        (PathBuf::from("sparse/x"), m)
+    }
+
+    #[test]
+    fn points_ply_has_a_header_and_15_bytes_per_point() {
+        let pts = [
+            SparsePoint {
+                xyz: [1.0, -2.0, 0.5],
+                rgb: [255, 0, 7],
+            },
+            SparsePoint {
+                xyz: [0.0, 0.0, 0.0],
+                rgb: [1, 2, 3],
+            },
+        ];
+        let ply = points_to_ply(&pts);
+        let text = String::from_utf8_lossy(&ply);
+        let end = text.find("end_header\n").unwrap() + "end_header\n".len();
+        assert!(text.starts_with("ply\nformat binary_little_endian 1.0\n"));
+        assert!(text[..end].contains("element vertex 2\n"));
+        assert_eq!(ply.len() - end, 2 * 15);
+        assert_eq!(
+            f32::from_le_bytes(ply[end + 4..end + 8].try_into().unwrap()),
+            -2.0
+        );
+        assert_eq!(&ply[end + 12..end + 15], &[255, 0, 7]);
+    }
+
+    #[test]
+    fn poses_file_round_trips_and_reads_as_a_camera_set() {
+        let dir = std::env::temp_dir().join(format!("calib_poses_file_{}", std::process::id()));
+        let cam = Camera {
+            name: "cam0".into(),
+            intrinsics: splat4d::Intrinsics::from_hfov(64, 48, 60.0),
+            distortion: Default::default(),
+            world_to_camera: WorldToCamera::IDENTITY,
+        };
+        let other = Camera {
+            name: "cam1".into(),
+            world_to_camera: WorldToCamera::from_parts(
+                glam::DMat3::IDENTITY,
+                glam::DVec3::new(-2.0, 0.0, 0.0),
+            ),
+            ..cam.clone()
+        };
+        let out = write_outputs(
+            &dir,
+            vec![cam, other],
+            vec![SparsePoint {
+                xyz: [1.0, 0.0, 3.0],
+                rgb: [9, 9, 9],
+            }],
+            PoseSource::Import {
+                path: "x.json".into(),
+            },
+            1.0,
+        )
+        .unwrap();
+        let back = PosesFile::read(&out.cameras_json).unwrap();
+        assert_eq!(back.normalisation, out.file.normalisation);
+        assert_eq!(back.num_points, 1);
+        let set: CameraSet =
+            serde_json::from_str(&std::fs::read_to_string(&out.cameras_json).unwrap()).unwrap();
+        assert_eq!(set.cameras.len(), 2);
+        assert!(PosesFile::read(&dir.join("missing.json")).is_err());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn config_reads_from_toml_with_defaults() {
+        let text = "min_stills = 6\n[colmap]\ncamera_model = \"OPENCV_FISHEYE\"\nvideo_cameras = \"shared\"\n";
+        let c: PosesConfig = toml::from_str(text).unwrap();
+        assert_eq!(c.min_stills, 6);
+        assert_eq!(c.radius, 1.0);
+        assert_eq!(
+            c.colmap.camera_model,
+            crate::colmap::CameraModel::OpencvFisheye
+        );
+        assert_eq!(c.colmap.video_cameras, VideoCameras::Shared);
+        assert_eq!(c.colmap.stills_cameras, StillsCameras::Shared);
+        assert!(toml::from_str::<PosesConfig>("min_still = 3").is_err());
+        assert!(toml::from_str::<PosesConfig>("[colmap]\ncamera_model = \"BROWN\"").is_err());
+    }
+
+    #[test]
+    fn picks_the_model_with_all_video_cameras_or_explains_why_none() {
+        let video = [
+            ("cam0", "v/0.png"),
+            ("cam1", "v/1.png"),
+            ("cam2", "v/2.png"),
+        ];
+        let diag = || Diagnosis {
+            images: Vec::new(),
+            num_models: 2,
+        };
+        let models = [
+            model_with(&["s/a.png", "v/0.png"]),
+            model_with(&["v/0.png", "v/1.png", "v/2.png"]),
+        ];
+        assert_eq!(pick_model(&models, &video, diag()).unwrap(), 1);
+
+        let split = [
+            model_with(&["v/0.png", "v/1.png", "s/a.png"]),
+            model_with(&["v/2.png", "s/b.png"]),
+        ];
+        match pick_model(&split, &video, diag()).unwrap_err() {
+            PosesError::SplitModels { groups, .. } => {
+                assert_eq!(groups, [vec!["cam0", "cam1"], vec!["cam2"]]);
+            }
+            e => panic!("{e}"),
+        }
+        let e = pick_model(&split, &video, diag()).unwrap_err().to_string();
+        assert!(e.contains("model 0: cam0, cam1; model 1: cam2"), "{e}");
+
+        let missing = [model_with(&["v/0.png", "v/2.png"])];
+        match pick_model(&missing, &video, diag()).unwrap_err() {
+            PosesError::VideoNotRegistered { missing, .. } => assert_eq!(missing, ["cam1"]),
+            e => panic!("{e}"),
+        }
+        match pick_model(&[], &video, diag()).unwrap_err() {
+            PosesError::VideoNotRegistered { missing, .. } => assert_eq!(missing.len(), 3),
+            e => panic!("{e}"),
+        }
+    }
+
+    #[test]
+    fn normalisation_puts_cameras_at_the_radius_and_keeps_projections() {
+        use glam::DVec3;
+        let intr = splat4d::Intrinsics::from_hfov(64, 48, 60.0);
+        let cams: Vec<Camera> = [
+            DVec3::new(5.0, 1.0, 2.0),
+            DVec3::new(1.0, 6.0, 2.0),
+            DVec3::new(-3.0, 2.0, 3.0),
+        ]
+        .iter()
+        .enumerate()
+        .map(|(i, &e)| Camera {
+            name: format!("c{i}"),
+            intrinsics: intr,
+            distortion: Default::default(),
+            world_to_camera: WorldToCamera::look_at(e, DVec3::new(1.0, 2.0, 0.0), DVec3::Z)
+                .unwrap(),
+        })
+        .collect();
+        let norm = normalisation_for(&cams, &[], 1.0);
+        let p = DVec3::new(1.2, 2.1, 0.3);
+        for c in &cams {
+            let moved = Camera {
+                world_to_camera: norm.apply_to_pose(&c.world_to_camera),
+                ..c.clone()
+            };
+            assert!(
+                (moved.world_to_camera.centre() - norm.apply(c.world_to_camera.centre())).length()
+                    < 1e-12
+            );
+            let (a, da) = c.project(p).unwrap();
+            let (b, db) = moved.project(norm.apply(p)).unwrap();
+            assert!((a - b).length() < 1e-9 && (db - da * norm.scale).abs() < 1e-9);
+        }
+        let mean: f64 = cams
+            .iter()
+            .map(|c| norm.apply(c.world_to_camera.centre()).length())
+            .sum::<f64>()
+            / 3.0;
+        assert!((mean - 1.0).abs() < 1e-12);
+    }
 }

@@ -34,7 +34,13 @@ pub enum UndistortError {
         "image is {got_w}×{got_h} but camera {camera} is calibrated for {want_w}×{want_h}: resize the \
          frames to the working size first, or scale the camera with Intrinsics::scaled_to"
     )]
-    SizeMismatch { camera: String, got_w: u32, got_h: u32, want_w: u32, want_h: u32 },
+    SizeMismatch {
+        camera: String,
+        got_w: u32,
+        got_h: u32,
+        want_w: u32,
+        want_h: u32,
+    },
 }
 
 /// A precomputed remap from one distorted camera to its pinhole twin (same size).
@@ -42,9 +48,47 @@ pub enum UndistortError {
 pub struct UndistortMap {
     source: Camera,
     pinhole: Camera,
-    /// For each output pixel, row-major: the source position in index space
-    /// (pixel centre at integer), or NaN when outside the source image.
-    map: Vec<[f32; 2]>,
+    /// For each output pixel, row-major: where and how to sample the source.
+    map: Vec<Tap>,
+}
+
+/// A bilinear tap: the top-left source pixel index, the steps to its right and lower
+/// neighbours (0 at the image edge), and the weights of those neighbours.
+#[derive(Clone, Copy, Debug)]
+struct Tap {
+    /// `u32::MAX`: outside the source image.
+    index: u32,
+    right: u32,
+    down: u32,
+    wx: f32,
+    wy: f32,
+}
+
+impl Tap {
+    const OUTSIDE: Tap = Tap {
+        index: u32::MAX,
+        right: 0,
+        down: 0,
+        wx: 0.0,
+        wy: 0.0,
+    };
+
+    /// The tap for source position `(sx, sy)` in index space (pixel centre at integer).
+    fn at(sx: f64, sy: f64, w: u32, h: u32) -> Tap {
+        let inside = sx >= -0.5 && sy >= -0.5 && sx <= w as f64 - 0.5 && sy <= h as f64 - 0.5;
+        if !inside || !sx.is_finite() || !sy.is_finite() {
+            return Tap::OUTSIDE;
+        }
+        let (xc, yc) = (sx.clamp(0.0, (w - 1) as f64), sy.clamp(0.0, (h - 1) as f64));
+        let (x0, y0) = (xc.floor() as u32, yc.floor() as u32);
+        Tap {
+            index: y0 * w + x0,
+            right: u32::from(x0 + 1 < w),
+            down: if y0 + 1 < h { w } else { 0 },
+            wx: (xc - x0 as f64) as f32,
+            wy: (yc - y0 as f64) as f32,
+        }
+    }
 }
 
 /// The pinhole camera [`UndistortMap::new`] would produce, without building the map.
@@ -54,18 +98,32 @@ pub fn pinhole_for(camera: &Camera, fit: Fit) -> Camera {
         (_, Distortion::None) | (Fit::KeepFocal, _) => intr,
         (Fit::ValidPixels | Fit::AllPixels, d) => {
             let (inner, outer) = undistorted_bounds(&intr, &d);
-            let [x0, y0, x1, y1] = if fit == Fit::ValidPixels { inner } else { outer };
+            let [x0, y0, x1, y1] = if fit == Fit::ValidPixels {
+                inner
+            } else {
+                outer
+            };
             let (w, h) = (intr.width as f64, intr.height as f64);
             let fx = w / (x1 - x0);
             let fy = h / (y1 - y0);
             if fx.is_finite() && fy.is_finite() && fx > 0.0 && fy > 0.0 {
-                Intrinsics { fx, fy, cx: -x0 * fx, cy: -y0 * fy, ..intr }
+                Intrinsics {
+                    fx,
+                    fy,
+                    cx: -x0 * fx,
+                    cy: -y0 * fy,
+                    ..intr
+                }
             } else {
                 intr
             }
         }
     };
-    Camera { intrinsics: new_intr, distortion: Distortion::None, ..camera.clone() }
+    Camera {
+        intrinsics: new_intr,
+        distortion: Distortion::None,
+        ..camera.clone()
+    }
 }
 
 /// Inner and outer rectangles `[x0, y0, x1, y1]` (normalised coordinates) of the image
@@ -74,8 +132,18 @@ fn undistorted_bounds(intr: &Intrinsics, d: &Distortion) -> ([f64; 4], [f64; 4])
     let (w, h) = (intr.width as f64, intr.height as f64);
     let n = 64;
     let undist = |x: f64, y: f64| d.undistort(intr.to_normalised(DVec2::new(x, y)));
-    let mut inner = [f64::NEG_INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::INFINITY];
-    let mut outer = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+    let mut inner = [
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::INFINITY,
+    ];
+    let mut outer = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
     for i in 0..=n {
         let t = i as f64 / n as f64;
         let (left, right) = (undist(0.0, t * h), undist(w, t * h));
@@ -102,16 +170,21 @@ impl UndistortMap {
         let src = camera.intrinsics;
         let dst = pinhole.intrinsics;
         let d = camera.distortion;
-        let mut map = vec![[0.0f32; 2]; w as usize * h as usize];
-        map.par_chunks_mut(w.max(1) as usize).enumerate().for_each(|(y, row)| {
-            for (x, m) in row.iter_mut().enumerate() {
-                let n = dst.to_normalised(DVec2::new(x as f64 + 0.5, y as f64 + 0.5));
-                let p = src.to_pixels(d.distort(n)) - DVec2::splat(0.5);
-                let inside = p.x >= -0.5 && p.y >= -0.5 && p.x <= w as f64 - 0.5 && p.y <= h as f64 - 0.5;
-                *m = if inside && p.is_finite() { [p.x as f32, p.y as f32] } else { [f32::NAN; 2] };
-            }
-        });
-        Self { source: camera.clone(), pinhole, map }
+        let mut map = vec![Tap::OUTSIDE; w as usize * h as usize];
+        map.par_chunks_mut(w.max(1) as usize)
+            .enumerate()
+            .for_each(|(y, row)| {
+                for (x, m) in row.iter_mut().enumerate() {
+                    let n = dst.to_normalised(DVec2::new(x as f64 + 0.5, y as f64 + 0.5));
+                    let p = src.to_pixels(d.distort(n)) - DVec2::splat(0.5);
+                    *m = Tap::at(p.x, p.y, w, h);
+                }
+            });
+        Self {
+            source: camera.clone(),
+            pinhole,
+            map,
+        }
     }
 
     /// The distorted camera this map starts from.
@@ -127,12 +200,17 @@ impl UndistortMap {
     /// Source position (pixel-centre convention) of output pixel position `p`.
     pub fn source_position(&self, p: DVec2) -> DVec2 {
         let n = self.pinhole.intrinsics.to_normalised(p);
-        self.source.intrinsics.to_pixels(self.source.distortion.distort(n))
+        self.source
+            .intrinsics
+            .to_pixels(self.source.distortion.distort(n))
     }
 
     /// Undistort one image (any `u8` or `f32` pixel type) by bilinear sampling; pixels the
     /// lens did not see are 0.
-    pub fn apply<P, S>(&self, image: &ImageBuffer<P, Vec<S>>) -> Result<ImageBuffer<P, Vec<S>>, UndistortError>
+    pub fn apply<P, S>(
+        &self,
+        image: &ImageBuffer<P, Vec<S>>,
+    ) -> Result<ImageBuffer<P, Vec<S>>, UndistortError>
     where
         P: Pixel<Subpixel = S> + Send + Sync,
         S: Sample,
@@ -151,24 +229,28 @@ impl UndistortMap {
         let src = image.as_raw();
         let mut out = vec![S::from_f32(0.0); src.len()];
         let row_len = w as usize * c;
-        out.par_chunks_mut(row_len.max(1)).enumerate().for_each(|(y, row)| {
-            for x in 0..w as usize {
-                let [sx, sy] = self.map[y * w as usize + x];
-                if sx.is_nan() {
-                    continue;
+        out.par_chunks_mut(row_len.max(1))
+            .enumerate()
+            .for_each(|(y, row)| {
+                let taps = &self.map[y * w as usize..(y + 1) * w as usize];
+                for (out_px, tap) in row.chunks_exact_mut(c).zip(taps) {
+                    if tap.index == u32::MAX {
+                        continue;
+                    }
+                    let i00 = tap.index as usize * c;
+                    let i01 = i00 + tap.right as usize * c;
+                    let i10 = i00 + tap.down as usize * c;
+                    let i11 = i10 + tap.right as usize * c;
+                    let (wx, wy) = (tap.wx, tap.wy);
+                    let (p00, p01) = (&src[i00..i00 + c], &src[i01..i01 + c]);
+                    let (p10, p11) = (&src[i10..i10 + c], &src[i11..i11 + c]);
+                    for k in 0..c {
+                        let top = p00[k].to_f32() + (p01[k].to_f32() - p00[k].to_f32()) * wx;
+                        let bottom = p10[k].to_f32() + (p11[k].to_f32() - p10[k].to_f32()) * wx;
+                        out_px[k] = S::from_f32(top + (bottom - top) * wy);
+                    }
                 }
-                let (xc, yc) = (sx.clamp(0.0, (w - 1) as f32), sy.clamp(0.0, (h - 1) as f32));
-                let (x0, y0) = (xc.floor() as usize, yc.floor() as usize);
-                let (x1, y1) = ((x0 + 1).min(w as usize - 1), (y0 + 1).min(h as usize - 1));
-                let (fx, fy) = (xc - x0 as f32, yc - y0 as f32);
-                for k in 0..c {
-                    let at = |xx: usize, yy: usize| src[(yy * w as usize + xx) * c + k].to_f32();
-                    let top = at(x0, y0) * (1.0 - fx) + at(x1, y0) * fx;
-                    let bottom = at(x0, y1) * (1.0 - fx) + at(x1, y1) * fx;
-                    row[x * c + k] = S::from_f32(top * (1.0 - fy) + bottom * fy);
-                }
-            }
-        });
+            });
         Ok(ImageBuffer::from_raw(w, h, out).expect("same size as the input"))
     }
 }
@@ -232,24 +314,47 @@ mod tests {
             name: "c".into(),
             intrinsics: Intrinsics::from_hfov(320, 240, 80.0),
             distortion: d,
-            world_to_camera: WorldToCamera::look_at(DVec3::new(0.0, -3.0, 1.0), DVec3::ZERO, DVec3::Z).unwrap(),
+            world_to_camera: WorldToCamera::look_at(
+                DVec3::new(0.0, -3.0, 1.0),
+                DVec3::ZERO,
+                DVec3::Z,
+            )
+            .unwrap(),
         }
     }
 
     #[test]
     fn pinhole_and_distorted_cameras_see_world_points_where_the_map_says() {
         for d in [
-            Distortion::Opencv { k1: -0.25, k2: 0.07, p1: 1e-3, p2: -5e-4, k3: 0.0 },
-            Distortion::Fisheye { k1: 0.05, k2: -0.01, k3: 0.002, k4: 0.0 },
+            Distortion::Opencv {
+                k1: -0.25,
+                k2: 0.07,
+                p1: 1e-3,
+                p2: -5e-4,
+                k3: 0.0,
+            },
+            Distortion::Fisheye {
+                k1: 0.05,
+                k2: -0.01,
+                k3: 0.002,
+                k4: 0.0,
+            },
         ] {
             for fit in [Fit::ValidPixels, Fit::AllPixels, Fit::KeepFocal] {
                 let c = cam(d);
                 let map = UndistortMap::new(&c, fit);
                 assert!(map.pinhole().distortion.is_none());
-                for p in [DVec3::new(0.3, 0.2, 0.5), DVec3::new(-0.8, 0.5, 1.2), DVec3::ZERO] {
+                for p in [
+                    DVec3::new(0.3, 0.2, 0.5),
+                    DVec3::new(-0.8, 0.5, 1.2),
+                    DVec3::ZERO,
+                ] {
                     let (out, _) = map.pinhole().project(p).unwrap();
                     let (src, _) = c.project(p).unwrap();
-                    assert!((map.source_position(out) - src).length() < 1e-9, "{d:?} {fit:?}");
+                    assert!(
+                        (map.source_position(out) - src).length() < 1e-9,
+                        "{d:?} {fit:?}"
+                    );
                 }
             }
         }
@@ -257,7 +362,13 @@ mod tests {
 
     #[test]
     fn valid_pixels_fit_leaves_no_holes_and_all_pixels_keeps_the_corners() {
-        let c = cam(Distortion::Opencv { k1: -0.3, k2: 0.08, p1: 0.0, p2: 0.0, k3: 0.0 });
+        let c = cam(Distortion::Opencv {
+            k1: -0.3,
+            k2: 0.08,
+            p1: 0.0,
+            p2: 0.0,
+            k3: 0.0,
+        });
         let img = image::RgbImage::from_pixel(320, 240, image::Rgb([200, 100, 50]));
         let (_, inner) = undistort_image(&c, &img, Fit::ValidPixels).unwrap();
         let holes = inner.pixels().filter(|p| p.0 == [0, 0, 0]).count();
@@ -267,6 +378,10 @@ mod tests {
         // Barrel distortion: the "all pixels" pinhole is wider (shorter focal length).
         assert!(pin.intrinsics.fx < c.intrinsics.fx);
         let wrong = image::RgbImage::new(100, 100);
-        assert!(UndistortMap::new(&c, Fit::ValidPixels).apply(&wrong).is_err());
+        assert!(
+            UndistortMap::new(&c, Fit::ValidPixels)
+                .apply(&wrong)
+                .is_err()
+        );
     }
 }

@@ -3,7 +3,9 @@
 
 use std::path::Path;
 
-use calib::import::{find_calibration, import_calibration, import_calibration_with, ImportOptions, Units};
+use calib::import::{
+    ImportOptions, Units, find_calibration, import_calibration, import_calibration_with,
+};
 use glam::DVec3;
 use splat4d::Distortion;
 
@@ -23,20 +25,52 @@ fn opencv_json_in_all_its_spellings_gives_the_same_camera() {
     let t = -(rm * c);
     let k = "[[500, 0, 320], [0, 501, 240], [0, 0, 1]]";
     let variants = [
-        format!(r#"{{"cameras": {{"cam0": {{"K": {k}, "dist": [-0.1, 0.01, 0, 0, 0], "R": {r:?}, "t": [{}, {}, {}], "size": [640, 480]}}}}}}"#, t.x, t.y, t.z),
-        format!(r#"{{"cameras": [{{"name": "cam0", "camera_matrix": {k}, "distCoeffs": [-0.1, 0.01, 0, 0], "rvec": [0, 0, {}], "tvec": [[{}], [{}], [{}]], "image_width": 640, "image_height": 480}}]}}"#, std::f64::consts::FRAC_PI_2, t.x, t.y, t.z),
-        format!(r#"{{"units": "mm", "cameras": {{"cam0": {{"K": {k}, "D": [-0.1, 0.01, 0, 0, 0], "R": {r:?}, "C": [1000, 2000, 500], "resolution": [640, 480]}}}}}}"#),
-        format!(r#"{{"convention": "camera_to_world", "cameras": {{"cam0": {{"K": {k}, "dist": [-0.1, 0.01, 0, 0, 0], "R": [[0, 1, 0], [-1, 0, 0], [0, 0, 1]], "t": [1, 2, 0.5], "size": [640, 480]}}}}}}"#),
+        format!(
+            r#"{{"cameras": {{"cam0": {{"K": {k}, "dist": [-0.1, 0.01, 0, 0, 0], "R": {r:?}, "t": [{}, {}, {}], "size": [640, 480]}}}}}}"#,
+            t.x, t.y, t.z
+        ),
+        format!(
+            r#"{{"cameras": [{{"name": "cam0", "camera_matrix": {k}, "distCoeffs": [-0.1, 0.01, 0, 0], "rvec": [0, 0, {}], "tvec": [[{}], [{}], [{}]], "image_width": 640, "image_height": 480}}]}}"#,
+            std::f64::consts::FRAC_PI_2,
+            t.x,
+            t.y,
+            t.z
+        ),
+        format!(
+            r#"{{"units": "mm", "cameras": {{"cam0": {{"K": {k}, "D": [-0.1, 0.01, 0, 0, 0], "R": {r:?}, "C": [1000, 2000, 500], "resolution": [640, 480]}}}}}}"#
+        ),
+        format!(
+            r#"{{"convention": "camera_to_world", "cameras": {{"cam0": {{"K": {k}, "dist": [-0.1, 0.01, 0, 0, 0], "R": [[0, 1, 0], [-1, 0, 0], [0, 0, 1]], "t": [1, 2, 0.5], "size": [640, 480]}}}}}}"#
+        ),
     ];
     for (i, v) in variants.iter().enumerate() {
         let p = write(tmp.path(), &format!("calibration{i}.json"), v);
         let set = import_calibration(&p).unwrap_or_else(|e| panic!("variant {i}: {e}"));
         let cam = &set.cameras[0];
         assert_eq!(cam.name, "cam0");
-        assert_eq!((cam.intrinsics.fx, cam.intrinsics.fy, cam.intrinsics.width), (500.0, 501.0, 640));
-        assert_eq!(cam.distortion, Distortion::Opencv { k1: -0.1, k2: 0.01, p1: 0.0, p2: 0.0, k3: 0.0 });
-        assert!((cam.world_to_camera.centre() - c).length() < 1e-9, "variant {i}: {:?}", cam.world_to_camera.centre());
-        assert!((cam.world_to_camera.rotation() - rm).abs_diff_eq(glam::DMat3::ZERO, 1e-9), "variant {i}");
+        assert_eq!(
+            (cam.intrinsics.fx, cam.intrinsics.fy, cam.intrinsics.width),
+            (500.0, 501.0, 640)
+        );
+        assert_eq!(
+            cam.distortion,
+            Distortion::Opencv {
+                k1: -0.1,
+                k2: 0.01,
+                p1: 0.0,
+                p2: 0.0,
+                k3: 0.0
+            }
+        );
+        assert!(
+            (cam.world_to_camera.centre() - c).length() < 1e-9,
+            "variant {i}: {:?}",
+            cam.world_to_camera.centre()
+        );
+        assert!(
+            (cam.world_to_camera.rotation() - rm).abs_diff_eq(glam::DMat3::ZERO, 1e-9),
+            "variant {i}"
+        );
     }
 }
 
@@ -48,7 +82,15 @@ fn opencv_filestorage_yaml_with_fisheye() {
     let set = import_calibration(&p).unwrap();
     assert_eq!(set.cameras.len(), 2);
     assert_eq!(set.cameras[0].name, "gopro0");
-    assert_eq!(set.cameras[0].distortion, Distortion::Fisheye { k1: 0.05, k2: -0.01, k3: 0.002, k4: 0.0 });
+    assert_eq!(
+        set.cameras[0].distortion,
+        Distortion::Fisheye {
+            k1: 0.05,
+            k2: -0.01,
+            k3: 0.002,
+            k4: 0.0
+        }
+    );
     assert_eq!(set.cameras[0].world_to_camera.translation, [0.0, 0.0, 2.0]);
     assert_eq!(find_calibration(tmp.path()), Some(p));
 }
@@ -56,21 +98,69 @@ fn opencv_filestorage_yaml_with_fisheye() {
 #[test]
 fn wrong_axes_units_and_models_are_explained() {
     let tmp = tempfile::tempdir().unwrap();
-    let cam = |r: &str, t: &str| format!(r#"{{"K": [[500,0,320],[0,500,240],[0,0,1]], "R": {r}, "t": {t}, "size": [640,480]}}"#);
-    let left = write(tmp.path(), "left.json", &format!(r#"{{"cameras": {{"a": {}}}}}"#, cam("[[1,0,0],[0,-1,0],[0,0,1]]", "[0,0,0]")));
+    let cam = |r: &str, t: &str| {
+        format!(
+            r#"{{"K": [[500,0,320],[0,500,240],[0,0,1]], "R": {r}, "t": {t}, "size": [640,480]}}"#
+        )
+    };
+    let left = write(
+        tmp.path(),
+        "left.json",
+        &format!(
+            r#"{{"cameras": {{"a": {}}}}}"#,
+            cam("[[1,0,0],[0,-1,0],[0,0,1]]", "[0,0,0]")
+        ),
+    );
     let e = import_calibration(&left).unwrap_err().to_string();
     assert!(e.contains("OpenGL") && e.contains("left.json"), "{e}");
-    let mm = write(tmp.path(), "mm.json", &format!(r#"{{"cameras": {{"a": {}, "b": {}}}}}"#, cam("[[1,0,0],[0,1,0],[0,0,1]]", "[0,0,0]"), cam("[[1,0,0],[0,1,0],[0,0,1]]", "[800,0,0]")));
+    let mm = write(
+        tmp.path(),
+        "mm.json",
+        &format!(
+            r#"{{"cameras": {{"a": {}, "b": {}}}}}"#,
+            cam("[[1,0,0],[0,1,0],[0,0,1]]", "[0,0,0]"),
+            cam("[[1,0,0],[0,1,0],[0,0,1]]", "[800,0,0]")
+        ),
+    );
     let e = import_calibration(&mm).unwrap_err().to_string();
     assert!(e.contains("units"), "{e}");
-    let set = import_calibration_with(&mm, &ImportOptions { units: Some(Units::Millimetres) }).unwrap();
+    let set = import_calibration_with(
+        &mm,
+        &ImportOptions {
+            units: Some(Units::Millimetres),
+        },
+    )
+    .unwrap();
     assert!((set.cameras[1].world_to_camera.centre().x + 0.8).abs() < 1e-12);
-    let rational = write(tmp.path(), "r.json", r#"{"cameras": {"a": {"K": [[500,0,320],[0,500,240],[0,0,1]], "dist": [0.1,0,0,0,0,0.3,0,0], "R": [[1,0,0],[0,1,0],[0,0,1]], "t": [0,0,0], "size": [640,480]}}}"#);
-    assert!(import_calibration(&rational).unwrap_err().to_string().contains("rational"));
-    let nosize = write(tmp.path(), "n.json", r#"{"cameras": {"a": {"K": [[500,0,320],[0,500,240],[0,0,1]], "R": [[1,0,0],[0,1,0],[0,0,1]], "t": [0,0,0]}}}"#);
-    assert!(import_calibration(&nosize).unwrap_err().to_string().contains("size"));
+    let rational = write(
+        tmp.path(),
+        "r.json",
+        r#"{"cameras": {"a": {"K": [[500,0,320],[0,500,240],[0,0,1]], "dist": [0.1,0,0,0,0,0.3,0,0], "R": [[1,0,0],[0,1,0],[0,0,1]], "t": [0,0,0], "size": [640,480]}}}"#,
+    );
+    assert!(
+        import_calibration(&rational)
+            .unwrap_err()
+            .to_string()
+            .contains("rational")
+    );
+    let nosize = write(
+        tmp.path(),
+        "n.json",
+        r#"{"cameras": {"a": {"K": [[500,0,320],[0,500,240],[0,0,1]], "R": [[1,0,0],[0,1,0],[0,0,1]], "t": [0,0,0]}}}"#,
+    );
+    assert!(
+        import_calibration(&nosize)
+            .unwrap_err()
+            .to_string()
+            .contains("size")
+    );
     let garbage = write(tmp.path(), "g.json", "{ not json");
-    assert!(import_calibration(&garbage).unwrap_err().to_string().contains("g.json"));
+    assert!(
+        import_calibration(&garbage)
+            .unwrap_err()
+            .to_string()
+            .contains("g.json")
+    );
 }
 
 #[test]
@@ -79,12 +169,22 @@ fn colmap_folder_imports_one_camera_per_image() {
     let set = import_calibration(&dir).unwrap();
     let names: Vec<&str> = set.cameras.iter().map(|c| c.name.as_str()).collect();
     assert_eq!(names, ["cam0", "cam1", "cam2", "still1"]);
-    assert!(set.cameras.iter().all(|c| matches!(c.distortion, Distortion::Opencv { .. })));
+    assert!(
+        set.cameras
+            .iter()
+            .all(|c| matches!(c.distortion, Distortion::Opencv { .. }))
+    );
 }
 
 fn shared_data(name: &str) -> Option<std::path::PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data").join(name);
-    let p = if p.exists() { p } else { Path::new("/work/shared/data").join(name) };
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data")
+        .join(name);
+    let p = if p.exists() {
+        p
+    } else {
+        Path::new("/work/shared/data").join(name)
+    };
     if p.exists() {
         Some(p)
     } else {
@@ -95,14 +195,18 @@ fn shared_data(name: &str) -> Option<std::path::PathBuf> {
 
 #[test]
 fn caliscope_camera_array_from_a_real_session() {
-    let Some(dir) = shared_data("caliscope-4cam") else { return };
+    let Some(dir) = shared_data("caliscope-4cam") else {
+        return;
+    };
     let set = import_calibration(&dir.join("camera_array.toml")).unwrap();
     let names: Vec<&str> = set.cameras.iter().map(|c| c.name.as_str()).collect();
     assert_eq!(names, ["cam0", "cam1", "cam2", "cam3"]);
     let c0 = &set.cameras[0];
     assert_eq!((c0.intrinsics.width, c0.intrinsics.height), (1280, 720));
     assert!((c0.intrinsics.fx - 894.5288733178912).abs() < 1e-9);
-    assert!(matches!(c0.distortion, Distortion::Opencv { k1, .. } if (k1 + 0.3383569013465177).abs() < 1e-12));
+    assert!(
+        matches!(c0.distortion, Distortion::Opencv { k1, .. } if (k1 + 0.3383569013465177).abs() < 1e-12)
+    );
     // cam1 is the world origin in this session; the others sit 0.5–2 m away (a desk rig).
     assert!(set.cameras[1].world_to_camera.centre().length() < 0.01);
     for c in [&set.cameras[0], &set.cameras[2], &set.cameras[3]] {
@@ -113,15 +217,47 @@ fn caliscope_camera_array_from_a_real_session() {
 
 #[test]
 fn panoptic_json_is_in_centimetres() {
-    let Some(dir) = shared_data("panoptic-5view") else { return };
+    let Some(dir) = shared_data("panoptic-5view") else {
+        return;
+    };
     let path = dir.join("camera_parameters.json");
     let e = import_calibration(&path).unwrap_err().to_string();
     assert!(e.contains("units"), "{e}");
-    let set = import_calibration_with(&path, &ImportOptions { units: Some(Units::Centimetres) }).unwrap();
+    let set = import_calibration_with(
+        &path,
+        &ImportOptions {
+            units: Some(Units::Centimetres),
+        },
+    )
+    .unwrap();
     assert!(set.cameras.len() >= 5, "{}", set.cameras.len());
     let cam = set.cameras.iter().find(|c| c.name == "00_03").unwrap();
     assert_eq!((cam.intrinsics.width, cam.intrinsics.height), (1920, 1080));
     // The dome: cameras a few metres from its centre.
     let d = cam.world_to_camera.centre().length();
     assert!((1.0..6.0).contains(&d), "{d}");
+}
+
+#[test]
+fn an_imported_calibration_becomes_the_poses_output() {
+    let tmp = tempfile::tempdir().unwrap();
+    let json = r#"{"cameras": [
+        {"name": "cam0", "K": [[800,0,640],[0,800,360],[0,0,1]], "R": [[1,0,0],[0,1,0],[0,0,1]], "t": [0,0,0], "size": [1280,720]},
+        {"name": "cam1", "K": [[800,0,640],[0,800,360],[0,0,1]], "R": [[1,0,0],[0,1,0],[0,0,1]], "t": [-0.6,0,0], "size": [1280,720]}]}"#;
+    let p = write(tmp.path(), "calibration.json", json);
+    let set = import_calibration(&p).unwrap();
+    let out_dir = tmp.path().join("work/poses");
+    std::fs::create_dir_all(&out_dir).unwrap();
+    std::fs::write(out_dir.join("points3d.ply"), "stale").unwrap();
+    let out = calib::poses::write_imported(&set, &p, &out_dir, Some((640, 360)), 1.0).unwrap();
+    let cams = &out.file.set.cameras;
+    assert_eq!(cams[0].intrinsics.fx, 400.0);
+    // Centre between the two cameras, each 1 from it after normalisation.
+    for c in cams {
+        assert!((c.world_to_camera.centre().length() - 1.0).abs() < 1e-12);
+    }
+    assert!((out.file.normalisation.scale - 1.0 / 0.3).abs() < 1e-12);
+    assert!(out.cameras_json.is_file() && !out_dir.join("points3d.ply").exists());
+    let e = calib::poses::write_imported(&set, &p, &out_dir, Some((640, 480)), 1.0).unwrap_err();
+    assert!(e.to_string().contains("aspect"), "{e}");
 }

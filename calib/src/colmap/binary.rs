@@ -10,16 +10,25 @@
 use std::path::Path;
 
 use super::{
-    write_atomically, CameraModel, ColmapCamera, ColmapImage, ColmapModel, ColmapPoint3D, ModelError, Point2D,
-    TrackElement,
+    CameraModel, ColmapCamera, ColmapImage, ColmapModel, ColmapPoint3D, ModelError, Point2D,
+    TrackElement, write_atomically,
 };
 
 /// Read `cameras.bin`, `images.bin` and `points3D.bin` from `dir`.
 pub fn read_model(dir: &Path) -> Result<ColmapModel, ModelError> {
     Ok(ColmapModel {
-        cameras: read_cameras(&dir.join("cameras.bin"))?.into_iter().map(|c| (c.id, c)).collect(),
-        images: read_images(&dir.join("images.bin"))?.into_iter().map(|i| (i.id, i)).collect(),
-        points3d: read_points3d(&dir.join("points3D.bin"))?.into_iter().map(|p| (p.id, p)).collect(),
+        cameras: read_cameras(&dir.join("cameras.bin"))?
+            .into_iter()
+            .map(|c| (c.id, c))
+            .collect(),
+        images: read_images(&dir.join("images.bin"))?
+            .into_iter()
+            .map(|i| (i.id, i))
+            .collect(),
+        points3d: read_points3d(&dir.join("points3D.bin"))?
+            .into_iter()
+            .map(|p| (p.id, p))
+            .collect(),
     })
 }
 
@@ -36,20 +45,33 @@ pub fn write_model(model: &ColmapModel, dir: &Path) -> Result<(), ModelError> {
 
 pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>, ModelError> {
     let bytes = read(path)?;
-    let mut r = Reader { bytes: &bytes, pos: 0, path };
+    let mut r = Reader {
+        bytes: &bytes,
+        pos: 0,
+        path,
+    };
     let n = r.count(24)?;
     let mut out = Vec::with_capacity(n);
     for _ in 0..n {
         let id = r.u32()?;
         let model_id = r.i32()?;
-        let model = CameraModel::from_id(model_id).ok_or_else(|| ModelError::UnknownCameraModel {
-            path: path.to_path_buf(),
-            model: format!("id {model_id}"),
-        })?;
+        let model =
+            CameraModel::from_id(model_id).ok_or_else(|| ModelError::UnknownCameraModel {
+                path: path.to_path_buf(),
+                model: format!("id {model_id}"),
+            })?;
         let width = r.u64()?;
         let height = r.u64()?;
-        let params = (0..model.num_params()).map(|_| r.f64()).collect::<Result<_, _>>()?;
-        out.push(ColmapCamera { id, model, width, height, params });
+        let params = (0..model.num_params())
+            .map(|_| r.f64())
+            .collect::<Result<_, _>>()?;
+        out.push(ColmapCamera {
+            id,
+            model,
+            width,
+            height,
+            params,
+        });
     }
     r.finish()?;
     Ok(out)
@@ -57,7 +79,11 @@ pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>, ModelError> {
 
 pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>, ModelError> {
     let bytes = read(path)?;
-    let mut r = Reader { bytes: &bytes, pos: 0, path };
+    let mut r = Reader {
+        bytes: &bytes,
+        pos: 0,
+        path,
+    };
     let n = r.count(73)?;
     let mut out = Vec::with_capacity(n);
     for _ in 0..n {
@@ -69,9 +95,19 @@ pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>, ModelError> {
         let n2d = r.count(24)?;
         let mut points2d = Vec::with_capacity(n2d);
         for _ in 0..n2d {
-            points2d.push(Point2D { xy: [r.f64()?, r.f64()?], point3d_id: r.u64()? });
+            points2d.push(Point2D {
+                xy: [r.f64()?, r.f64()?],
+                point3d_id: r.u64()?,
+            });
         }
-        out.push(ColmapImage { id, qvec, tvec, camera_id, name, points2d });
+        out.push(ColmapImage {
+            id,
+            qvec,
+            tvec,
+            camera_id,
+            name,
+            points2d,
+        });
     }
     r.finish()?;
     Ok(out)
@@ -79,7 +115,11 @@ pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>, ModelError> {
 
 pub fn read_points3d(path: &Path) -> Result<Vec<ColmapPoint3D>, ModelError> {
     let bytes = read(path)?;
-    let mut r = Reader { bytes: &bytes, pos: 0, path };
+    let mut r = Reader {
+        bytes: &bytes,
+        pos: 0,
+        path,
+    };
     let n = r.count(51)?;
     let mut out = Vec::with_capacity(n);
     for _ in 0..n {
@@ -90,9 +130,18 @@ pub fn read_points3d(path: &Path) -> Result<Vec<ColmapPoint3D>, ModelError> {
         let len = r.count(8)?;
         let mut track = Vec::with_capacity(len);
         for _ in 0..len {
-            track.push(TrackElement { image_id: r.u32()?, point2d_idx: r.u32()? });
+            track.push(TrackElement {
+                image_id: r.u32()?,
+                point2d_idx: r.u32()?,
+            });
         }
-        out.push(ColmapPoint3D { id, xyz, rgb, error, track });
+        out.push(ColmapPoint3D {
+            id,
+            xyz,
+            rgb,
+            error,
+            track,
+        });
     }
     r.finish()?;
     Ok(out)
@@ -116,7 +165,10 @@ pub fn images_to_bytes<'a>(images: impl ExactSizeIterator<Item = &'a ColmapImage
     put(&mut w, &(images.len() as u64).to_le_bytes());
     for i in images {
         put(&mut w, &i.id.to_le_bytes());
-        i.qvec.iter().chain(&i.tvec).for_each(|v| put(&mut w, &v.to_le_bytes()));
+        i.qvec
+            .iter()
+            .chain(&i.tvec)
+            .for_each(|v| put(&mut w, &v.to_le_bytes()));
         put(&mut w, &i.camera_id.to_le_bytes());
         put(&mut w, i.name.as_bytes());
         w.push(0);
@@ -152,7 +204,10 @@ fn put(w: &mut Vec<u8>, bytes: &[u8]) {
 }
 
 fn read(path: &Path) -> Result<Vec<u8>, ModelError> {
-    std::fs::read(path).map_err(|source| ModelError::Io { path: path.to_path_buf(), source })
+    std::fs::read(path).map_err(|source| ModelError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// A bounds-checked little-endian cursor: truncated files give an error, never a panic.
@@ -164,10 +219,18 @@ struct Reader<'a> {
 
 impl Reader<'_> {
     fn take<const N: usize>(&mut self) -> Result<[u8; N], ModelError> {
-        let end = self.pos.checked_add(N).filter(|&e| e <= self.bytes.len()).ok_or_else(|| ModelError::Malformed {
-            path: self.path.to_path_buf(),
-            what: format!("file ends early at byte {} of {}", self.bytes.len(), self.pos + N),
-        })?;
+        let end = self
+            .pos
+            .checked_add(N)
+            .filter(|&e| e <= self.bytes.len())
+            .ok_or_else(|| ModelError::Malformed {
+                path: self.path.to_path_buf(),
+                what: format!(
+                    "file ends early at byte {} of {}",
+                    self.bytes.len(),
+                    self.pos + N
+                ),
+            })?;
         let mut out = [0; N];
         out.copy_from_slice(&self.bytes[self.pos..end]);
         self.pos = end;
@@ -196,17 +259,23 @@ impl Reader<'_> {
         if n.saturating_mul(min_item_bytes as u64) > left {
             return Err(ModelError::Malformed {
                 path: self.path.to_path_buf(),
-                what: format!("count {n} at byte {} does not fit in the {left} bytes left", self.pos - 8),
+                what: format!(
+                    "count {n} at byte {} does not fit in the {left} bytes left",
+                    self.pos - 8
+                ),
             });
         }
         Ok(n as usize)
     }
     fn c_string(&mut self) -> Result<String, ModelError> {
         let rest = &self.bytes[self.pos..];
-        let len = rest.iter().position(|&b| b == 0).ok_or_else(|| ModelError::Malformed {
-            path: self.path.to_path_buf(),
-            what: "image name without terminating NUL".into(),
-        })?;
+        let len = rest
+            .iter()
+            .position(|&b| b == 0)
+            .ok_or_else(|| ModelError::Malformed {
+                path: self.path.to_path_buf(),
+                what: "image name without terminating NUL".into(),
+            })?;
         let name = String::from_utf8_lossy(&rest[..len]).into_owned();
         self.pos += len + 1;
         Ok(name)
@@ -217,7 +286,10 @@ impl Reader<'_> {
         } else {
             Err(ModelError::Malformed {
                 path: self.path.to_path_buf(),
-                what: format!("{} trailing bytes after the last record", self.bytes.len() - self.pos),
+                what: format!(
+                    "{} trailing bytes after the last record",
+                    self.bytes.len() - self.pos
+                ),
             })
         }
     }

@@ -40,11 +40,16 @@ impl CameraModel {
 
     /// COLMAP's model ID as stored in `cameras.bin`.
     pub fn id(self) -> i32 {
-        Self::ALL.iter().position(|&m| m == self).map_or(-1, |i| i as i32)
+        Self::ALL
+            .iter()
+            .position(|&m| m == self)
+            .map_or(-1, |i| i as i32)
     }
 
     pub fn from_id(id: i32) -> Option<Self> {
-        usize::try_from(id).ok().and_then(|i| Self::ALL.get(i).copied())
+        usize::try_from(id)
+            .ok()
+            .and_then(|i| Self::ALL.get(i).copied())
     }
 
     /// COLMAP's model name as in `cameras.txt` and `--ImageReader.camera_model`.
@@ -74,13 +79,18 @@ impl CameraModel {
             Self::Radial => &["f", "cx", "cy", "k1", "k2"],
             Self::Opencv => &["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"],
             Self::OpencvFisheye => &["fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"],
-            Self::FullOpencv => &["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"],
+            Self::FullOpencv => &[
+                "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6",
+            ],
             Self::Fov => &["fx", "fy", "cx", "cy", "omega"],
             Self::SimpleRadialFisheye => &["f", "cx", "cy", "k"],
             Self::RadialFisheye => &["f", "cx", "cy", "k1", "k2"],
-            Self::ThinPrismFisheye => &["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "sx1", "sy1"],
+            Self::ThinPrismFisheye => &[
+                "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "sx1", "sy1",
+            ],
             Self::RadTanThinPrismFisheye => &[
-                "fx", "fy", "cx", "cy", "k0", "k1", "k2", "k3", "k4", "k5", "p0", "p1", "s0", "s1", "s2", "s3",
+                "fx", "fy", "cx", "cy", "k0", "k1", "k2", "k3", "k4", "k5", "p0", "p1", "s0", "s1",
+                "s2", "s3",
             ],
         }
     }
@@ -105,10 +115,16 @@ impl FromStr for CameraModel {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let upper = s.trim().to_ascii_uppercase();
-        Self::ALL.into_iter().find(|m| m.name() == upper).ok_or_else(|| {
-            let names: Vec<_> = Self::ALL.iter().map(|m| m.name()).collect();
-            format!("unknown COLMAP camera model {s:?}; known: {}", names.join(", "))
-        })
+        Self::ALL
+            .into_iter()
+            .find(|m| m.name() == upper)
+            .ok_or_else(|| {
+                let names: Vec<_> = Self::ALL.iter().map(|m| m.name()).collect();
+                format!(
+                    "unknown COLMAP camera model {s:?}; known: {}",
+                    names.join(", ")
+                )
+            })
     }
 }
 

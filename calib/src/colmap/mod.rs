@@ -99,7 +99,10 @@ impl ModelFormat {
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
     #[error("cannot read or write COLMAP model file {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error(
         "{dir} holds no COLMAP model: expected cameras, images and points3D as .bin or .txt \
          (COLMAP writes them to sparse/0/; `colmap model_converter` converts between formats)"
@@ -109,14 +112,34 @@ pub enum ModelError {
     Malformed { path: PathBuf, what: String },
     #[error("{path}: unknown COLMAP camera model {model}")]
     UnknownCameraModel { path: PathBuf, model: String },
-    #[error("{path}: camera {camera_id} of model {model} has {got} parameters, expected {expected}")]
-    ParamCount { path: PathBuf, camera_id: u32, model: &'static str, got: usize, expected: usize },
+    #[error(
+        "{path}: camera {camera_id} of model {model} has {got} parameters, expected {expected}"
+    )]
+    ParamCount {
+        path: PathBuf,
+        camera_id: u32,
+        model: &'static str,
+        got: usize,
+        expected: usize,
+    },
 }
 
 impl ColmapCamera {
     /// A camera, checking the parameter count against the model.
-    pub fn new(id: u32, model: CameraModel, width: u64, height: u64, params: Vec<f64>) -> Option<Self> {
-        (params.len() == model.num_params()).then_some(Self { id, model, width, height, params })
+    pub fn new(
+        id: u32,
+        model: CameraModel,
+        width: u64,
+        height: u64,
+        params: Vec<f64>,
+    ) -> Option<Self> {
+        (params.len() == model.num_params()).then_some(Self {
+            id,
+            model,
+            width,
+            height,
+            params,
+        })
     }
 }
 
@@ -138,7 +161,10 @@ impl ColmapImage {
 
     /// Number of 2D points with a 3D point.
     pub fn num_observations(&self) -> usize {
-        self.points2d.iter().filter(|p| p.point3d_id != INVALID_POINT3D_ID).count()
+        self.points2d
+            .iter()
+            .filter(|p| p.point3d_id != INVALID_POINT3D_ID)
+            .count()
     }
 }
 
@@ -148,23 +174,30 @@ impl ColmapModel {
         match Self::detect_format(dir) {
             Some(ModelFormat::Binary) => binary::read_model(dir),
             Some(ModelFormat::Text) => text::read_model(dir),
-            None => Err(ModelError::NotAModel { dir: dir.to_path_buf() }),
+            None => Err(ModelError::NotAModel {
+                dir: dir.to_path_buf(),
+            }),
         }
     }
 
     /// The format of the model in `dir`, if a complete one is there.
     pub fn detect_format(dir: &Path) -> Option<ModelFormat> {
-        [ModelFormat::Binary, ModelFormat::Text].into_iter().find(|f| {
-            ["cameras", "images", "points3D"]
-                .iter()
-                .all(|n| dir.join(format!("{n}.{}", f.extension())).is_file())
-        })
+        [ModelFormat::Binary, ModelFormat::Text]
+            .into_iter()
+            .find(|f| {
+                ["cameras", "images", "points3D"]
+                    .iter()
+                    .all(|n| dir.join(format!("{n}.{}", f.extension())).is_file())
+            })
     }
 
     /// Write the model to `dir` (created if needed) in `format`. Each file is written
     /// under a temporary name and renamed, so a reader never sees a half-written file.
     pub fn write(&self, dir: &Path, format: ModelFormat) -> Result<(), ModelError> {
-        std::fs::create_dir_all(dir).map_err(|source| ModelError::Io { path: dir.to_path_buf(), source })?;
+        std::fs::create_dir_all(dir).map_err(|source| ModelError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
         match format {
             ModelFormat::Binary => binary::write_model(self, dir),
             ModelFormat::Text => text::write_model(self, dir),

@@ -14,16 +14,25 @@ use std::path::Path;
 use std::str::{FromStr, SplitWhitespace};
 
 use super::{
-    write_atomically, ColmapCamera, ColmapImage, ColmapModel, ColmapPoint3D, ModelError, Point2D, TrackElement,
-    INVALID_POINT3D_ID,
+    ColmapCamera, ColmapImage, ColmapModel, ColmapPoint3D, INVALID_POINT3D_ID, ModelError, Point2D,
+    TrackElement, write_atomically,
 };
 
 /// Read `cameras.txt`, `images.txt` and `points3D.txt` from `dir`.
 pub fn read_model(dir: &Path) -> Result<ColmapModel, ModelError> {
     Ok(ColmapModel {
-        cameras: read_cameras(&dir.join("cameras.txt"))?.into_iter().map(|c| (c.id, c)).collect(),
-        images: read_images(&dir.join("images.txt"))?.into_iter().map(|i| (i.id, i)).collect(),
-        points3d: read_points3d(&dir.join("points3D.txt"))?.into_iter().map(|p| (p.id, p)).collect(),
+        cameras: read_cameras(&dir.join("cameras.txt"))?
+            .into_iter()
+            .map(|c| (c.id, c))
+            .collect(),
+        images: read_images(&dir.join("images.txt"))?
+            .into_iter()
+            .map(|i| (i.id, i))
+            .collect(),
+        points3d: read_points3d(&dir.join("points3D.txt"))?
+            .into_iter()
+            .map(|p| (p.id, p))
+            .collect(),
     })
 }
 
@@ -42,22 +51,31 @@ pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>, ModelError> {
     let text = read(path)?;
     let mut out = Vec::new();
     for (n, line) in data_lines(&text) {
-        let mut f = Fields { it: line.split_whitespace(), path, line: n };
+        let mut f = Fields {
+            it: line.split_whitespace(),
+            path,
+            line: n,
+        };
         let id = f.next("CAMERA_ID")?;
         let model_name: String = f.next("MODEL")?;
         let model = model_name
             .parse()
-            .map_err(|_| ModelError::UnknownCameraModel { path: path.to_path_buf(), model: model_name })?;
+            .map_err(|_| ModelError::UnknownCameraModel {
+                path: path.to_path_buf(),
+                model: model_name,
+            })?;
         let width = f.next("WIDTH")?;
         let height = f.next("HEIGHT")?;
         let params: Vec<f64> = f.rest("PARAMS")?;
-        let camera = ColmapCamera::new(id, model, width, height, params.clone()).ok_or(ModelError::ParamCount {
-            path: path.to_path_buf(),
-            camera_id: id,
-            model: model.name(),
-            got: params.len(),
-            expected: model.num_params(),
-        })?;
+        let camera = ColmapCamera::new(id, model, width, height, params.clone()).ok_or(
+            ModelError::ParamCount {
+                path: path.to_path_buf(),
+                camera_id: id,
+                model: model.name(),
+                got: params.len(),
+                expected: model.num_params(),
+            },
+        )?;
         out.push(camera);
     }
     Ok(out)
@@ -72,7 +90,11 @@ pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>, ModelError> {
         if line.is_empty() || line.starts_with('#') {
             continue;
         }
-        let mut f = Fields { it: line.split_whitespace(), path, line: n + 1 };
+        let mut f = Fields {
+            it: line.split_whitespace(),
+            path,
+            line: n + 1,
+        };
         let id = f.next("IMAGE_ID")?;
         let qvec = [f.next("QW")?, f.next("QX")?, f.next("QY")?, f.next("QZ")?];
         let tvec = [f.next("TX")?, f.next("TY")?, f.next("TZ")?];
@@ -83,22 +105,45 @@ pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>, ModelError> {
         }
         // The POINTS2D line always follows, even when empty.
         let (n2, points_line) = lines.next().map(|(n, l)| (n + 1, l)).unwrap_or((n + 2, ""));
-        let mut g = Fields { it: points_line.split_whitespace(), path, line: n2 };
+        let mut g = Fields {
+            it: points_line.split_whitespace(),
+            path,
+            line: n2,
+        };
         let tokens: Vec<&str> = g.it.by_ref().collect();
-        if tokens.len() % 3 != 0 {
-            return Err(malformed(path, n2, "POINTS2D is not a list of X Y POINT3D_ID triples"));
+        if !tokens.len().is_multiple_of(3) {
+            return Err(malformed(
+                path,
+                n2,
+                "POINTS2D is not a list of X Y POINT3D_ID triples",
+            ));
         }
         let mut points2d = Vec::with_capacity(tokens.len() / 3);
         for c in tokens.chunks_exact(3) {
-            let num = |t: &str| t.parse::<f64>().map_err(|_| malformed(path, n2, &format!("POINTS2D: {t:?} is not a number")));
+            let num = |t: &str| {
+                t.parse::<f64>()
+                    .map_err(|_| malformed(path, n2, &format!("POINTS2D: {t:?} is not a number")))
+            };
             let point3d_id = if c[2] == "-1" {
                 INVALID_POINT3D_ID
             } else {
-                c[2].parse().map_err(|_| malformed(path, n2, &format!("POINT3D_ID {:?} is not an ID", c[2])))?
+                c[2].parse().map_err(|_| {
+                    malformed(path, n2, &format!("POINT3D_ID {:?} is not an ID", c[2]))
+                })?
             };
-            points2d.push(Point2D { xy: [num(c[0])?, num(c[1])?], point3d_id });
+            points2d.push(Point2D {
+                xy: [num(c[0])?, num(c[1])?],
+                point3d_id,
+            });
         }
-        out.push(ColmapImage { id, qvec, tvec, camera_id, name, points2d });
+        out.push(ColmapImage {
+            id,
+            qvec,
+            tvec,
+            camera_id,
+            name,
+            points2d,
+        });
     }
     Ok(out)
 }
@@ -107,17 +152,37 @@ pub fn read_points3d(path: &Path) -> Result<Vec<ColmapPoint3D>, ModelError> {
     let text = read(path)?;
     let mut out = Vec::new();
     for (n, line) in data_lines(&text) {
-        let mut f = Fields { it: line.split_whitespace(), path, line: n };
+        let mut f = Fields {
+            it: line.split_whitespace(),
+            path,
+            line: n,
+        };
         let id = f.next("POINT3D_ID")?;
         let xyz = [f.next("X")?, f.next("Y")?, f.next("Z")?];
         let rgb = [f.next("R")?, f.next("G")?, f.next("B")?];
         let error = f.next("ERROR")?;
         let track: Vec<u32> = f.rest("TRACK")?;
-        if track.len() % 2 != 0 {
-            return Err(malformed(path, n, "TRACK is not a list of IMAGE_ID POINT2D_IDX pairs"));
+        if !track.len().is_multiple_of(2) {
+            return Err(malformed(
+                path,
+                n,
+                "TRACK is not a list of IMAGE_ID POINT2D_IDX pairs",
+            ));
         }
-        let track = track.chunks_exact(2).map(|c| TrackElement { image_id: c[0], point2d_idx: c[1] }).collect();
-        out.push(ColmapPoint3D { id, xyz, rgb, error, track });
+        let track = track
+            .chunks_exact(2)
+            .map(|c| TrackElement {
+                image_id: c[0],
+                point2d_idx: c[1],
+            })
+            .collect();
+        out.push(ColmapPoint3D {
+            id,
+            xyz,
+            rgb,
+            error,
+            track,
+        });
     }
     Ok(out)
 }
@@ -137,19 +202,32 @@ pub fn cameras_to_text<'a>(cameras: impl ExactSizeIterator<Item = &'a ColmapCame
     s
 }
 
-pub fn images_to_text<'a>(images: impl ExactSizeIterator<Item = &'a ColmapImage> + Clone) -> String {
+pub fn images_to_text<'a>(
+    images: impl ExactSizeIterator<Item = &'a ColmapImage> + Clone,
+) -> String {
     let n = images.len();
     let observations: usize = images.clone().map(|i| i.num_observations()).sum();
-    let mean = if n == 0 { 0.0 } else { observations as f64 / n as f64 };
+    let mean = if n == 0 {
+        0.0
+    } else {
+        observations as f64 / n as f64
+    };
     let mut s = String::new();
     s.push_str("# Image list with two lines of data per image:\n");
     s.push_str("#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n");
     s.push_str("#   POINTS2D[] as (X, Y, POINT3D_ID)\n");
-    let _ = writeln!(s, "# Number of images: {n}, mean observations per image: {mean}");
+    let _ = writeln!(
+        s,
+        "# Number of images: {n}, mean observations per image: {mean}"
+    );
     for i in images {
         let [qw, qx, qy, qz] = i.qvec;
         let [tx, ty, tz] = i.tvec;
-        let _ = writeln!(s, "{} {qw} {qx} {qy} {qz} {tx} {ty} {tz} {} {}", i.id, i.camera_id, i.name);
+        let _ = writeln!(
+            s,
+            "{} {qw} {qx} {qy} {qz} {tx} {ty} {tz} {} {}",
+            i.id, i.camera_id, i.name
+        );
         let mut first = true;
         for p in &i.points2d {
             if !first {
@@ -167,10 +245,16 @@ pub fn images_to_text<'a>(images: impl ExactSizeIterator<Item = &'a ColmapImage>
     s
 }
 
-pub fn points3d_to_text<'a>(points: impl ExactSizeIterator<Item = &'a ColmapPoint3D> + Clone) -> String {
+pub fn points3d_to_text<'a>(
+    points: impl ExactSizeIterator<Item = &'a ColmapPoint3D> + Clone,
+) -> String {
     let n = points.len();
     let track_sum: usize = points.clone().map(|p| p.track.len()).sum();
-    let mean = if n == 0 { 0.0 } else { track_sum as f64 / n as f64 };
+    let mean = if n == 0 {
+        0.0
+    } else {
+        track_sum as f64 / n as f64
+    };
     let mut s = String::new();
     s.push_str("# 3D point list with one line of data per point:\n");
     s.push_str("#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n");
@@ -188,7 +272,10 @@ pub fn points3d_to_text<'a>(points: impl ExactSizeIterator<Item = &'a ColmapPoin
 }
 
 fn read(path: &Path) -> Result<String, ModelError> {
-    std::fs::read_to_string(path).map_err(|source| ModelError::Io { path: path.to_path_buf(), source })
+    std::fs::read_to_string(path).map_err(|source| ModelError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// Non-comment, non-empty lines with their 1-based line numbers.
@@ -200,7 +287,10 @@ fn data_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
 }
 
 fn malformed(path: &Path, line: usize, what: &str) -> ModelError {
-    ModelError::Malformed { path: path.to_path_buf(), what: format!("line {line}: {what}") }
+    ModelError::Malformed {
+        path: path.to_path_buf(),
+        what: format!("line {line}: {what}"),
+    }
 }
 
 /// Whitespace-separated fields of one line, parsed with errors naming file, line and field.
@@ -212,14 +302,29 @@ struct Fields<'a> {
 
 impl Fields<'_> {
     fn next<T: FromStr>(&mut self, field: &str) -> Result<T, ModelError> {
-        let tok = self.it.next().ok_or_else(|| malformed(self.path, self.line, &format!("missing {field}")))?;
-        tok.parse().map_err(|_| malformed(self.path, self.line, &format!("{field} {tok:?} is not a valid number")))
+        let tok = self
+            .it
+            .next()
+            .ok_or_else(|| malformed(self.path, self.line, &format!("missing {field}")))?;
+        tok.parse().map_err(|_| {
+            malformed(
+                self.path,
+                self.line,
+                &format!("{field} {tok:?} is not a valid number"),
+            )
+        })
     }
     fn rest<T: FromStr>(&mut self, field: &str) -> Result<Vec<T>, ModelError> {
         self.it
             .by_ref()
             .map(|tok| {
-                tok.parse().map_err(|_| malformed(self.path, self.line, &format!("{field}: {tok:?} is not a number")))
+                tok.parse().map_err(|_| {
+                    malformed(
+                        self.path,
+                        self.line,
+                        &format!("{field}: {tok:?} is not a number"),
+                    )
+                })
             })
             .collect()
     }

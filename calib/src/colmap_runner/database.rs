@@ -23,7 +23,9 @@ pub struct MatchGraph {
 }
 
 #[derive(Debug, thiserror::Error)]
-#[error("cannot read COLMAP database {path}: {source} (delete the colmap/ folder and rerun the poses stage)")]
+#[error(
+    "cannot read COLMAP database {path}: {source} (delete the colmap/ folder and rerun the poses stage)"
+)]
 pub struct DatabaseError {
     pub path: PathBuf,
     #[source]
@@ -33,23 +35,47 @@ pub struct DatabaseError {
 impl MatchGraph {
     /// Read the match graph from a COLMAP database.
     pub fn read(path: &Path) -> Result<Self, DatabaseError> {
-        let err = |source| DatabaseError { path: path.to_path_buf(), source };
-        let db = Connection::open_with_flags(path, OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX)
-            .map_err(err)?;
+        let err = |source| DatabaseError {
+            path: path.to_path_buf(),
+            source,
+        };
+        let db = Connection::open_with_flags(
+            path,
+            OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
+        )
+        .map_err(err)?;
         let mut graph = MatchGraph::default();
-        let mut q = db.prepare("SELECT image_id, name FROM images").map_err(err)?;
-        for row in q.query_map([], |r| Ok((r.get::<_, u32>(0)?, r.get::<_, String>(1)?))).map_err(err)? {
+        let mut q = db
+            .prepare("SELECT image_id, name FROM images")
+            .map_err(err)?;
+        for row in q
+            .query_map([], |r| Ok((r.get::<_, u32>(0)?, r.get::<_, String>(1)?)))
+            .map_err(err)?
+        {
             let (id, name) = row.map_err(err)?;
             graph.names.insert(id, name);
         }
-        let mut q = db.prepare("SELECT image_id, rows FROM keypoints").map_err(err)?;
-        for row in q.query_map([], |r| Ok((r.get::<_, u32>(0)?, r.get::<_, u32>(1)?))).map_err(err)? {
+        let mut q = db
+            .prepare("SELECT image_id, rows FROM keypoints")
+            .map_err(err)?;
+        for row in q
+            .query_map([], |r| Ok((r.get::<_, u32>(0)?, r.get::<_, u32>(1)?)))
+            .map_err(err)?
+        {
             let (id, n) = row.map_err(err)?;
             graph.keypoints.insert(id, n);
         }
-        for (table, map) in [("matches", &mut graph.raw_matches), ("two_view_geometries", &mut graph.verified_matches)] {
-            let mut q = db.prepare(&format!("SELECT pair_id, rows FROM {table} WHERE rows > 0")).map_err(err)?;
-            for row in q.query_map([], |r| Ok((r.get::<_, i64>(0)?, r.get::<_, u32>(1)?))).map_err(err)? {
+        for (table, map) in [
+            ("matches", &mut graph.raw_matches),
+            ("two_view_geometries", &mut graph.verified_matches),
+        ] {
+            let mut q = db
+                .prepare(&format!("SELECT pair_id, rows FROM {table} WHERE rows > 0"))
+                .map_err(err)?;
+            for row in q
+                .query_map([], |r| Ok((r.get::<_, i64>(0)?, r.get::<_, u32>(1)?)))
+                .map_err(err)?
+            {
                 let (pair_id, n) = row.map_err(err)?;
                 map.insert(pair_from_id(pair_id), n);
             }
@@ -59,7 +85,10 @@ impl MatchGraph {
 
     /// The image ID for a name.
     pub fn id_of(&self, name: &str) -> Option<u32> {
-        self.names.iter().find(|(_, n)| n.as_str() == name).map(|(&id, _)| id)
+        self.names
+            .iter()
+            .find(|(_, n)| n.as_str() == name)
+            .map(|(&id, _)| id)
     }
 
     /// Verified matches of `id` with each other image, most first.
@@ -97,6 +126,6 @@ mod tests {
     fn pair_ids_split_like_colmap() {
         // COLMAP: pair_id = 2147483647 * image_id1 + image_id2 (image_id1 < image_id2).
         assert_eq!(pair_from_id(MAX_IMAGE_ID * 3 + 7), (3, 7));
-        assert_eq!(pair_from_id(MAX_IMAGE_ID * 1 + 2), (1, 2));
+        assert_eq!(pair_from_id(MAX_IMAGE_ID + 2), (1, 2));
     }
 }

@@ -46,18 +46,34 @@ impl Diagnosis {
                 ImageReport {
                     colmap_name: img.colmap_name.clone(),
                     video_camera: img.video_camera.clone(),
-                    keypoints: id.and_then(|id| graph.keypoints.get(&id).copied()).unwrap_or(0),
+                    keypoints: id
+                        .and_then(|id| graph.keypoints.get(&id).copied())
+                        .unwrap_or(0),
                     verified_matches: partners.iter().map(|p| p.1).sum(),
                     best_partners: partners
                         .iter()
                         .take(3)
-                        .map(|&(pid, n)| (graph.names.get(&pid).cloned().unwrap_or_else(|| format!("#{pid}")), n))
+                        .map(|&(pid, n)| {
+                            (
+                                graph
+                                    .names
+                                    .get(&pid)
+                                    .cloned()
+                                    .unwrap_or_else(|| format!("#{pid}")),
+                                n,
+                            )
+                        })
                         .collect(),
-                    model: models.iter().position(|(_, m)| m.image_by_name(&img.colmap_name).is_some()),
+                    model: models
+                        .iter()
+                        .position(|(_, m)| m.image_by_name(&img.colmap_name).is_some()),
                 }
             })
             .collect();
-        Self { images, num_models: models.len() }
+        Self {
+            images,
+            num_models: models.len(),
+        }
     }
 
     /// Images that registered in no model.
@@ -68,8 +84,12 @@ impl Diagnosis {
     /// What to try, most specific first.
     pub fn advice(&self) -> Vec<String> {
         let mut out = Vec::new();
-        let few: Vec<&str> =
-            self.images.iter().filter(|i| i.keypoints < FEW_FEATURES).map(|i| i.colmap_name.as_str()).collect();
+        let few: Vec<&str> = self
+            .images
+            .iter()
+            .filter(|i| i.keypoints < FEW_FEATURES)
+            .map(|i| i.colmap_name.as_str())
+            .collect();
         if !few.is_empty() {
             out.push(format!(
                 "{} found fewer than {FEW_FEATURES} features: check they are not blank, dark or blurred, \
@@ -80,7 +100,10 @@ impl Diagnosis {
         let weak: Vec<&str> = self
             .images
             .iter()
-            .filter(|i| i.keypoints >= FEW_FEATURES && i.best_partners.first().is_none_or(|p| p.1 < WEAK_MATCHES))
+            .filter(|i| {
+                i.keypoints >= FEW_FEATURES
+                    && i.best_partners.first().is_none_or(|p| p.1 < WEAK_MATCHES)
+            })
             .map(|i| i.colmap_name.as_str())
             .collect();
         if !weak.is_empty() {
@@ -113,12 +136,28 @@ impl Diagnosis {
 
 impl fmt::Display for Diagnosis {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        writeln!(f, "  {:<28} {:>9} {:>9} {:>10}  best partners", "image", "features", "matches", "registered")?;
+        writeln!(
+            f,
+            "  {:<28} {:>9} {:>9} {:>10}  best partners",
+            "image", "features", "matches", "registered"
+        )?;
         for i in &self.images {
             let reg = i.model.map_or("no".to_string(), |m| format!("model {m}"));
-            let partners: Vec<String> = i.best_partners.iter().map(|(n, c)| format!("{n} ({c})")).collect();
-            let partners = if partners.is_empty() { "none".to_string() } else { partners.join(", ") };
-            writeln!(f, "  {:<28} {:>9} {:>9} {:>10}  {partners}", i.colmap_name, i.keypoints, i.verified_matches, reg)?;
+            let partners: Vec<String> = i
+                .best_partners
+                .iter()
+                .map(|(n, c)| format!("{n} ({c})"))
+                .collect();
+            let partners = if partners.is_empty() {
+                "none".to_string()
+            } else {
+                partners.join(", ")
+            };
+            writeln!(
+                f,
+                "  {:<28} {:>9} {:>9} {:>10}  {partners}",
+                i.colmap_name, i.keypoints, i.verified_matches, reg
+            )?;
         }
         writeln!(f, "What to try:")?;
         for a in self.advice() {

@@ -45,12 +45,20 @@ pub struct ColmapConfig {
     pub stills_camera_model: CameraModel,
     /// Whether all stills share one camera (same phone/lens and size) or get one each.
     pub stills_cameras: StillsCameras,
+    /// Whether each video camera gets its own intrinsics (default) or all share one
+    /// (identical cameras at identical settings: 4 images constrain the lens, not 1).
+    pub video_cameras: VideoCameras,
     /// Longest image side SIFT works on (COLMAP downsamples internally, poses stay exact).
     pub max_image_size: u32,
+    /// Most SIFT features kept per image (COLMAP's default 8192; fewer is faster to match).
+    pub max_num_features: u32,
     /// Threads for extraction, matching and mapping (`-1`: all cores).
     pub num_threads: i32,
     /// `Mapper.init_min_num_inliers` (COLMAP's default 100; lower helps small images).
     pub init_min_num_inliers: u32,
+    /// `Mapper.ba_refine_principal_point` (COLMAP's default off: the principal point stays
+    /// at the image centre; turn on for well-textured scenes with many matches).
+    pub refine_principal_point: bool,
 }
 
 impl Default for ColmapConfig {
@@ -60,9 +68,12 @@ impl Default for ColmapConfig {
             camera_model: CameraModel::Opencv,
             stills_camera_model: CameraModel::Opencv,
             stills_cameras: StillsCameras::Shared,
+            video_cameras: VideoCameras::Separate,
             max_image_size: 3200,
+            max_num_features: 8192,
             num_threads: -1,
             init_min_num_inliers: 100,
+            refine_principal_point: false,
         }
     }
 }
@@ -75,6 +86,16 @@ pub enum StillsCameras {
     Shared,
     /// One camera per still (different phones, zoom levels or sizes).
     PerImage,
+}
+
+/// Whether the video cameras share one COLMAP camera (intrinsics and distortion).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VideoCameras {
+    /// One camera per video camera.
+    Separate,
+    /// One camera for all video cameras (same model, lens mode and resolution).
+    Shared,
 }
 
 /// Seconds spent in each COLMAP step.
@@ -121,15 +142,27 @@ pub enum ColmapError {
     )]
     NotFound { tried: String },
     #[error("cannot start COLMAP ({binary}): {source}")]
-    Spawn { binary: PathBuf, source: std::io::Error },
+    Spawn {
+        binary: PathBuf,
+        source: std::io::Error,
+    },
     #[error(
         "COLMAP {step} {how}. Its output is in {log}; last lines:\n{tail}\n\
          Check that the images open, that the disk is not full, and rerun; if it keeps \
          failing, run the command in the log by hand"
     )]
-    StepFailed { step: String, how: String, log: PathBuf, tail: String, no_model: bool },
+    StepFailed {
+        step: String,
+        how: String,
+        log: PathBuf,
+        tail: String,
+        no_model: bool,
+    },
     #[error("cannot write the COLMAP workspace at {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error(transparent)]
     Model(#[from] ModelError),
     #[error(transparent)]
@@ -137,7 +170,10 @@ pub enum ColmapError {
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> ColmapError + '_ {
-    move |source| ColmapError::Io { path: path.to_path_buf(), source }
+    move |source| ColmapError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
 }
 
 /// The COLMAP binary: the configured path, else `$COLMAP_BIN`, else `colmap` on `PATH`.
@@ -146,7 +182,9 @@ pub fn find_colmap(configured: Option<&Path>) -> Result<PathBuf, ColmapError> {
         return if p.is_file() {
             Ok(p.to_path_buf())
         } else {
-            Err(ColmapError::NotFound { tried: format!("configured path {} does not exist", p.display()) })
+            Err(ColmapError::NotFound {
+                tried: format!("configured path {} does not exist", p.display()),
+            })
         };
     }
     if let Some(p) = std::env::var_os(COLMAP_ENV).filter(|p| !p.is_empty()) {
@@ -154,25 +192,31 @@ pub fn find_colmap(configured: Option<&Path>) -> Result<PathBuf, ColmapError> {
         return if p.is_file() {
             Ok(p)
         } else {
-            Err(ColmapError::NotFound { tried: format!("${COLMAP_ENV}={} does not exist", p.display()) })
+            Err(ColmapError::NotFound {
+                tried: format!("${COLMAP_ENV}={} does not exist", p.display()),
+            })
         };
     }
     let path = std::env::var_os("PATH").unwrap_or_default();
     std::env::split_paths(&path)
         .map(|d| d.join("colmap"))
         .find(|p| p.is_file())
-        .ok_or_else(|| ColmapError::NotFound { tried: "no `colmap` on PATH".into() })
+        .ok_or_else(|| ColmapError::NotFound {
+            tried: "no `colmap` on PATH".into(),
+        })
 }
 
 impl Workspace {
     /// Lay out a fresh workspace at `root` (anything there before is removed, so a rerun
     /// never mixes old features or matches in): one folder per video camera, stills in
-    /// `stills/` (shared camera) or one folder each. Images are copied.
+    /// `stills/` (shared camera) or one folder each; with [`VideoCameras::Shared`] all video
+    /// frames in `video/`. Images are copied.
     pub fn create(
         root: &Path,
         video_frames: &[(String, PathBuf)],
         stills: &[PathBuf],
         stills_cameras: StillsCameras,
+        video_cameras: VideoCameras,
     ) -> Result<Self, ColmapError> {
         if root.exists() {
             std::fs::remove_dir_all(root).map_err(io_err(root))?;
@@ -181,19 +225,29 @@ impl Workspace {
         for (cam, src) in video_frames {
             let ext = extension(src);
             images.push(WorkspaceImage {
-                colmap_name: format!("video/{cam}/{cam}.{ext}"),
+                colmap_name: match video_cameras {
+                    VideoCameras::Separate => format!("video/{cam}/{cam}.{ext}"),
+                    VideoCameras::Shared => format!("video/{cam}.{ext}"),
+                },
                 source: src.clone(),
                 video_camera: Some(cam.clone()),
             });
         }
         for (i, src) in stills.iter().enumerate() {
-            let file = src.file_name().map(|f| f.to_string_lossy().replace(' ', "_")).unwrap_or_default();
+            let file = src
+                .file_name()
+                .map(|f| f.to_string_lossy().replace(' ', "_"))
+                .unwrap_or_default();
             let file = format!("{i:03}_{file}"); // unique even when two folders hold the same name
             let colmap_name = match stills_cameras {
                 StillsCameras::Shared => format!("stills/{file}"),
                 StillsCameras::PerImage => format!("stills/{i:03}/{file}"),
             };
-            images.push(WorkspaceImage { colmap_name, source: src.clone(), video_camera: None });
+            images.push(WorkspaceImage {
+                colmap_name,
+                source: src.clone(),
+                video_camera: None,
+            });
         }
         for img in &images {
             let dst = root.join("images").join(&img.colmap_name);
@@ -205,7 +259,10 @@ impl Workspace {
             let d = root.join(dir);
             std::fs::create_dir_all(&d).map_err(io_err(&d))?;
         }
-        Ok(Self { root: root.to_path_buf(), images })
+        Ok(Self {
+            root: root.to_path_buf(),
+            images,
+        })
     }
 
     pub fn image_dir(&self) -> PathBuf {
@@ -220,7 +277,12 @@ impl Workspace {
 
     /// Run extraction, matching and mapping; stream COLMAP's output to `progress`.
     /// A mapper that finds no model is reported as `StepFailed { no_model: true, .. }`.
-    pub fn run(&self, binary: &Path, config: &ColmapConfig, progress: &dyn Progress) -> Result<ColmapRun, ColmapError> {
+    pub fn run(
+        &self,
+        binary: &Path,
+        config: &ColmapConfig,
+        progress: &dyn Progress,
+    ) -> Result<ColmapRun, ColmapError> {
         progress.start(3, "COLMAP steps");
         let threads = config.num_threads.to_string();
         let db = self.database();
@@ -229,7 +291,10 @@ impl Workspace {
 
         // One extraction per camera model, each from its own image list.
         let t0 = Instant::now();
-        let groups = [(true, config.camera_model), (false, config.stills_camera_model)];
+        let groups = [
+            (true, config.camera_model),
+            (false, config.stills_camera_model),
+        ];
         let same_model = config.camera_model == config.stills_camera_model;
         for (video, model) in groups {
             let names: Vec<&str> = self
@@ -241,7 +306,13 @@ impl Workspace {
             if names.is_empty() {
                 continue;
             }
-            let group = if same_model { "all" } else if video { "video" } else { "stills" };
+            let group = if same_model {
+                "all"
+            } else if video {
+                "video"
+            } else {
+                "stills"
+            };
             let list = self.root.join("lists").join(format!("{group}.txt"));
             std::fs::write(&list, names.join("\n") + "\n").map_err(io_err(&list))?;
             let step_args = args(&[
@@ -252,9 +323,22 @@ impl Workspace {
                 ("--ImageReader.single_camera_per_folder", "1".as_ref()),
                 ("--SiftExtraction.use_gpu", "0".as_ref()),
                 ("--SiftExtraction.num_threads", threads.as_ref()),
-                ("--SiftExtraction.max_image_size", config.max_image_size.to_string().as_ref()),
+                (
+                    "--SiftExtraction.max_image_size",
+                    config.max_image_size.to_string().as_ref(),
+                ),
+                (
+                    "--SiftExtraction.max_num_features",
+                    config.max_num_features.to_string().as_ref(),
+                ),
             ]);
-            self.run_step(binary, "feature_extractor", &format!("feature_extractor_{group}"), step_args, progress)?;
+            self.run_step(
+                binary,
+                "feature_extractor",
+                &format!("feature_extractor_{group}"),
+                step_args,
+                progress,
+            )?;
             if same_model {
                 break;
             }
@@ -268,7 +352,13 @@ impl Workspace {
             ("--SiftMatching.use_gpu", "0".as_ref()),
             ("--SiftMatching.num_threads", threads.as_ref()),
         ]);
-        self.run_step(binary, "exhaustive_matcher", "exhaustive_matcher", step_args, progress)?;
+        self.run_step(
+            binary,
+            "exhaustive_matcher",
+            "exhaustive_matcher",
+            step_args,
+            progress,
+        )?;
         timings.matching_s = t0.elapsed().as_secs_f64();
         progress.advance(1);
 
@@ -279,29 +369,61 @@ impl Workspace {
             ("--image_path", images.as_os_str()),
             ("--output_path", sparse.as_os_str()),
             ("--Mapper.num_threads", threads.as_ref()),
-            ("--Mapper.init_min_num_inliers", config.init_min_num_inliers.to_string().as_ref()),
+            (
+                "--Mapper.init_min_num_inliers",
+                config.init_min_num_inliers.to_string().as_ref(),
+            ),
+            (
+                "--Mapper.ba_refine_principal_point",
+                if config.refine_principal_point {
+                    "1"
+                } else {
+                    "0"
+                }
+                .as_ref(),
+            ),
         ]);
         let mapped = self.run_step(binary, "mapper", "mapper", step_args, progress);
         timings.mapping_s = t0.elapsed().as_secs_f64();
         progress.advance(1);
         let models = self.read_models()?;
         match mapped {
-            Err(ColmapError::StepFailed { step, how, log, tail, .. }) if models.is_empty() && !how.contains("signal") => {
-                return Err(ColmapError::StepFailed { step, how, log, tail, no_model: true });
+            Err(ColmapError::StepFailed {
+                step,
+                how,
+                log,
+                tail,
+                ..
+            }) if models.is_empty() && !how.contains("signal") => {
+                return Err(ColmapError::StepFailed {
+                    step,
+                    how,
+                    log,
+                    tail,
+                    no_model: true,
+                });
             }
             Err(e) => return Err(e),
             Ok(()) => {}
         }
         let graph = MatchGraph::read(&db)?;
         progress.finish();
-        Ok(ColmapRun { models, graph, timings })
+        Ok(ColmapRun {
+            models,
+            graph,
+            timings,
+        })
     }
 
     /// The models in `sparse/<n>/`, most registered images first.
     pub fn read_models(&self) -> Result<Vec<(PathBuf, ColmapModel)>, ColmapError> {
         let sparse = self.sparse_dir();
         let mut dirs: Vec<PathBuf> = match std::fs::read_dir(&sparse) {
-            Ok(rd) => rd.filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.is_dir()).collect(),
+            Ok(rd) => rd
+                .filter_map(|e| e.ok())
+                .map(|e| e.path())
+                .filter(|p| p.is_dir())
+                .collect(),
             Err(_) => Vec::new(),
         };
         dirs.sort();
@@ -342,7 +464,10 @@ impl Workspace {
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()
-            .map_err(|source| ColmapError::Spawn { binary: binary.to_path_buf(), source })?;
+            .map_err(|source| ColmapError::Spawn {
+                binary: binary.to_path_buf(),
+                source,
+            })?;
         let (tx, rx) = mpsc::channel::<String>();
         let mut readers = Vec::new();
         if let Some(out) = child.stdout.take() {
@@ -370,7 +495,10 @@ impl Workspace {
         readers.into_iter().for_each(|h| {
             let _ = h.join();
         });
-        let status = child.wait().map_err(|source| ColmapError::Spawn { binary: binary.to_path_buf(), source })?;
+        let status = child.wait().map_err(|source| ColmapError::Spawn {
+            binary: binary.to_path_buf(),
+            source,
+        })?;
         let _ = writeln!(log, "# exit: {status}");
         if status.success() {
             return Ok(());
@@ -379,24 +507,35 @@ impl Workspace {
             step: step.to_string(),
             how: describe_status(status),
             log: log_path,
-            tail: tail.into_iter().map(|l| format!("  | {l}")).collect::<Vec<_>>().join("\n"),
+            tail: tail
+                .into_iter()
+                .map(|l| format!("  | {l}"))
+                .collect::<Vec<_>>()
+                .join("\n"),
             no_model: false,
         })
     }
 }
 
 fn args(pairs: &[(&str, &std::ffi::OsStr)]) -> Vec<OsString> {
-    pairs.iter().flat_map(|(k, v)| [OsString::from(k), v.to_os_string()]).collect()
+    pairs
+        .iter()
+        .flat_map(|(k, v)| [OsString::from(k), v.to_os_string()])
+        .collect()
 }
 
 fn extension(p: &Path) -> String {
-    p.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_else(|| "png".into())
+    p.extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_else(|| "png".into())
 }
 
 fn forward_lines(r: impl std::io::Read, tx: mpsc::Sender<String>) {
     for line in BufReader::new(r).split(b'\n') {
         let Ok(line) = line else { break };
-        let line = String::from_utf8_lossy(&line).trim_end_matches('\r').to_string();
+        let line = String::from_utf8_lossy(&line)
+            .trim_end_matches('\r')
+            .to_string();
         if tx.send(line).is_err() {
             break;
         }

@@ -53,8 +53,16 @@ fn texture(face: u64, u: f64, v: f64) -> [f64; 3] {
         amp *= 0.55;
         freq *= 2.1;
     }
-    let tint = [hash(face as i64, 1, 7), hash(face as i64, 2, 7), hash(face as i64, 3, 7)];
-    let blob = if value_noise(u * 6.0, v * 6.0, face * 97 + 5) > 0.72 { 0.35 } else { 0.0 };
+    let tint = [
+        hash(face as i64, 1, 7),
+        hash(face as i64, 2, 7),
+        hash(face as i64, 3, 7),
+    ];
+    let blob = if value_noise(u * 6.0, v * 6.0, face * 97 + 5) > 0.72 {
+        0.35
+    } else {
+        0.0
+    };
     std::array::from_fn(|k| (0.15 + 0.85 * n * (0.6 + 0.4 * tint[k]) + blob).clamp(0.0, 1.0))
 }
 
@@ -66,8 +74,14 @@ const BOX: f64 = 0.6;
 fn trace(o: DVec3, d: DVec3) -> [f64; 3] {
     let mut best = (f64::INFINITY, [0.0; 3]);
     // Room: floor z=0, ceiling z=3, walls x=±ROOM, y=±ROOM (seen from inside).
-    let planes: [(usize, f64, u64); 6] =
-        [(2, 0.0, 1), (2, 3.0, 2), (0, -ROOM, 3), (0, ROOM, 4), (1, -ROOM, 5), (1, ROOM, 6)];
+    let planes: [(usize, f64, u64); 6] = [
+        (2, 0.0, 1),
+        (2, 3.0, 2),
+        (0, -ROOM, 3),
+        (0, ROOM, 4),
+        (1, -ROOM, 5),
+        (1, ROOM, 6),
+    ];
     for (axis, pos, face) in planes {
         if d[axis].abs() < 1e-12 {
             continue;
@@ -89,9 +103,22 @@ fn trace(o: DVec3, d: DVec3) -> [f64; 3] {
     let (tn, tf) = (tmin.max_element(), tmax.min_element());
     if tn <= tf && tn > 1e-6 && tn < best.0 {
         let p = o + tn * d;
-        let axis = if tmin.x == tn { 0 } else if tmin.y == tn { 1 } else { 2 };
+        let axis = if tmin.x == tn {
+            0
+        } else if tmin.y == tn {
+            1
+        } else {
+            2
+        };
         let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
-        best = (tn, texture(10 + axis as u64 + if d[axis] > 0.0 { 0 } else { 3 }, p[a], p[b]));
+        best = (
+            tn,
+            texture(
+                10 + axis as u64 + if d[axis] > 0.0 { 0 } else { 3 },
+                p[a],
+                p[b],
+            ),
+        );
     }
     best.1
 }
@@ -132,12 +159,21 @@ pub fn camera(name: &str, eye: DVec3, intrinsics: Intrinsics, distortion: Distor
 /// The rig: 4 video cameras on an arc of radius 2.6 m (0°, 40°, 80°, 120°), and `n_stills`
 /// stills between and around them at other heights.
 pub fn rig(n_stills: usize, size: (u32, u32)) -> (Vec<Camera>, Vec<Camera>) {
+    rig_with_lens(n_stills, size, Distortion::None)
+}
+
+/// [`rig`] with lens distortion on the video cameras.
+pub fn rig_with_lens(
+    n_stills: usize,
+    size: (u32, u32),
+    lens: Distortion,
+) -> (Vec<Camera>, Vec<Camera>) {
     let video_intr = Intrinsics::from_hfov(size.0, size.1, 70.0);
     let video: Vec<Camera> = (0..4)
         .map(|i| {
             let a = (i as f64 * 40.0).to_radians();
             let eye = DVec3::new(2.6 * a.cos(), 2.6 * a.sin(), 1.5);
-            camera(&format!("cam{i}"), eye, video_intr, Distortion::None)
+            camera(&format!("cam{i}"), eye, video_intr, lens)
         })
         .collect();
     let still_intr = Intrinsics::from_hfov(size.0, size.1, 62.0);
@@ -172,14 +208,17 @@ pub fn render_to(dir: &Path, cameras: &[Camera]) -> Vec<PathBuf> {
 
 /// A uniform grey image (a "blank" frame).
 pub fn blank(path: &Path, size: (u32, u32)) {
-    RgbImage::from_pixel(size.0, size.1, Rgb([128, 128, 128])).save(path).unwrap();
+    RgbImage::from_pixel(size.0, size.1, Rgb([128, 128, 128]))
+        .save(path)
+        .unwrap();
 }
 
 /// An image of pure value noise (features, but nothing in common with any other image).
 pub fn noise_image(path: &Path, size: (u32, u32), seed: u64) {
     let img = RgbImage::from_fn(size.0, size.1, |x, y| {
         let (u, v) = (x as f64 / 40.0, y as f64 / 40.0);
-        let n = value_noise(u, v, seed) * 0.5 + value_noise(u * 3.0, v * 3.0, seed + 1) * 0.3
+        let n = value_noise(u, v, seed) * 0.5
+            + value_noise(u * 3.0, v * 3.0, seed + 1) * 0.3
             + value_noise(u * 9.0, v * 9.0, seed + 2) * 0.2;
         let g = (n * 255.0) as u8;
         Rgb([g, g.wrapping_add((seed * 37) as u8) / 2 + 60, 255 - g])
@@ -196,10 +235,54 @@ pub struct RenderedRig {
 }
 
 pub fn render_rig(dir: &Path, n_stills: usize, size: (u32, u32)) -> RenderedRig {
-    let (video, stills) = rig(n_stills, size);
+    render_rig_with_lens(dir, n_stills, size, Distortion::None)
+}
+
+pub fn render_rig_with_lens(
+    dir: &Path,
+    n_stills: usize,
+    size: (u32, u32),
+    lens: Distortion,
+) -> RenderedRig {
+    let (video, stills) = rig_with_lens(n_stills, size, lens);
     let all: Vec<Camera> = video.iter().chain(&stills).cloned().collect();
     let paths = render_to(dir, &all);
-    let video_paths = video.iter().zip(&paths).map(|(c, p)| (c.name.clone(), p.clone())).collect();
+    let video_paths = video
+        .iter()
+        .zip(&paths)
+        .map(|(c, p)| (c.name.clone(), p.clone()))
+        .collect();
     let still_paths = paths[video.len()..].to_vec();
-    RenderedRig { video, stills, video_paths, still_paths }
+    RenderedRig {
+        video,
+        stills,
+        video_paths,
+        still_paths,
+    }
+}
+
+/// A [`splat4d::Progress`] that records every call, to check what a stage reports.
+#[derive(Default)]
+pub struct RecordingProgress {
+    pub messages: std::sync::Mutex<Vec<String>>,
+    pub advanced: std::sync::atomic::AtomicU64,
+}
+
+impl splat4d::Progress for RecordingProgress {
+    fn start(&self, total: u64, unit: &str) {
+        self.messages
+            .lock()
+            .unwrap()
+            .push(format!("start {total} {unit}"));
+    }
+    fn advance(&self, n: u64) {
+        self.advanced
+            .fetch_add(n, std::sync::atomic::Ordering::Relaxed);
+    }
+    fn message(&self, msg: &str) {
+        self.messages.lock().unwrap().push(msg.to_string());
+    }
+    fn finish(&self) {
+        self.messages.lock().unwrap().push("finish".into());
+    }
 }
