@@ -77,26 +77,21 @@ fn frames(ctx: &StageContext) -> anyhow::Result<()> {
 
 fn poses(ctx: &StageContext) -> anyhow::Result<()> {
     let config = &ctx.config.poses;
-    if let Some(calibration) = &ctx.capture.calibration {
-        tracing::info!(
-            "importing the calibration {} instead of solving poses",
-            calibration.display()
-        );
-        let set = calib::import::import_calibration(calibration)
-            .with_context(|| format!("cannot import {}", calibration.display()))?;
-        calib::poses::write_imported(&set, calibration, &ctx.out_dir, config.radius)?;
-        return Ok(());
-    }
     let frames_dir = ctx.stage_dir("frames");
     let index: FramesIndex = serde_json::from_str(
-        &std::fs::read_to_string(frames_dir.join("frames.json"))
-            .context("cannot read frames.json")?,
+        &std::fs::read_to_string(frames_dir.join("frames.json")).context("cannot read frames.json")?,
     )
     .context("frames.json is not valid; rerun the frames stage")?;
-    let first = index
-        .frames
-        .first()
-        .context("the frames stage wrote no frames")?;
+    if let Some(calibration) = &ctx.capture.calibration {
+        tracing::info!("importing the calibration {} instead of solving poses", calibration.display());
+        let set = calib::import::import_calibration(calibration)
+            .with_context(|| format!("cannot import {}", calibration.display()))?;
+        // The calibration is for the recorded size; the engine sees the working size.
+        let working_size = index.cameras.first().map(|c| (c.width, c.height));
+        calib::poses::write_imported(&set, calibration, &ctx.out_dir, working_size, config.radius)?;
+        return Ok(());
+    }
+    let first = index.frames.first().context("the frames stage wrote no frames")?;
     let video_frames = index
         .cameras
         .iter()
