@@ -27,6 +27,8 @@ pub struct Splat<F> {
     pub min_power: F,
     /// Inclusive pixel box `[x0, x1, y0, y1]` of the support (unclipped).
     pub rect: [i32; 4],
+    /// Squared Mahalanobis radius of the support (≤ 9).
+    pub support_d2: F,
 }
 
 impl<F: Real> Splat<F> {
@@ -47,7 +49,16 @@ impl<F: Real> Splat<F> {
             [0, -1, 0, -1]
         };
         // A hair of slack so rounding never drops a pixel the α test would keep.
-        Self { mean, conic, opacity, colour, depth, min_power: F::c(-0.5 * d2 * (1.0 + 1e-6) - 1e-9), rect }
+        Self {
+            mean,
+            conic,
+            opacity,
+            colour,
+            depth,
+            min_power: F::c(-0.5 * d2 * (1.0 + 1e-6) - 1e-9),
+            rect,
+            support_d2: F::c(d2),
+        }
     }
 
     /// The support box clipped to a pixel rectangle, as `(x0, x1, y0, y1)` half-open.
@@ -61,6 +72,30 @@ impl<F: Real> Splat<F> {
             return None;
         }
         Some((x0 as u32, x1 as u32, y0 as u32, y1 as u32))
+    }
+
+    /// The pixels `[x0, x1)` of row centre `fy` that can lie inside the support ellipse,
+    /// within `[lo, hi)`. Slightly generous: every pixel is still tested exactly.
+    #[inline(always)]
+    pub fn row_span(&self, fy: F, lo: u32, hi: u32) -> (u32, u32) {
+        let [a, b, c] = self.conic;
+        let dy = fy - self.mean[1];
+        let bdy = b * dy;
+        let disc = bdy * bdy - a * (c * dy * dy - self.support_d2);
+        if !(a > F::zero()) || !disc.is_finite() {
+            return (lo, hi);
+        }
+        if disc < F::zero() {
+            return (lo, lo);
+        }
+        let root = disc.sqrt();
+        let slack = F::c(0.01);
+        let half = F::c(0.5);
+        let x_lo = self.mean[0] + (-bdy - root) / a - half - slack;
+        let x_hi = self.mean[0] + (-bdy + root) / a - half + slack;
+        let start = x_lo.ceil().max(F::c(lo as f64)).min(F::c(hi as f64));
+        let end = (x_hi.floor() + F::one()).max(start).min(F::c(hi as f64));
+        (start.f64() as u32, end.f64() as u32)
     }
 }
 
@@ -99,7 +134,7 @@ pub fn splat_alpha<F: Real>(s: &Splat<F>, px: F, py: F) -> Option<(F, F, bool)> 
     if power > F::zero() || power < s.min_power || power < F::c(-0.5 * EXTENT_SIGMAS * EXTENT_SIGMAS) {
         return None;
     }
-    let g = power.exp();
+    let g = power.exp_fast();
     let raw = s.opacity * g;
     let amax = F::c(ALPHA_MAX);
     let (alpha, clamped) = if raw > amax { (amax, true) } else { (raw, false) };
@@ -170,7 +205,8 @@ pub fn blend_tile_forward<F: Real>(rect: PixelRect, splats: &[Splat<F>], backgro
         for py in y0..y1 {
             let fy = F::c(py as f64) + half;
             let row = ((py - rect.y0) * w) as usize;
-            for px in x0..x1 {
+            let (sx0, sx1) = s.row_span(fy, x0, x1);
+            for px in sx0..sx1 {
                 let p = row + (px - rect.x0) as usize;
                 if done[p] {
                     continue;
@@ -250,7 +286,8 @@ pub fn blend_tile_backward<F: Real>(
         for py in y0..y1 {
             let fy = F::c(py as f64) + half;
             let row = ((py - rect.y0) * w) as usize;
-            for px in x0..x1 {
+            let (sx0, sx1) = s.row_span(fy, x0, x1);
+            for px in sx0..sx1 {
                 let p = row + (px - rect.x0) as usize;
                 if k as u32 >= n_contrib[p] {
                     continue;
