@@ -124,24 +124,30 @@ impl<F: Real> SplatGrad<F> {
     }
 }
 
-/// One splat's contribution at a pixel centre: `(α, exp(power), α was clamped)`, or
-/// `None` when it is skipped.
+/// Pixels evaluated together by [`splat_alpha_lanes`] (branch-free, so it vectorises).
+pub const LANES: usize = 8;
+
+/// One splat's α at the pixel centres `(px0 + j + ½, fy)`, `j < LANES`, and `exp(power)`.
+/// α is 0 where the splat is skipped (outside its 3σ / α ≥ 1/255 support); an α equal to
+/// `ALPHA_MAX` with `opacity·g > ALPHA_MAX` was clamped.
 #[inline(always)]
-pub fn splat_alpha<F: Real>(s: &Splat<F>, px: F, py: F) -> Option<(F, F, bool)> {
-    let dx = px - s.mean[0];
-    let dy = py - s.mean[1];
-    let power = -F::c(0.5) * (s.conic[0] * dx * dx + s.conic[2] * dy * dy) - s.conic[1] * dx * dy;
-    if power > F::zero() || power < s.min_power || power < F::c(-0.5 * EXTENT_SIGMAS * EXTENT_SIGMAS) {
-        return None;
+pub fn splat_alpha_lanes<F: Real>(s: &Splat<F>, px0: u32, fy: F, alpha: &mut [F; LANES], gauss: &mut [F; LANES]) {
+    let dy = fy - s.mean[1];
+    let half = F::c(0.5);
+    let cdy = s.conic[2] * dy * dy;
+    let min_power = s.min_power.max(F::c(-0.5 * EXTENT_SIGMAS * EXTENT_SIGMAS));
+    let base = F::c(px0 as f64);
+    let (amax, amin) = (F::c(ALPHA_MAX), F::c(ALPHA_MIN));
+    for j in 0..LANES {
+        let fx = base + F::c(j as f64 + 0.5);
+        let dx = fx - s.mean[0];
+        let power = -half * (s.conic[0] * dx * dx + cdy) - s.conic[1] * dx * dy;
+        let g = power.exp_fast();
+        let a = (s.opacity * g).min(amax);
+        let keep = power <= F::zero() && power >= min_power && a >= amin;
+        alpha[j] = if keep { a } else { F::zero() };
+        gauss[j] = g;
     }
-    let g = power.exp_fast();
-    let raw = s.opacity * g;
-    let amax = F::c(ALPHA_MAX);
-    let (alpha, clamped) = if raw > amax { (amax, true) } else { (raw, false) };
-    if alpha < F::c(ALPHA_MIN) {
-        return None;
-    }
-    Some((alpha, g, clamped))
 }
 
 /// A rectangle of pixels `[x0, x1) × [y0, y1)`.
@@ -194,6 +200,8 @@ pub fn blend_tile_forward<F: Real>(rect: PixelRect, splats: &[Splat<F>], backgro
     let mut done = vec![false; n];
     let mut alive = n;
     let mut evaluations = 0u64;
+    let mut lane_alpha = [F::zero(); LANES];
+    let mut lane_g = [F::zero(); LANES];
     let t_min = F::c(TRANSMITTANCE_MIN);
     let half = F::c(0.5);
     let w = rect.x1 - rect.x0;
@@ -206,28 +214,37 @@ pub fn blend_tile_forward<F: Real>(rect: PixelRect, splats: &[Splat<F>], backgro
             let fy = F::c(py as f64) + half;
             let row = ((py - rect.y0) * w) as usize;
             let (sx0, sx1) = s.row_span(fy, x0, x1);
-            for px in sx0..sx1 {
-                let p = row + (px - rect.x0) as usize;
-                if done[p] {
-                    continue;
+            let mut px0 = sx0;
+            while px0 < sx1 {
+                splat_alpha_lanes(s, px0, fy, &mut lane_alpha, &mut lane_g);
+                let m = (sx1 - px0).min(LANES as u32);
+                evaluations += m as u64;
+                for j in 0..m as usize {
+                    let alpha = lane_alpha[j];
+                    if alpha == F::zero() {
+                        continue;
+                    }
+                    let p = row + (px0 - rect.x0) as usize + j;
+                    if done[p] {
+                        continue;
+                    }
+                    let t = out.final_t[p];
+                    let next_t = t * (F::one() - alpha);
+                    if next_t < t_min {
+                        done[p] = true;
+                        alive -= 1;
+                        continue;
+                    }
+                    let wgt = alpha * t;
+                    let c = &mut colour[p];
+                    c[0] += s.colour[0] * wgt;
+                    c[1] += s.colour[1] * wgt;
+                    c[2] += s.colour[2] * wgt;
+                    out.depth[p] += s.depth * wgt;
+                    out.final_t[p] = next_t;
+                    out.n_contrib[p] = k as u32 + 1;
                 }
-                evaluations += 1;
-                let Some((alpha, _, _)) = splat_alpha(s, F::c(px as f64) + half, fy) else { continue };
-                let t = out.final_t[p];
-                let next_t = t * (F::one() - alpha);
-                if next_t < t_min {
-                    done[p] = true;
-                    alive -= 1;
-                    continue;
-                }
-                let wgt = alpha * t;
-                let c = &mut colour[p];
-                c[0] += s.colour[0] * wgt;
-                c[1] += s.colour[1] * wgt;
-                c[2] += s.colour[2] * wgt;
-                out.depth[p] += s.depth * wgt;
-                out.final_t[p] = next_t;
-                out.n_contrib[p] = k as u32 + 1;
+                px0 += LANES as u32;
             }
         }
     }
@@ -279,6 +296,9 @@ pub fn blend_tile_backward<F: Real>(
         .map(|p| background[0] * up.rgb[3 * p] + background[1] * up.rgb[3 * p + 1] + background[2] * up.rgb[3 * p + 2])
         .collect();
     let k_max = n_contrib.iter().copied().max().unwrap_or(0) as usize;
+    let mut lane_alpha = [F::zero(); LANES];
+    let mut lane_g = [F::zero(); LANES];
+    let amax = F::c(ALPHA_MAX);
     for k in (0..k_max.min(splats.len())).rev() {
         let s = &splats[k];
         let Some((x0, x1, y0, y1)) = s.clip(rect) else { continue };
@@ -287,50 +307,61 @@ pub fn blend_tile_backward<F: Real>(
             let fy = F::c(py as f64) + half;
             let row = ((py - rect.y0) * w) as usize;
             let (sx0, sx1) = s.row_span(fy, x0, x1);
-            for px in sx0..sx1 {
-                let p = row + (px - rect.x0) as usize;
-                if k as u32 >= n_contrib[p] {
-                    continue;
+            let mut px0 = sx0;
+            while px0 < sx1 {
+                splat_alpha_lanes(s, px0, fy, &mut lane_alpha, &mut lane_g);
+                let m = (sx1 - px0).min(LANES as u32);
+                for j in 0..m as usize {
+                    let alpha = lane_alpha[j];
+                    if alpha == F::zero() {
+                        continue;
+                    }
+                    let p = row + (px0 - rect.x0) as usize + j;
+                    if k as u32 >= n_contrib[p] {
+                        continue;
+                    }
+                    let g = lane_g[j];
+                    let clamped = s.opacity * g > amax;
+                    let fx = F::c((px0 as usize + j) as f64) + half;
+                    let dc = [up.rgb[3 * p], up.rgb[3 * p + 1], up.rgb[3 * p + 2]];
+                    let dd = up.depth[p];
+                    let st = &mut state[p];
+                    let inv_one_minus = one / (one - alpha);
+                    st.t = st.t * inv_one_minus;
+                    let t = st.t;
+                    let wgt = alpha * t;
+                    gr.colour[0] += wgt * dc[0];
+                    gr.colour[1] += wgt * dc[1];
+                    gr.colour[2] += wgt * dc[2];
+                    gr.depth += wgt * dd;
+                    for ch in 0..3 {
+                        st.acc_c[ch] = st.last_alpha * st.last_c[ch] + (one - st.last_alpha) * st.acc_c[ch];
+                    }
+                    st.acc_d = st.last_alpha * st.last_d + (one - st.last_alpha) * st.acc_d;
+                    st.last_alpha = alpha;
+                    st.last_c = s.colour;
+                    st.last_d = s.depth;
+                    let mut d_alpha = ((s.colour[0] - st.acc_c[0]) * dc[0]
+                        + (s.colour[1] - st.acc_c[1]) * dc[1]
+                        + (s.colour[2] - st.acc_c[2]) * dc[2]
+                        + (s.depth - st.acc_d) * dd)
+                        * t;
+                    d_alpha += final_t[p] * inv_one_minus * (up.alpha[p] - bg_dot[p]);
+                    if clamped {
+                        continue;
+                    }
+                    // α = opacity · exp(power)
+                    gr.opacity += g * d_alpha;
+                    let d_power = s.opacity * g * d_alpha;
+                    let dx = fx - s.mean[0];
+                    let dy = fy - s.mean[1];
+                    gr.conic[0] -= half * dx * dx * d_power;
+                    gr.conic[1] -= dx * dy * d_power;
+                    gr.conic[2] -= half * dy * dy * d_power;
+                    gr.mean[0] += (s.conic[0] * dx + s.conic[1] * dy) * d_power;
+                    gr.mean[1] += (s.conic[2] * dy + s.conic[1] * dx) * d_power;
                 }
-                let fx = F::c(px as f64) + half;
-                let Some((alpha, g, clamped)) = splat_alpha(s, fx, fy) else { continue };
-                let dc = [up.rgb[3 * p], up.rgb[3 * p + 1], up.rgb[3 * p + 2]];
-                let dd = up.depth[p];
-                let st = &mut state[p];
-                let inv_one_minus = one / (one - alpha);
-                st.t = st.t * inv_one_minus;
-                let t = st.t;
-                let wgt = alpha * t;
-                gr.colour[0] += wgt * dc[0];
-                gr.colour[1] += wgt * dc[1];
-                gr.colour[2] += wgt * dc[2];
-                gr.depth += wgt * dd;
-                for ch in 0..3 {
-                    st.acc_c[ch] = st.last_alpha * st.last_c[ch] + (one - st.last_alpha) * st.acc_c[ch];
-                }
-                st.acc_d = st.last_alpha * st.last_d + (one - st.last_alpha) * st.acc_d;
-                st.last_alpha = alpha;
-                st.last_c = s.colour;
-                st.last_d = s.depth;
-                let mut d_alpha = ((s.colour[0] - st.acc_c[0]) * dc[0]
-                    + (s.colour[1] - st.acc_c[1]) * dc[1]
-                    + (s.colour[2] - st.acc_c[2]) * dc[2]
-                    + (s.depth - st.acc_d) * dd)
-                    * t;
-                d_alpha += final_t[p] * inv_one_minus * (up.alpha[p] - bg_dot[p]);
-                if clamped {
-                    continue;
-                }
-                // α = opacity · exp(power)
-                gr.opacity += g * d_alpha;
-                let d_power = s.opacity * g * d_alpha;
-                let dx = fx - s.mean[0];
-                let dy = fy - s.mean[1];
-                gr.conic[0] -= half * dx * dx * d_power;
-                gr.conic[1] -= dx * dy * d_power;
-                gr.conic[2] -= half * dy * dy * d_power;
-                gr.mean[0] += (s.conic[0] * dx + s.conic[1] * dy) * d_power;
-                gr.mean[1] += (s.conic[2] * dy + s.conic[1] * dx) * d_power;
+                px0 += LANES as u32;
             }
         }
         grads[k].add(&gr);

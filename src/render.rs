@@ -112,6 +112,23 @@ pub struct Gradients<F: Real = f32> {
 }
 
 impl<F: Real> Gradients<F> {
+    /// Resize to `model` and set every entry to zero (in parallel); the opacity-factor
+    /// gradient gets one entry per Gaussian.
+    fn reset(&mut self, model: &Gaussians<F>) {
+        let n = model.len();
+        let z4 = [F::zero(); 4];
+        for v in [&mut self.means, &mut self.log_scales, &mut self.rot_left, &mut self.rot_right] {
+            v.resize(n, z4);
+            v.par_iter_mut().for_each(|x| *x = z4);
+        }
+        for v in [&mut self.opacity_logits, &mut self.opacity_factor, &mut self.mean2d_norm] {
+            v.resize(n, F::zero());
+            v.par_iter_mut().for_each(|x| *x = F::zero());
+        }
+        self.colours.resize(model.colours.len(), F::zero());
+        self.colours.par_chunks_mut(4096).for_each(|c| c.fill(F::zero()));
+    }
+
     /// All-zero gradients for `model`.
     pub fn zeros_like(model: &Gaussians<F>, with_factor: bool) -> Self {
         let n = model.len();
@@ -305,6 +322,19 @@ impl<F: Real> Rendered<F> {
 
     /// Backward pass: dL/d(image) → dL/d(parameters) of `model` (the model that was rendered).
     pub fn backward(&self, model: &Gaussians<F>, up: &ImageGradients<F>) -> Result<Gradients<F>, RenderError> {
+        let mut out = Gradients::zeros_like(model, self.ctx.factor.is_some());
+        self.backward_into(model, up, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`Rendered::backward`] into a reused buffer (resized and overwritten, not added to):
+    /// saves allocating and faulting in the large colour-gradient array every step.
+    pub fn backward_into(
+        &self,
+        model: &Gaussians<F>,
+        up: &ImageGradients<F>,
+        out: &mut Gradients<F>,
+    ) -> Result<(), RenderError> {
         let n = model.len();
         let expected = self.ctx.factor.as_ref().map_or(self.radii.len(), |f| f.len());
         if n != self.radii.len() || n != expected {
@@ -378,7 +408,7 @@ impl<F: Real> Rendered<F> {
         }
 
         // Per-Gaussian backward.
-        let mut out = Gradients::zeros_like(model, true);
+        out.reset(model);
         let kc = 3 * model.coeffs_per_channel();
         let cam = &ctx.camera;
         let (t, period) = (ctx.t, ctx.period);
@@ -427,6 +457,6 @@ impl<F: Real> Rendered<F> {
         if ctx.factor.is_none() {
             out.opacity_factor.clear();
         }
-        Ok(out)
+        Ok(())
     }
 }
