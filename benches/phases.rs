@@ -19,7 +19,7 @@ fn cpu_seconds() -> f64 {
 
 fn main() {
     let n: usize = std::env::var("PHASES_N").ok().and_then(|s| s.parse().ok()).unwrap_or(100_000);
-    let iters = 10;
+    let iters: usize = std::env::var("PHASES_ITERS").ok().and_then(|s| s.parse().ok()).unwrap_or(10);
     let model = common::scene(n);
     let cam = common::camera();
     let opts = RenderOptions::<f32>::default();

@@ -4,7 +4,7 @@
 //! below 1e-4. Outputs per pixel: RGB over a background, alpha `1 − T`, and depth
 //! `Σ wᵢ zᵢ` (weights `wᵢ = αᵢ Tᵢ`, not normalised by alpha).
 
-use crate::numerics::Real;
+use crate::numerics::{Real, ceil_i64, floor_i64};
 use crate::project::EXTENT_SIGMAS;
 
 /// Largest α of one splat at one pixel.
@@ -93,9 +93,9 @@ impl<F: Real> Splat<F> {
         let half = F::c(0.5);
         let x_lo = self.mean[0] + (-bdy - root) / a - half - slack;
         let x_hi = self.mean[0] + (-bdy + root) / a - half + slack;
-        let start = x_lo.ceil().max(F::c(lo as f64)).min(F::c(hi as f64));
-        let end = (x_hi.floor() + F::one()).max(start).min(F::c(hi as f64));
-        (start.f64() as u32, end.f64() as u32)
+        let start = ceil_i64(x_lo.f64()).clamp(lo as i64, hi as i64);
+        let end = (floor_i64(x_hi.f64()) + 1).clamp(start, hi as i64);
+        (start as u32, end as u32)
     }
 }
 
@@ -183,33 +183,34 @@ pub struct TileOut<F> {
 }
 
 /// Blend one tile. `splats` are the tile's splats in depth order. Splat-major: each splat
-/// visits only the pixels of its support box; per-pixel order is still front to back.
+/// visits only the pixels of its support (row spans of its ellipse), `LANES` pixels at a
+/// time with branch-free masked updates; each pixel still sees splats front to back.
 pub fn blend_tile_forward<F: Real>(rect: PixelRect, splats: &[Splat<F>], background: [F; 3], out: &mut TileOut<F>) {
     let n = rect.len();
-    let mut colour = vec![[F::zero(); 3]; n];
-    out.rgb.clear();
-    out.rgb.resize(3 * n, F::zero());
-    out.alpha.clear();
-    out.alpha.resize(n, F::zero());
-    out.depth.clear();
-    out.depth.resize(n, F::zero());
-    out.final_t.clear();
-    out.final_t.resize(n, F::one());
-    out.n_contrib.clear();
-    out.n_contrib.resize(n, 0);
-    let mut done = vec![false; n];
-    let mut alive = n;
+    let padded = n + LANES;
+    let zero = F::zero();
+    let one = F::one();
+    // Per-pixel state, structure of arrays, padded so a lane group never runs off the end.
+    let mut trans = vec![one; padded];
+    let mut cr = vec![zero; padded];
+    let mut cg = vec![zero; padded];
+    let mut cb = vec![zero; padded];
+    let mut dep = vec![zero; padded];
+    let mut last = vec![0u32; padded];
+    let mut done = vec![zero; padded];
+    let mut alive = n as i64;
     let mut evaluations = 0u64;
-    let mut lane_alpha = [F::zero(); LANES];
-    let mut lane_g = [F::zero(); LANES];
+    let mut lane_alpha = [zero; LANES];
+    let mut lane_g = [zero; LANES];
     let t_min = F::c(TRANSMITTANCE_MIN);
     let half = F::c(0.5);
     let w = rect.x1 - rect.x0;
     for (k, s) in splats.iter().enumerate() {
-        if alive == 0 {
+        if alive <= 0 {
             break;
         }
         let Some((x0, x1, y0, y1)) = s.clip(rect) else { continue };
+        let kk = k as u32 + 1;
         for py in y0..y1 {
             let fy = F::c(py as f64) + half;
             let row = ((py - rect.y0) * w) as usize;
@@ -217,44 +218,50 @@ pub fn blend_tile_forward<F: Real>(rect: PixelRect, splats: &[Splat<F>], backgro
             let mut px0 = sx0;
             while px0 < sx1 {
                 splat_alpha_lanes(s, px0, fy, &mut lane_alpha, &mut lane_g);
-                let m = (sx1 - px0).min(LANES as u32);
+                let m = (sx1 - px0).min(LANES as u32) as usize;
                 evaluations += m as u64;
-                for j in 0..m as usize {
-                    let alpha = lane_alpha[j];
-                    if alpha == F::zero() {
-                        continue;
-                    }
-                    let p = row + (px0 - rect.x0) as usize + j;
-                    if done[p] {
-                        continue;
-                    }
-                    let t = out.final_t[p];
-                    let next_t = t * (F::one() - alpha);
-                    if next_t < t_min {
-                        done[p] = true;
-                        alive -= 1;
-                        continue;
-                    }
-                    let wgt = alpha * t;
-                    let c = &mut colour[p];
-                    c[0] += s.colour[0] * wgt;
-                    c[1] += s.colour[1] * wgt;
-                    c[2] += s.colour[2] * wgt;
-                    out.depth[p] += s.depth * wgt;
-                    out.final_t[p] = next_t;
-                    out.n_contrib[p] = k as u32 + 1;
+                let base = row + (px0 - rect.x0) as usize;
+                let t: &mut [F; LANES] = (&mut trans[base..base + LANES]).try_into().unwrap();
+                let r: &mut [F; LANES] = (&mut cr[base..base + LANES]).try_into().unwrap();
+                let g: &mut [F; LANES] = (&mut cg[base..base + LANES]).try_into().unwrap();
+                let b: &mut [F; LANES] = (&mut cb[base..base + LANES]).try_into().unwrap();
+                let d: &mut [F; LANES] = (&mut dep[base..base + LANES]).try_into().unwrap();
+                let l: &mut [u32; LANES] = (&mut last[base..base + LANES]).try_into().unwrap();
+                let dn: &mut [F; LANES] = (&mut done[base..base + LANES]).try_into().unwrap();
+                let mut stops = 0i64;
+                for j in 0..LANES {
+                    let a = if j < m { lane_alpha[j] } else { zero };
+                    let live = a > zero && dn[j] == zero;
+                    let next_t = t[j] * (one - a);
+                    let stop = live && next_t < t_min;
+                    let contrib = live && !(next_t < t_min);
+                    let wgt = if contrib { a * t[j] } else { zero };
+                    r[j] += s.colour[0] * wgt;
+                    g[j] += s.colour[1] * wgt;
+                    b[j] += s.colour[2] * wgt;
+                    d[j] += s.depth * wgt;
+                    t[j] = if contrib { next_t } else { t[j] };
+                    l[j] = if contrib { kk } else { l[j] };
+                    dn[j] = if stop { one } else { dn[j] };
+                    stops += stop as i64;
                 }
+                alive -= stops;
                 px0 += LANES as u32;
             }
         }
     }
+    out.rgb.clear();
+    out.alpha.clear();
+    out.depth.clear();
+    out.final_t.clear();
+    out.n_contrib.clear();
     for p in 0..n {
-        let t = out.final_t[p];
-        for ch in 0..3 {
-            out.rgb[3 * p + ch] = colour[p][ch] + t * background[ch];
-        }
-        out.alpha[p] = F::one() - t;
+        out.rgb.extend_from_slice(&[cr[p] + trans[p] * background[0], cg[p] + trans[p] * background[1], cb[p] + trans[p] * background[2]]);
     }
+    out.alpha.extend(trans[..n].iter().map(|&t| one - t));
+    out.depth.extend_from_slice(&dep[..n]);
+    out.final_t.extend_from_slice(&trans[..n]);
+    out.n_contrib.extend_from_slice(&last[..n]);
     out.evaluations = evaluations;
 }
 

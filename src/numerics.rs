@@ -60,19 +60,37 @@ impl Real for f64 {
 }
 
 /// `e^x` in `f32`: Cody–Waite range reduction and a degree-6 Taylor polynomial; inputs are
-/// clamped to [−87, 88] (no denormals, no overflow).
+/// clamped to [−87, 88] (no denormals, no overflow). Branch- and cast-free, so loops over
+/// it vectorise.
 #[inline(always)]
 pub fn exp_f32(x: f32) -> f32 {
     const LOG2E: f32 = std::f32::consts::LOG2_E;
     const LN2_HI: f32 = 0.693_145_75;
     const LN2_LO: f32 = 1.428_606_8e-6;
     const ROUND: f32 = 12_582_912.0; // 1.5·2^23: adding it rounds to an integer
-    let x = x.clamp(-87.0, 88.0);
+    const BIAS: f32 = 8_388_608.0 + 127.0; // 2^23 + 127: puts n + 127 in the low mantissa bits
+    let x = if x < -87.0 { -87.0 } else { x };
+    let x = if x > 88.0 { 88.0 } else { x };
     let n = (x * LOG2E + ROUND) - ROUND;
     let r = x - n * LN2_HI - n * LN2_LO;
     let p = 1.0 + r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
-    let scale = f32::from_bits(((n as i32 + 127) as u32) << 23);
+    // 2^n: move the integer n + 127 (1..=215) from the mantissa into the exponent field.
+    let scale = f32::from_bits((n + BIAS).to_bits() << 23);
     p * scale
+}
+
+/// `⌈x⌉` as an `i64` without a libm call (saturating for huge or NaN inputs).
+#[inline(always)]
+pub fn ceil_i64(x: f64) -> i64 {
+    let t = x as i64;
+    if (t as f64) < x { t + 1 } else { t }
+}
+
+/// `⌊x⌋` as an `i64` without a libm call (saturating for huge or NaN inputs).
+#[inline(always)]
+pub fn floor_i64(x: f64) -> i64 {
+    let t = x as i64;
+    if (t as f64) > x { t - 1 } else { t }
 }
 
 /// Log-scales are clamped to this range before `exp` (scales ~1.5e-8 … 1.6e5), so that
