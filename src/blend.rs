@@ -125,7 +125,7 @@ impl<F: Real> SplatGrad<F> {
 }
 
 /// Pixels evaluated together by [`splat_alpha_lanes`] (branch-free, so it vectorises).
-pub const LANES: usize = 8;
+pub const LANES: usize = 4;
 
 /// One splat's α at the pixel centres `(px0 + j + ½, fy)`, `j < LANES`, and `exp(power)`.
 /// α is 0 where the splat is skipped (outside its 3σ / α ≥ 1/255 support); an α equal to
