@@ -13,8 +13,13 @@ use common::{camera, scene};
 
 fn bench(c: &mut Criterion) {
     let cam = camera();
-    let opts = RenderOptions::<f32> { background: [0.0; 3], ..RenderOptions::default() };
-    let d_rgb: Vec<f32> = (0..3 * 512 * 384).map(|i| ((i % 7) as f32 - 3.0) * 1e-3).collect();
+    let opts = RenderOptions::<f32> {
+        background: [0.0; 3],
+        ..RenderOptions::default()
+    };
+    let d_rgb: Vec<f32> = (0..3 * 512 * 384)
+        .map(|i| ((i % 7) as f32 - 3.0) * 1e-3)
+        .collect();
     let mut group = c.benchmark_group("render_512x384");
     group.sample_size(10);
     for n in [10_000usize, 100_000, 1_000_000] {
@@ -44,7 +49,16 @@ fn bench(c: &mut Criterion) {
             let mut grads = Gradients::zeros_like(m, false);
             b.iter(|| {
                 let r = render_with(m, &cam, 0.5, &opts).unwrap();
-                r.backward_into(m, &ImageGradients { rgb: &d_rgb, alpha: None, depth: None }, &mut grads).unwrap();
+                r.backward_into(
+                    m,
+                    &ImageGradients {
+                        rgb: &d_rgb,
+                        alpha: None,
+                        depth: None,
+                    },
+                    &mut grads,
+                )
+                .unwrap();
                 black_box(&grads);
             })
         });

@@ -35,19 +35,33 @@ impl<F: Real> Splat<F> {
     pub fn new(mean: [F; 2], conic: [F; 3], opacity: F, colour: [F; 3], depth: F) -> Self {
         let max_d2 = EXTENT_SIGMAS * EXTENT_SIGMAS;
         let op = opacity.f64().min(1.0);
-        let d2 = if op > ALPHA_MIN { (2.0 * (op / ALPHA_MIN).ln()).min(max_d2) } else { 0.0 };
+        let d2 = if op > ALPHA_MIN {
+            (2.0 * (op / ALPHA_MIN).ln()).min(max_d2)
+        } else {
+            0.0
+        };
         // Covariance = conic⁻¹: Σxx = c/det, Σyy = a/det.
         let (a, b, c) = (conic[0].f64(), conic[1].f64(), conic[2].f64());
         let det = a * c - b * b;
-        let (sxx, syy) = if det > 0.0 { (c / det, a / det) } else { (0.0, 0.0) };
+        let (sxx, syy) = if det > 0.0 {
+            (c / det, a / det)
+        } else {
+            (0.0, 0.0)
+        };
         let (ex, ey) = ((d2 * sxx).sqrt(), (d2 * syy).sqrt());
         let (mx, my) = (mean[0].f64(), mean[1].f64());
         let to_i = |v: f64| v.clamp(-1e9, 1e9) as i32;
-        let rect = if d2 > 0.0 && ex.is_finite() && ey.is_finite() && mx.is_finite() && my.is_finite() {
-            [to_i((mx - ex - 0.5).ceil()), to_i((mx + ex - 0.5).floor()), to_i((my - ey - 0.5).ceil()), to_i((my + ey - 0.5).floor())]
-        } else {
-            [0, -1, 0, -1]
-        };
+        let rect =
+            if d2 > 0.0 && ex.is_finite() && ey.is_finite() && mx.is_finite() && my.is_finite() {
+                [
+                    to_i((mx - ex - 0.5).ceil()),
+                    to_i((mx + ex - 0.5).floor()),
+                    to_i((my - ey - 0.5).ceil()),
+                    to_i((my + ey - 0.5).floor()),
+                ]
+            } else {
+                [0, -1, 0, -1]
+            };
         // A hair of slack so rounding never drops a pixel the α test would keep.
         Self {
             mean,
@@ -131,7 +145,13 @@ pub const LANES: usize = 4;
 /// α is 0 where the splat is skipped (outside its 3σ / α ≥ 1/255 support); an α equal to
 /// `ALPHA_MAX` with `opacity·g > ALPHA_MAX` was clamped.
 #[inline(always)]
-pub fn splat_alpha_lanes<F: Real>(s: &Splat<F>, px0: u32, fy: F, alpha: &mut [F; LANES], gauss: &mut [F; LANES]) {
+pub fn splat_alpha_lanes<F: Real>(
+    s: &Splat<F>,
+    px0: u32,
+    fy: F,
+    alpha: &mut [F; LANES],
+    gauss: &mut [F; LANES],
+) {
     let dy = fy - s.mean[1];
     let half = F::c(0.5);
     let cdy = s.conic[2] * dy * dy;
@@ -185,7 +205,12 @@ pub struct TileOut<F> {
 /// Blend one tile. `splats` are the tile's splats in depth order. Splat-major: each splat
 /// visits only the pixels of its support (row spans of its ellipse), `LANES` pixels at a
 /// time with branch-free masked updates; each pixel still sees splats front to back.
-pub fn blend_tile_forward<F: Real>(rect: PixelRect, splats: &[Splat<F>], background: [F; 3], out: &mut TileOut<F>) {
+pub fn blend_tile_forward<F: Real>(
+    rect: PixelRect,
+    splats: &[Splat<F>],
+    background: [F; 3],
+    out: &mut TileOut<F>,
+) {
     let n = rect.len();
     let padded = n + LANES;
     let zero = F::zero();
@@ -209,7 +234,9 @@ pub fn blend_tile_forward<F: Real>(rect: PixelRect, splats: &[Splat<F>], backgro
         if alive <= 0 {
             break;
         }
-        let Some((x0, x1, y0, y1)) = s.clip(rect) else { continue };
+        let Some((x0, x1, y0, y1)) = s.clip(rect) else {
+            continue;
+        };
         let kk = k as u32 + 1;
         for py in y0..y1 {
             let fy = F::c(py as f64) + half;
@@ -256,7 +283,11 @@ pub fn blend_tile_forward<F: Real>(rect: PixelRect, splats: &[Splat<F>], backgro
     out.final_t.clear();
     out.n_contrib.clear();
     for p in 0..n {
-        out.rgb.extend_from_slice(&[cr[p] + trans[p] * background[0], cg[p] + trans[p] * background[1], cb[p] + trans[p] * background[2]]);
+        out.rgb.extend_from_slice(&[
+            cr[p] + trans[p] * background[0],
+            cg[p] + trans[p] * background[1],
+            cb[p] + trans[p] * background[2],
+        ]);
     }
     out.alpha.extend(trans[..n].iter().map(|&t| one - t));
     out.depth.extend_from_slice(&dep[..n]);
@@ -298,9 +329,18 @@ pub fn blend_tile_backward<F: Real>(
     let one = F::one();
     let w = rect.x1 - rect.x0;
     let n = rect.len();
-    let mut state: Vec<State<F>> = (0..n).map(|p| State { t: final_t[p], ..State::default() }).collect();
+    let mut state: Vec<State<F>> = (0..n)
+        .map(|p| State {
+            t: final_t[p],
+            ..State::default()
+        })
+        .collect();
     let bg_dot: Vec<F> = (0..n)
-        .map(|p| background[0] * up.rgb[3 * p] + background[1] * up.rgb[3 * p + 1] + background[2] * up.rgb[3 * p + 2])
+        .map(|p| {
+            background[0] * up.rgb[3 * p]
+                + background[1] * up.rgb[3 * p + 1]
+                + background[2] * up.rgb[3 * p + 2]
+        })
         .collect();
     let k_max = n_contrib.iter().copied().max().unwrap_or(0) as usize;
     let mut lane_alpha = [F::zero(); LANES];
@@ -308,7 +348,9 @@ pub fn blend_tile_backward<F: Real>(
     let amax = F::c(ALPHA_MAX);
     for k in (0..k_max.min(splats.len())).rev() {
         let s = &splats[k];
-        let Some((x0, x1, y0, y1)) = s.clip(rect) else { continue };
+        let Some((x0, x1, y0, y1)) = s.clip(rect) else {
+            continue;
+        };
         let mut gr = SplatGrad::default();
         for py in y0..y1 {
             let fy = F::c(py as f64) + half;
@@ -334,7 +376,7 @@ pub fn blend_tile_backward<F: Real>(
                     let dd = up.depth[p];
                     let st = &mut state[p];
                     let inv_one_minus = one / (one - alpha);
-                    st.t = st.t * inv_one_minus;
+                    st.t *= inv_one_minus;
                     let t = st.t;
                     let wgt = alpha * t;
                     gr.colour[0] += wgt * dc[0];
@@ -342,7 +384,8 @@ pub fn blend_tile_backward<F: Real>(
                     gr.colour[2] += wgt * dc[2];
                     gr.depth += wgt * dd;
                     for ch in 0..3 {
-                        st.acc_c[ch] = st.last_alpha * st.last_c[ch] + (one - st.last_alpha) * st.acc_c[ch];
+                        st.acc_c[ch] =
+                            st.last_alpha * st.last_c[ch] + (one - st.last_alpha) * st.acc_c[ch];
                     }
                     st.acc_d = st.last_alpha * st.last_d + (one - st.last_alpha) * st.acc_d;
                     st.last_alpha = alpha;

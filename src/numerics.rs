@@ -73,7 +73,10 @@ pub fn exp_f32(x: f32) -> f32 {
     let x = if x > 88.0 { 88.0 } else { x };
     let n = (x * LOG2E + ROUND) - ROUND;
     let r = x - n * LN2_HI - n * LN2_LO;
-    let p = 1.0 + r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
+    let p = 1.0
+        + r * (1.0
+            + r * (0.5
+                + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
     // 2^n: move the integer n + 127 (1..=215) from the mantissa into the exponent field.
     let scale = f32::from_bits((n + BIAS).to_bits() << 23);
     p * scale
@@ -183,7 +186,11 @@ pub fn normalise3_backward<F: Real>(unit: [F; 3], norm: F, d_unit: [F; 3]) -> [F
     }
     let dot = unit[0] * d_unit[0] + unit[1] * d_unit[1] + unit[2] * d_unit[2];
     let inv = F::one() / norm;
-    [(d_unit[0] - unit[0] * dot) * inv, (d_unit[1] - unit[1] * dot) * inv, (d_unit[2] - unit[2] * dot) * inv]
+    [
+        (d_unit[0] - unit[0] * dot) * inv,
+        (d_unit[1] - unit[1] * dot) * inv,
+        (d_unit[2] - unit[2] * dot) * inv,
+    ]
 }
 
 #[cfg(test)]

@@ -29,14 +29,24 @@ pub fn scene(n: usize) -> Gaussians<f32> {
     g.active = ColourDegrees::FULL;
     let median = 0.0146 * (100_000.0 / n as f32).sqrt();
     for _ in 0..n {
-        let mean = [3.0 * rng.uniform() - 1.5, 3.0 * rng.uniform() - 1.5, 3.0 * rng.uniform() - 1.5, rng.uniform()];
+        let mean = [
+            3.0 * rng.uniform() - 1.5,
+            3.0 * rng.uniform() - 1.5,
+            3.0 * rng.uniform() - 1.5,
+            rng.uniform(),
+        ];
         let ls = [
             median.ln() + 0.8 * rng.normal(),
             median.ln() + 0.8 * rng.normal(),
             median.ln() + 0.8 * rng.normal(),
             (0.3f32).ln() + 0.3 * rng.normal(),
         ];
-        let i = g.push(mean, ls, 1.5 * rng.normal(), [rng.uniform(), rng.uniform(), rng.uniform()]);
+        let i = g.push(
+            mean,
+            ls,
+            1.5 * rng.normal(),
+            [rng.uniform(), rng.uniform(), rng.uniform()],
+        );
         let q = [rng.normal(), rng.normal(), rng.normal(), rng.normal()];
         g.rot_left[i] = q;
         g.rot_right[i] = [q[0] + 0.1 * rng.normal(), q[1], q[2], q[3]];
@@ -61,4 +71,3 @@ pub fn camera() -> Camera {
         world_to_camera: WorldToCamera::from_parts(r, -(r * eye)),
     }
 }
-
