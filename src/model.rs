@@ -158,7 +158,7 @@ impl<F: Real> Gaussians<F> {
         self.capacity.coeff_count()
     }
 
-    /// Append an isotropic-in-time Gaussian with identity rotations; `rgb` in [0,1] sets the
+    /// Append an isotropic-in-time Gaussian with identity rotations; `rgb` in `[0, 1]` sets the
     /// DC colour (other coefficients zero). Returns its index.
     pub fn push(
         &mut self,

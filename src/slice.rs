@@ -115,7 +115,7 @@ pub fn slice<F: Real>(
     ))
 }
 
-/// Backward of [`slice`]: from dL/dω, dL/dμ(t), dL/dB to the Gaussian's parameters.
+/// Backward of [`slice()`]: from dL/dω, dL/dμ(t), dL/dB to the Gaussian's parameters.
 pub fn slice_backward<F: Real>(
     out: &Slice<F>,
     aux: &SliceAux<F>,
