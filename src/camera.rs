@@ -23,14 +23,7 @@ impl Intrinsics {
     /// Intrinsics for a horizontal field of view in degrees, principal point at the centre.
     pub fn from_hfov(width: u32, height: u32, hfov_deg: f64) -> Self {
         let fx = 0.5 * width as f64 / (0.5 * hfov_deg.to_radians()).tan();
-        Self {
-            width,
-            height,
-            fx,
-            fy: fx,
-            cx: 0.5 * width as f64,
-            cy: 0.5 * height as f64,
-        }
+        Self { width, height, fx, fy: fx, cx: 0.5 * width as f64, cy: 0.5 * height as f64 }
     }
 
     /// The same camera for an image resized to `width × height` (pixel-centre convention:
@@ -38,14 +31,7 @@ impl Intrinsics {
     pub fn scaled_to(&self, width: u32, height: u32) -> Self {
         let sx = width as f64 / self.width as f64;
         let sy = height as f64 / self.height as f64;
-        Self {
-            width,
-            height,
-            fx: self.fx * sx,
-            fy: self.fy * sy,
-            cx: self.cx * sx,
-            cy: self.cy * sy,
-        }
+        Self { width, height, fx: self.fx * sx, fy: self.fy * sy, cx: self.cx * sx, cy: self.cy * sy }
     }
 
     /// Normalised image coordinates (x/z, y/z) to pixels.
@@ -67,14 +53,7 @@ pub enum Distortion {
     #[default]
     None,
     /// OpenCV / COLMAP `OPENCV` (+ `k3` of FULL_OPENCV): radial-tangential.
-    Opencv {
-        k1: f64,
-        k2: f64,
-        p1: f64,
-        p2: f64,
-        #[serde(default)]
-        k3: f64,
-    },
+    Opencv { k1: f64, k2: f64, p1: f64, p2: f64, #[serde(default)] k3: f64 },
     /// OpenCV fisheye / COLMAP `OPENCV_FISHEYE` (equidistant with polynomial θ).
     Fisheye { k1: f64, k2: f64, k3: f64, k4: f64 },
 }
@@ -123,18 +102,13 @@ impl Distortion {
                 break;
             }
             let h = 1e-7;
-            let jx = (self.distort(n + DVec2::new(h, 0.0)) - self.distort(n - DVec2::new(h, 0.0)))
-                / (2.0 * h);
-            let jy = (self.distort(n + DVec2::new(0.0, h)) - self.distort(n - DVec2::new(0.0, h)))
-                / (2.0 * h);
+            let jx = (self.distort(n + DVec2::new(h, 0.0)) - self.distort(n - DVec2::new(h, 0.0))) / (2.0 * h);
+            let jy = (self.distort(n + DVec2::new(0.0, h)) - self.distort(n - DVec2::new(0.0, h))) / (2.0 * h);
             let det = jx.x * jy.y - jy.x * jx.y;
             if det.abs() < 1e-18 {
                 break;
             }
-            let step = DVec2::new(
-                (jy.y * f.x - jy.x * f.y) / det,
-                (-jx.y * f.x + jx.x * f.y) / det,
-            );
+            let step = DVec2::new((jy.y * f.x - jy.x * f.y) / det, (-jx.y * f.x + jx.x * f.y) / det);
             n -= step;
         }
         n
@@ -149,19 +123,13 @@ pub struct WorldToCamera {
 }
 
 impl WorldToCamera {
-    pub const IDENTITY: Self = Self {
-        rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-        translation: [0.0; 3],
-    };
+    pub const IDENTITY: Self =
+        Self { rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], translation: [0.0; 3] };
 
     pub fn from_parts(rotation: DMat3, translation: DVec3) -> Self {
         let r = rotation.transpose(); // columns of the transpose are the rows
         Self {
-            rotation: [
-                r.x_axis.to_array(),
-                r.y_axis.to_array(),
-                r.z_axis.to_array(),
-            ],
+            rotation: [r.x_axis.to_array(), r.y_axis.to_array(), r.z_axis.to_array()],
             translation: translation.to_array(),
         }
     }
@@ -222,9 +190,7 @@ impl Camera {
 
     /// World-space ray direction (unit) through a pixel (distortion removed).
     pub fn pixel_ray(&self, pixel: DVec2) -> DVec3 {
-        let n = self
-            .distortion
-            .undistort(self.intrinsics.to_normalised(pixel));
+        let n = self.distortion.undistort(self.intrinsics.to_normalised(pixel));
         (self.world_to_camera.rotation().transpose() * DVec3::new(n.x, n.y, 1.0)).normalize()
     }
 }
@@ -242,10 +208,7 @@ impl CameraSet {
     pub const VERSION: u32 = 1;
 
     pub fn new(cameras: Vec<Camera>) -> Self {
-        Self {
-            version: Self::VERSION,
-            cameras,
-        }
+        Self { version: Self::VERSION, cameras }
     }
 
     pub fn get(&self, name: &str) -> Option<&Camera> {
@@ -275,19 +238,8 @@ mod tests {
     #[test]
     fn distortion_round_trips() {
         let models = [
-            Distortion::Opencv {
-                k1: -0.2,
-                k2: 0.05,
-                p1: 0.001,
-                p2: -0.002,
-                k3: 0.0,
-            },
-            Distortion::Fisheye {
-                k1: 0.05,
-                k2: -0.01,
-                k3: 0.002,
-                k4: 0.0,
-            },
+            Distortion::Opencv { k1: -0.2, k2: 0.05, p1: 0.001, p2: -0.002, k3: 0.0 },
+            Distortion::Fisheye { k1: 0.05, k2: -0.01, k3: 0.002, k4: 0.0 },
         ];
         for d in models {
             for &(x, y) in &[(0.0, 0.0), (0.3, -0.2), (-0.5, 0.4), (0.01, 0.6)] {
@@ -303,19 +255,9 @@ mod tests {
         let cam = Camera {
             name: "cam0".into(),
             intrinsics: Intrinsics::from_hfov(640, 480, 60.0),
-            distortion: Distortion::Opencv {
-                k1: 0.1,
-                k2: 0.0,
-                p1: 0.0,
-                p2: 0.0,
-                k3: 0.0,
-            },
-            world_to_camera: WorldToCamera::look_at(
-                DVec3::new(0.0, -3.0, 1.0),
-                DVec3::ZERO,
-                DVec3::Z,
-            )
-            .unwrap(),
+            distortion: Distortion::Opencv { k1: 0.1, k2: 0.0, p1: 0.0, p2: 0.0, k3: 0.0 },
+            world_to_camera: WorldToCamera::look_at(DVec3::new(0.0, -3.0, 1.0), DVec3::ZERO, DVec3::Z)
+                .unwrap(),
         };
         let set = CameraSet::new(vec![cam]);
         let text = serde_json::to_string_pretty(&set).unwrap();
