@@ -4,6 +4,10 @@
 //! metrics and model files, plus the small shared types (cameras, progress) that the
 //! `rig`, `calib` and `pipeline` crates use. See `ARCHITECTURE.md` for the map.
 
+// `!(x > y)` is deliberate throughout the numerics: it is true for NaN, which must be
+// culled. Index loops mirror the matrix formulas they implement.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+
 pub mod camera;
 pub mod progress;
 
@@ -23,4 +27,6 @@ pub use camera::{Camera, CameraSet, Distortion, Intrinsics, WorldToCamera};
 pub use model::{ColourDegrees, Gaussians, TimeMapping};
 pub use model_file::{ModelFileError, load_model, save_model};
 pub use progress::{NoProgress, Progress};
-pub use render::{Gradients, ImageGradients, RenderError, RenderOptions, Rendered, render, render_with};
+pub use render::{
+    Gradients, ImageGradients, RenderError, RenderOptions, Rendered, render, render_with,
+};

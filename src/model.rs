@@ -19,8 +19,14 @@ pub struct ColourDegrees {
 }
 
 impl ColourDegrees {
-    pub const DC: Self = Self { spatial: 0, temporal: 0 };
-    pub const FULL: Self = Self { spatial: MAX_SPATIAL_DEGREE, temporal: MAX_TEMPORAL_DEGREE };
+    pub const DC: Self = Self {
+        spatial: 0,
+        temporal: 0,
+    };
+    pub const FULL: Self = Self {
+        spatial: MAX_SPATIAL_DEGREE,
+        temporal: MAX_TEMPORAL_DEGREE,
+    };
 
     /// Number of spatial basis functions, `(spatial+1)²`.
     pub fn spatial_count(&self) -> usize {
@@ -43,7 +49,10 @@ impl ColourDegrees {
 
     /// Component-wise minimum.
     pub fn min(self, other: Self) -> Self {
-        Self { spatial: self.spatial.min(other.spatial), temporal: self.temporal.min(other.temporal) }
+        Self {
+            spatial: self.spatial.min(other.spatial),
+            temporal: self.temporal.min(other.temporal),
+        }
     }
 }
 
@@ -61,7 +70,11 @@ impl TimeMapping {
     /// The 4DGS convention: `t = frame / 30` for a sequence of `duration_seconds` at `fps`.
     pub fn frames_over_30(start_seconds: f64, fps: f64, duration_seconds: f64) -> Self {
         let units_per_second = fps / 30.0;
-        Self { start_seconds, units_per_second, duration: duration_seconds * units_per_second }
+        Self {
+            start_seconds,
+            units_per_second,
+            duration: duration_seconds * units_per_second,
+        }
     }
 
     /// Model time of a capture timestamp.
@@ -77,7 +90,11 @@ impl TimeMapping {
 
 impl Default for TimeMapping {
     fn default() -> Self {
-        Self { start_seconds: 0.0, units_per_second: 1.0, duration: 1.0 }
+        Self {
+            start_seconds: 0.0,
+            units_per_second: 1.0,
+            duration: 1.0,
+        }
     }
 }
 
@@ -141,9 +158,15 @@ impl<F: Real> Gaussians<F> {
         self.capacity.coeff_count()
     }
 
-    /// Append an isotropic-in-time Gaussian with identity rotations; `rgb` in [0,1] sets the
+    /// Append an isotropic-in-time Gaussian with identity rotations; `rgb` in `[0, 1]` sets the
     /// DC colour (other coefficients zero). Returns its index.
-    pub fn push(&mut self, mean: [F; 4], log_scales: [F; 4], opacity_logit: F, rgb: [F; 3]) -> usize {
+    pub fn push(
+        &mut self,
+        mean: [F; 4],
+        log_scales: [F; 4],
+        opacity_logit: F,
+        rgb: [F; 3],
+    ) -> usize {
         let id = [F::one(), F::zero(), F::zero(), F::zero()];
         self.means.push(mean);
         self.log_scales.push(log_scales);
@@ -178,11 +201,16 @@ impl<F: Real> Gaussians<F> {
         ];
         for (name, got, want) in lens {
             if got != want {
-                return Err(format!("{name} has {got} values, expected {want} for {n} Gaussians"));
+                return Err(format!(
+                    "{name} has {got} values, expected {want} for {n} Gaussians"
+                ));
             }
         }
         if !self.capacity.is_valid() || !self.active.is_valid() {
-            return Err(format!("colour degrees out of range: {:?} / {:?}", self.capacity, self.active));
+            return Err(format!(
+                "colour degrees out of range: {:?} / {:?}",
+                self.capacity, self.active
+            ));
         }
         Ok(())
     }

@@ -102,8 +102,14 @@ pub fn project<F: Real>(
     let gb = F::c(JACOBIAN_GUARD_BAND);
     let (w, h) = (F::c(cam.width as f64), F::c(cam.height as f64));
     let lim = [
-        ((-gb * w - cam.cx) / cam.fx, ((F::one() + gb) * w - cam.cx) / cam.fx),
-        ((-gb * h - cam.cy) / cam.fy, ((F::one() + gb) * h - cam.cy) / cam.fy),
+        (
+            (-gb * w - cam.cx) / cam.fx,
+            ((F::one() + gb) * w - cam.cx) / cam.fx,
+        ),
+        (
+            (-gb * h - cam.cy) / cam.fy,
+            ((F::one() + gb) * h - cam.cy) / cam.fy,
+        ),
     ];
     let mut u = [p[0] / z, p[1] / z];
     let mut u_free = [true; 2];
@@ -150,7 +156,16 @@ pub fn project<F: Real>(
         depth: z,
         extent: [s * ca.sqrt(), s * cc.sqrt()],
     };
-    Some((out, ProjectAux { p, u_free, m, k, conic }))
+    Some((
+        out,
+        ProjectAux {
+            p,
+            u_free,
+            m,
+            k,
+            conic,
+        },
+    ))
 }
 
 /// Backward of [`project`]: from dL/d(mean2d, conic, depth) to dL/d(mean3, B), where
@@ -166,7 +181,10 @@ pub fn project_backward<F: Real>(
     let half = F::c(0.5);
     // dΣ2 = −Q dQ Q with dQ = [[da, db/2], [db/2, dc]].
     let [qa, qb, qc] = aux.conic;
-    let dq = [[d_conic[0], half * d_conic[1]], [half * d_conic[1], d_conic[2]]];
+    let dq = [
+        [d_conic[0], half * d_conic[1]],
+        [half * d_conic[1], d_conic[2]],
+    ];
     let q = [[qa, qb], [qb, qc]];
     let mut t = [[F::zero(); 2]; 2];
     for i in 0..2 {
@@ -195,7 +213,10 @@ pub fn project_backward<F: Real>(
             d_b[r][c] = aux.m[0][r] * dk[0][c] + aux.m[1][r] * dk[1][c];
         }
         for a in 0..2 {
-            dm[a][r] = dk[a][0] * factor[r][0] + dk[a][1] * factor[r][1] + dk[a][2] * factor[r][2] + dk[a][3] * factor[r][3];
+            dm[a][r] = dk[a][0] * factor[r][0]
+                + dk[a][1] * factor[r][1]
+                + dk[a][2] * factor[r][2]
+                + dk[a][3] * factor[r][3];
         }
     }
     // M[a][c] = f_a/z (W[a][c] − u_a W[2][c]).

@@ -39,19 +39,29 @@ pub fn render_reference(
     options: &RenderOptions<f64>,
 ) -> Result<ReferenceImage, RenderError> {
     if !camera.distortion.is_none() {
-        return Err(RenderError::DistortedCamera { camera: camera.name.clone() });
+        return Err(RenderError::DistortedCamera {
+            camera: camera.name.clone(),
+        });
     }
-    model.check_consistent().map_err(RenderError::InconsistentModel)?;
+    model
+        .check_consistent()
+        .map_err(RenderError::InconsistentModel)?;
     let intr = camera.intrinsics;
     let (width, height) = (intr.width, intr.height);
     let w2c = camera.world_to_camera;
     let wr = w2c.rotation;
     let centre = w2c.centre();
-    let period = if model.time.duration > 0.0 { model.time.duration } else { 1.0 };
+    let period = if model.time.duration > 0.0 {
+        model.time.duration
+    } else {
+        1.0
+    };
     let mut splats = Vec::new();
     for i in 0..model.len() {
         let (r, _) = rotation(model.rot_left[i], model.rot_right[i]);
-        let s2: Vec<f64> = (0..4).map(|k| scale_from_log(model.log_scales[i][k]).0.powi(2)).collect();
+        let s2: Vec<f64> = (0..4)
+            .map(|k| scale_from_log(model.log_scales[i][k]).0.powi(2))
+            .collect();
         let mut sig = [[0.0; 4]; 4];
         for a in 0..4 {
             for b in 0..4 {
@@ -77,29 +87,43 @@ pub fn render_reference(
                 c3[a][b] = sig[a][b] - sig[a][3] * sig[b][3] / s44;
             }
         }
-        let p: Vec<f64> = (0..3).map(|a| (0..3).map(|b| wr[a][b] * m3[b]).sum::<f64>() + w2c.translation[a]).collect();
+        let p: Vec<f64> = (0..3)
+            .map(|a| (0..3).map(|b| wr[a][b] * m3[b]).sum::<f64>() + w2c.translation[a])
+            .collect();
         let z = p[2];
         if !(z >= options.near_plane) {
             continue;
         }
         let clamp = |u: f64, c: f64, f: f64, n: u32| {
             let n = n as f64;
-            u.clamp((-JACOBIAN_GUARD_BAND * n - c) / f, ((1.0 + JACOBIAN_GUARD_BAND) * n - c) / f)
+            u.clamp(
+                (-JACOBIAN_GUARD_BAND * n - c) / f,
+                ((1.0 + JACOBIAN_GUARD_BAND) * n - c) / f,
+            )
         };
         let ux = clamp(p[0] / z, intr.cx, intr.fx, width);
         let uy = clamp(p[1] / z, intr.cy, intr.fy, height);
-        let j = [[intr.fx / z, 0.0, -intr.fx * ux / z], [0.0, intr.fy / z, -intr.fy * uy / z]];
+        let j = [
+            [intr.fx / z, 0.0, -intr.fx * ux / z],
+            [0.0, intr.fy / z, -intr.fy * uy / z],
+        ];
         // cov_cam = W Σ3 Wᵀ, then J cov_cam Jᵀ.
         let mut cc = [[0.0; 3]; 3];
         for a in 0..3 {
             for b in 0..3 {
-                cc[a][b] = (0..3).flat_map(|k| (0..3).map(move |l| (k, l))).map(|(k, l)| wr[a][k] * c3[k][l] * wr[b][l]).sum();
+                cc[a][b] = (0..3)
+                    .flat_map(|k| (0..3).map(move |l| (k, l)))
+                    .map(|(k, l)| wr[a][k] * c3[k][l] * wr[b][l])
+                    .sum();
             }
         }
         let mut c2 = [[0.0; 2]; 2];
         for a in 0..2 {
             for b in 0..2 {
-                c2[a][b] = (0..3).flat_map(|k| (0..3).map(move |l| (k, l))).map(|(k, l)| j[a][k] * cc[k][l] * j[b][l]).sum();
+                c2[a][b] = (0..3)
+                    .flat_map(|k| (0..3).map(move |l| (k, l)))
+                    .map(|(k, l)| j[a][k] * cc[k][l] * j[b][l])
+                    .sum();
             }
         }
         c2[0][0] += LOW_PASS;
@@ -129,9 +153,19 @@ pub fn render_reference(
             },
         ));
     }
-    splats.sort_by(|a, b| (a.1.depth as f32).total_cmp(&(b.1.depth as f32)).then(a.0.cmp(&b.0)));
+    splats.sort_by(|a, b| {
+        (a.1.depth as f32)
+            .total_cmp(&(b.1.depth as f32))
+            .then(a.0.cmp(&b.0))
+    });
     let npix = (width * height) as usize;
-    let mut out = ReferenceImage { width, height, rgb: vec![0.0; 3 * npix], alpha: vec![0.0; npix], depth: vec![0.0; npix] };
+    let mut out = ReferenceImage {
+        width,
+        height,
+        rgb: vec![0.0; 3 * npix],
+        alpha: vec![0.0; npix],
+        depth: vec![0.0; npix],
+    };
     let max_d2 = EXTENT_SIGMAS * EXTENT_SIGMAS;
     for py in 0..height {
         for px in 0..width {

@@ -4,7 +4,9 @@
 //! over tiles; the backward accumulates per-tile gradients and reduces them per Gaussian
 //! without atomics.
 
-use crate::blend::{PixelRect, Splat, SplatGrad, TileOut, TileUpstream, blend_tile_backward, blend_tile_forward};
+use crate::blend::{
+    PixelRect, Splat, SplatGrad, TileOut, TileUpstream, blend_tile_backward, blend_tile_forward,
+};
 use crate::model::Gaussians;
 use crate::numerics::{Real, sigmoid};
 use crate::project::{PinholeCamera, project, project_backward};
@@ -22,7 +24,11 @@ pub enum RenderError {
     )]
     DistortedCamera { camera: String },
     #[error("camera '{camera}' has an empty image ({width}×{height}); give it a positive size")]
-    EmptyImage { camera: String, width: u32, height: u32 },
+    EmptyImage {
+        camera: String,
+        width: u32,
+        height: u32,
+    },
     #[error("camera '{camera}' has non-finite or non-positive focal lengths; check its intrinsics")]
     BadIntrinsics { camera: String },
     #[error("the model is inconsistent: {0}")]
@@ -30,8 +36,14 @@ pub enum RenderError {
     #[error("opacity factor has {got} values but the model has {expected} Gaussians")]
     OpacityFactorLength { expected: usize, got: usize },
     #[error("{what} gradient has {got} values, expected {expected} for this image")]
-    GradientLength { what: &'static str, expected: usize, got: usize },
-    #[error("backward called with a model of {got} Gaussians, but {expected} were rendered; pass the rendered model")]
+    GradientLength {
+        what: &'static str,
+        expected: usize,
+        got: usize,
+    },
+    #[error(
+        "backward called with a model of {got} Gaussians, but {expected} were rendered; pass the rendered model"
+    )]
     ModelMismatch { expected: usize, got: usize },
 }
 
@@ -49,7 +61,11 @@ pub struct RenderOptions<'a, F> {
 
 impl<F: Real> Default for RenderOptions<'_, F> {
     fn default() -> Self {
-        Self { background: [F::zero(); 3], opacity_factor: None, near_plane: F::c(0.01) }
+        Self {
+            background: [F::zero(); 3],
+            opacity_factor: None,
+            near_plane: F::c(0.01),
+        }
     }
 }
 
@@ -112,6 +128,34 @@ pub struct Gradients<F: Real = f32> {
 }
 
 impl<F: Real> Gradients<F> {
+    /// Resize to `model` and set every entry to zero (in parallel); the opacity-factor
+    /// gradient gets one entry per Gaussian.
+    fn reset(&mut self, model: &Gaussians<F>) {
+        let n = model.len();
+        let z4 = [F::zero(); 4];
+        for v in [
+            &mut self.means,
+            &mut self.log_scales,
+            &mut self.rot_left,
+            &mut self.rot_right,
+        ] {
+            v.resize(n, z4);
+            v.par_iter_mut().for_each(|x| *x = z4);
+        }
+        for v in [
+            &mut self.opacity_logits,
+            &mut self.opacity_factor,
+            &mut self.mean2d_norm,
+        ] {
+            v.resize(n, F::zero());
+            v.par_iter_mut().for_each(|x| *x = F::zero());
+        }
+        self.colours.resize(model.colours.len(), F::zero());
+        self.colours
+            .par_chunks_mut(4096)
+            .for_each(|c| c.fill(F::zero()));
+    }
+
     /// All-zero gradients for `model`.
     pub fn zeros_like(model: &Gaussians<F>, with_factor: bool) -> Self {
         let n = model.len();
@@ -122,27 +166,49 @@ impl<F: Real> Gradients<F> {
             rot_right: vec![[F::zero(); 4]; n],
             opacity_logits: vec![F::zero(); n],
             colours: vec![F::zero(); model.colours.len()],
-            opacity_factor: if with_factor { vec![F::zero(); n] } else { Vec::new() },
+            opacity_factor: if with_factor {
+                vec![F::zero(); n]
+            } else {
+                Vec::new()
+            },
             mean2d_norm: vec![F::zero(); n],
         }
     }
 }
 
 /// Render `model` at model time `t` from `camera` with default options (black background).
-pub fn render(model: &Gaussians<f32>, camera: &Camera, t: f32) -> Result<Rendered<f32>, RenderError> {
+pub fn render(
+    model: &Gaussians<f32>,
+    camera: &Camera,
+    t: f32,
+) -> Result<Rendered<f32>, RenderError> {
     render_with(model, camera, t, &RenderOptions::default())
 }
 
 fn pinhole<F: Real>(camera: &Camera, near: F) -> Result<PinholeCamera<F>, RenderError> {
     if !camera.distortion.is_none() {
-        return Err(RenderError::DistortedCamera { camera: camera.name.clone() });
+        return Err(RenderError::DistortedCamera {
+            camera: camera.name.clone(),
+        });
     }
     let i = &camera.intrinsics;
     if i.width == 0 || i.height == 0 {
-        return Err(RenderError::EmptyImage { camera: camera.name.clone(), width: i.width, height: i.height });
+        return Err(RenderError::EmptyImage {
+            camera: camera.name.clone(),
+            width: i.width,
+            height: i.height,
+        });
     }
-    if !(i.fx.is_finite() && i.fy.is_finite() && i.fx > 0.0 && i.fy > 0.0 && i.cx.is_finite() && i.cy.is_finite()) {
-        return Err(RenderError::BadIntrinsics { camera: camera.name.clone() });
+    if !(i.fx.is_finite()
+        && i.fy.is_finite()
+        && i.fx > 0.0
+        && i.fy > 0.0
+        && i.cx.is_finite()
+        && i.cy.is_finite())
+    {
+        return Err(RenderError::BadIntrinsics {
+            camera: camera.name.clone(),
+        });
     }
     Ok(PinholeCamera::from_camera(camera, near))
 }
@@ -155,7 +221,12 @@ fn period_of<F: Real>(model: &Gaussians<F>) -> F {
 fn tile_rect(bins: &TileBins, tile: usize, width: u32, height: u32) -> PixelRect {
     let tx = tile as u32 % bins.tiles_x;
     let ty = tile as u32 / bins.tiles_x;
-    PixelRect { x0: tx * TILE, y0: ty * TILE, x1: ((tx + 1) * TILE).min(width), y1: ((ty + 1) * TILE).min(height) }
+    PixelRect {
+        x0: tx * TILE,
+        y0: ty * TILE,
+        x1: ((tx + 1) * TILE).min(width),
+        y1: ((ty + 1) * TILE).min(height),
+    }
 }
 
 /// Render with explicit options. Generic over the float type (`f64` for checks).
@@ -165,12 +236,17 @@ pub fn render_with<F: Real>(
     t: F,
     options: &RenderOptions<F>,
 ) -> Result<Rendered<F>, RenderError> {
-    model.check_consistent().map_err(RenderError::InconsistentModel)?;
+    model
+        .check_consistent()
+        .map_err(RenderError::InconsistentModel)?;
     let n = model.len();
     if let Some(f) = options.opacity_factor
         && f.len() != n
     {
-        return Err(RenderError::OpacityFactorLength { expected: n, got: f.len() });
+        return Err(RenderError::OpacityFactorLength {
+            expected: n,
+            got: f.len(),
+        });
     }
     let cam = pinhole(camera, options.near_plane)?;
     let (width, height) = (cam.width, cam.height);
@@ -181,7 +257,13 @@ pub fn render_with<F: Real>(
         .into_par_iter()
         .with_min_len(1024)
         .map(|i| {
-            let (sl, _) = slice(model.means[i], model.log_scales[i], model.rot_left[i], model.rot_right[i], t)?;
+            let (sl, _) = slice(
+                model.means[i],
+                model.log_scales[i],
+                model.rot_left[i],
+                model.rot_right[i],
+                t,
+            )?;
             let factor = options.opacity_factor.map_or(F::one(), |f| f[i]);
             let opacity = sigmoid(model.opacity_logits[i]) * sl.omega * factor;
             if !(opacity >= F::c(ALPHA_MIN)) {
@@ -200,7 +282,9 @@ pub fn render_with<F: Real>(
     let mut radii = vec![F::zero(); n];
     for (i, p) in pre.into_iter().enumerate() {
         let Some((s, ext)) = p else { continue };
-        let Some(r) = pixel_rect(s.rect, width, height) else { continue };
+        let Some(r) = pixel_rect(s.rect, width, height) else {
+            continue;
+        };
         ids.push(i as u32);
         splats.push(s);
         rects.push(Some(r));
@@ -216,7 +300,12 @@ pub fn render_with<F: Real>(
             local.clear();
             local.extend(bins.tile(tile).iter().map(|&k| splats[k as usize]));
             let mut out = TileOut::default();
-            blend_tile_forward(tile_rect(&bins, tile, width, height), local, options.background, &mut out);
+            blend_tile_forward(
+                tile_rect(&bins, tile, width, height),
+                local,
+                options.background,
+                &mut out,
+            );
             out
         })
         .collect();
@@ -304,17 +393,51 @@ impl<F: Real> Rendered<F> {
     }
 
     /// Backward pass: dL/d(image) → dL/d(parameters) of `model` (the model that was rendered).
-    pub fn backward(&self, model: &Gaussians<F>, up: &ImageGradients<F>) -> Result<Gradients<F>, RenderError> {
+    pub fn backward(
+        &self,
+        model: &Gaussians<F>,
+        up: &ImageGradients<F>,
+    ) -> Result<Gradients<F>, RenderError> {
+        let mut out = Gradients::zeros_like(model, self.ctx.factor.is_some());
+        self.backward_into(model, up, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`Rendered::backward`] into a reused buffer (resized and overwritten, not added to):
+    /// saves allocating and faulting in the large colour-gradient array every step.
+    pub fn backward_into(
+        &self,
+        model: &Gaussians<F>,
+        up: &ImageGradients<F>,
+        out: &mut Gradients<F>,
+    ) -> Result<(), RenderError> {
         let n = model.len();
-        let expected = self.ctx.factor.as_ref().map_or(self.radii.len(), |f| f.len());
+        let expected = self
+            .ctx
+            .factor
+            .as_ref()
+            .map_or(self.radii.len(), |f| f.len());
         if n != self.radii.len() || n != expected {
-            return Err(RenderError::ModelMismatch { expected: self.radii.len(), got: n });
+            return Err(RenderError::ModelMismatch {
+                expected: self.radii.len(),
+                got: n,
+            });
         }
-        model.check_consistent().map_err(RenderError::InconsistentModel)?;
+        model
+            .check_consistent()
+            .map_err(RenderError::InconsistentModel)?;
         let (width, height) = (self.width, self.height);
         let npix = width as usize * height as usize;
         let check = |what, got: usize, want| {
-            if got == want { Ok(()) } else { Err(RenderError::GradientLength { what, expected: want, got }) }
+            if got == want {
+                Ok(())
+            } else {
+                Err(RenderError::GradientLength {
+                    what,
+                    expected: want,
+                    got,
+                })
+            }
         };
         check("rgb", up.rgb.len(), 3 * npix)?;
         if let Some(a) = up.alpha {
@@ -330,7 +453,16 @@ impl<F: Real> Rendered<F> {
         let per_tile: Vec<Vec<SplatGrad<F>>> = (0..bins.tile_count())
             .into_par_iter()
             .map_init(
-                || (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new()),
+                || {
+                    (
+                        Vec::new(),
+                        Vec::new(),
+                        Vec::new(),
+                        Vec::new(),
+                        Vec::new(),
+                        Vec::new(),
+                    )
+                },
                 |(local, ft, nc, ur, ua, ud), tile| {
                     let ids = bins.tile(tile);
                     let mut grads = vec![SplatGrad::default(); ids.len()];
@@ -360,7 +492,11 @@ impl<F: Real> Rendered<F> {
                             None => ud.resize(ud.len() + w, F::zero()),
                         }
                     }
-                    let upstream = TileUpstream { rgb: ur, alpha: ua, depth: ud };
+                    let upstream = TileUpstream {
+                        rgb: ur,
+                        alpha: ua,
+                        depth: ud,
+                    };
                     blend_tile_backward(r, local, ctx.background, ft, nc, &upstream, &mut grads);
                     grads
                 },
@@ -378,7 +514,7 @@ impl<F: Real> Rendered<F> {
         }
 
         // Per-Gaussian backward.
-        let mut out = Gradients::zeros_like(model, true);
+        out.reset(model);
         let kc = 3 * model.coeffs_per_channel();
         let cam = &ctx.camera;
         let (t, period) = (ctx.t, ctx.period);
@@ -395,38 +531,47 @@ impl<F: Real> Rendered<F> {
             .into_par_iter()
             .enumerate()
             .with_min_len(256)
-            .for_each(|(i, (g_mean, g_scale, g_ql, g_qr, g_o, g_col, g_f, g_norm))| {
-                let k = visible_of[i];
-                if k == u32::MAX {
-                    return;
-                }
-                let sg = &splat_grads[k as usize];
-                let Some((sl, sl_aux)) =
-                    slice(model.means[i], model.log_scales[i], model.rot_left[i], model.rot_right[i], t)
-                else {
-                    return;
-                };
-                let Some((_, pr_aux)) = project(cam, sl.mean, &sl.factor) else { return };
-                let factor = ctx.factor.as_ref().map_or(F::one(), |f| f[i]);
-                let sig = sigmoid(model.opacity_logits[i]);
-                *g_o = sg.opacity * sl.omega * factor * sig * (F::one() - sig);
-                *g_f = sg.opacity * sig * sl.omega;
-                let d_omega = sg.opacity * sig * factor;
-                let input = colour_input(model, i, cam, t, period);
-                let d_mean_colour = colour_backward(&input, sg.colour, g_col);
-                let (d_mean3, d_b) = project_backward(cam, &pr_aux, &sl.factor, sg.mean, sg.conic, sg.depth);
-                let sg4 = slice_backward(&sl, &sl_aux, d_omega, d_mean3, &d_b);
-                for c in 0..4 {
-                    g_mean[c] = sg4.mean[c] + d_mean_colour[c];
-                }
-                *g_scale = sg4.log_scales;
-                *g_ql = sg4.rot_left;
-                *g_qr = sg4.rot_right;
-                *g_norm = (sg.mean[0] * sg.mean[0] + sg.mean[1] * sg.mean[1]).sqrt();
-            });
+            .for_each(
+                |(i, (g_mean, g_scale, g_ql, g_qr, g_o, g_col, g_f, g_norm))| {
+                    let k = visible_of[i];
+                    if k == u32::MAX {
+                        return;
+                    }
+                    let sg = &splat_grads[k as usize];
+                    let Some((sl, sl_aux)) = slice(
+                        model.means[i],
+                        model.log_scales[i],
+                        model.rot_left[i],
+                        model.rot_right[i],
+                        t,
+                    ) else {
+                        return;
+                    };
+                    let Some((_, pr_aux)) = project(cam, sl.mean, &sl.factor) else {
+                        return;
+                    };
+                    let factor = ctx.factor.as_ref().map_or(F::one(), |f| f[i]);
+                    let sig = sigmoid(model.opacity_logits[i]);
+                    *g_o = sg.opacity * sl.omega * factor * sig * (F::one() - sig);
+                    *g_f = sg.opacity * sig * sl.omega;
+                    let d_omega = sg.opacity * sig * factor;
+                    let input = colour_input(model, i, cam, t, period);
+                    let d_mean_colour = colour_backward(&input, sg.colour, g_col);
+                    let (d_mean3, d_b) =
+                        project_backward(cam, &pr_aux, &sl.factor, sg.mean, sg.conic, sg.depth);
+                    let sg4 = slice_backward(&sl, &sl_aux, d_omega, d_mean3, &d_b);
+                    for c in 0..4 {
+                        g_mean[c] = sg4.mean[c] + d_mean_colour[c];
+                    }
+                    *g_scale = sg4.log_scales;
+                    *g_ql = sg4.rot_left;
+                    *g_qr = sg4.rot_right;
+                    *g_norm = (sg.mean[0] * sg.mean[0] + sg.mean[1] * sg.mean[1]).sqrt();
+                },
+            );
         if ctx.factor.is_none() {
             out.opacity_factor.clear();
         }
-        Ok(out)
+        Ok(())
     }
 }

@@ -94,7 +94,15 @@ pub fn rotation<F: Real>(ql: [F; 4], qr: [F; 4]) -> (Mat4<F>, RotationAux<F>) {
             r[a][b] = m[(a + 1) % 4][(b + 1) % 4];
         }
     }
-    (r, RotationAux { left, left_norm, right, right_norm })
+    (
+        r,
+        RotationAux {
+            left,
+            left_norm,
+            right,
+            right_norm,
+        },
+    )
 }
 
 /// Backward of [`rotation`]: dL/dR → (dL/dql, dL/dqr).
@@ -142,14 +150,31 @@ mod tests {
         let n = (q.iter().map(|x| x * x).sum::<f64>()).sqrt();
         let [w, x, y, z] = q.map(|v| v / n);
         let r3 = [
-            [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-            [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-            [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+            [
+                1.0 - 2.0 * (y * y + z * z),
+                2.0 * (x * y - w * z),
+                2.0 * (x * z + w * y),
+            ],
+            [
+                2.0 * (x * y + w * z),
+                1.0 - 2.0 * (x * x + z * z),
+                2.0 * (y * z - w * x),
+            ],
+            [
+                2.0 * (x * z - w * y),
+                2.0 * (y * z + w * x),
+                1.0 - 2.0 * (x * x + y * y),
+            ],
         ];
         let (r, _) = rotation(q, q);
         for a in 0..3 {
             for b in 0..3 {
-                assert!((r[a][b] - r3[a][b]).abs() < 1e-12, "{a}{b}: {} vs {}", r[a][b], r3[a][b]);
+                assert!(
+                    (r[a][b] - r3[a][b]).abs() < 1e-12,
+                    "{a}{b}: {} vs {}",
+                    r[a][b],
+                    r3[a][b]
+                );
             }
             assert!(r[a][3].abs() < 1e-12 && r[3][a].abs() < 1e-12);
         }
@@ -160,10 +185,17 @@ mod tests {
     fn rotation_gradient_matches_finite_differences() {
         let ql = [0.3, -0.5, 0.2, 0.9f64];
         let qr = [1.1, 0.4, -0.3, 0.2];
-        let w: Mat4<f64> = [[0.1, -0.2, 0.3, 0.4], [0.5, 0.6, -0.7, 0.8], [0.9, -1.0, 1.1, 0.2], [-0.3, 0.4, 0.5, 0.6]];
+        let w: Mat4<f64> = [
+            [0.1, -0.2, 0.3, 0.4],
+            [0.5, 0.6, -0.7, 0.8],
+            [0.9, -1.0, 1.1, 0.2],
+            [-0.3, 0.4, 0.5, 0.6],
+        ];
         let f = |ql, qr| {
             let (r, _) = rotation(ql, qr);
-            (0..16).map(|k| r[k / 4][k % 4] * w[k / 4][k % 4]).sum::<f64>()
+            (0..16)
+                .map(|k| r[k / 4][k % 4] * w[k / 4][k % 4])
+                .sum::<f64>()
         };
         let (_, aux) = rotation(ql, qr);
         let (gl, gr) = rotation_backward(&aux, &w);

@@ -9,7 +9,13 @@ use std::ops::{Add, Mul, Sub};
 
 const C0: f64 = 0.282_094_791_773_878_14;
 const C1: f64 = 0.488_602_511_902_919_9;
-const C2: [f64; 5] = [1.092_548_430_592_079_2, -1.092_548_430_592_079_2, 0.315_391_565_252_520_05, -1.092_548_430_592_079_2, 0.546_274_215_296_039_6];
+const C2: [f64; 5] = [
+    1.092_548_430_592_079_2,
+    -1.092_548_430_592_079_2,
+    0.315_391_565_252_520_05,
+    -1.092_548_430_592_079_2,
+    0.546_274_215_296_039_6,
+];
 const C3: [f64; 7] = [
     -0.590_043_589_926_643_5,
     2.890_611_442_640_554,
@@ -21,7 +27,10 @@ const C3: [f64; 7] = [
 ];
 
 /// Scalars the basis can be evaluated in: plain floats and dual numbers.
-trait Arith<F>: Copy + Add<Output = Self> + Sub<Output = Self> + Mul<Output = Self> + Mul<F, Output = Self> {}
+trait Arith<F>:
+    Copy + Add<Output = Self> + Sub<Output = Self> + Mul<Output = Self> + Mul<F, Output = Self>
+{
+}
 impl<F: Real> Arith<F> for F {}
 
 /// A value and its gradient with respect to the direction `(x, y, z)`.
@@ -33,13 +42,19 @@ struct Dual<F> {
 impl<F: Real> Add for Dual<F> {
     type Output = Self;
     fn add(self, o: Self) -> Self {
-        Dual { v: self.v + o.v, d: [self.d[0] + o.d[0], self.d[1] + o.d[1], self.d[2] + o.d[2]] }
+        Dual {
+            v: self.v + o.v,
+            d: [self.d[0] + o.d[0], self.d[1] + o.d[1], self.d[2] + o.d[2]],
+        }
     }
 }
 impl<F: Real> Sub for Dual<F> {
     type Output = Self;
     fn sub(self, o: Self) -> Self {
-        Dual { v: self.v - o.v, d: [self.d[0] - o.d[0], self.d[1] - o.d[1], self.d[2] - o.d[2]] }
+        Dual {
+            v: self.v - o.v,
+            d: [self.d[0] - o.d[0], self.d[1] - o.d[1], self.d[2] - o.d[2]],
+        }
     }
 }
 impl<F: Real> Mul for Dual<F> {
@@ -58,7 +73,10 @@ impl<F: Real> Mul for Dual<F> {
 impl<F: Real> Mul<F> for Dual<F> {
     type Output = Self;
     fn mul(self, s: F) -> Self {
-        Dual { v: self.v * s, d: [self.d[0] * s, self.d[1] * s, self.d[2] * s] }
+        Dual {
+            v: self.v * s,
+            d: [self.d[0] * s, self.d[1] * s, self.d[2] * s],
+        }
     }
 }
 impl<F: Real> Arith<F> for Dual<F> {}
@@ -124,7 +142,11 @@ pub struct ColourInput<'a, F> {
 #[inline]
 pub fn colour<F: Real>(input: &ColourInput<F>) -> [F; 3] {
     let (rgb, _) = colour_raw(input);
-    [rgb[0].max(F::zero()), rgb[1].max(F::zero()), rgb[2].max(F::zero())]
+    [
+        rgb[0].max(F::zero()),
+        rgb[1].max(F::zero()),
+        rgb[2].max(F::zero()),
+    ]
 }
 
 fn colour_raw<F: Real>(input: &ColourInput<F>) -> ([F; 3], ([F; 16], [F; 3])) {
@@ -133,7 +155,11 @@ fn colour_raw<F: Real>(input: &ColourInput<F>) -> ([F; 3], ([F; 16], [F; 3])) {
     let nt = active.temporal_count();
     let ns_cap = input.capacity.spatial_count();
     let m = input.mean;
-    let (dir, _) = normalise3([m[0] - input.camera_centre[0], m[1] - input.camera_centre[1], m[2] - input.camera_centre[2]]);
+    let (dir, _) = normalise3([
+        m[0] - input.camera_centre[0],
+        m[1] - input.camera_centre[1],
+        m[2] - input.camera_centre[2],
+    ]);
     let mut y = [F::zero(); 16];
     basis::<F, F>(dir[0], dir[1], dir[2], F::one(), ns, &mut y);
     let (psi, _) = temporal(m[3] - input.t, input.period, nt);
@@ -151,7 +177,11 @@ fn colour_raw<F: Real>(input: &ColourInput<F>) -> ([F; 3], ([F; 16], [F; 3])) {
 }
 
 /// Backward of [`colour`]: adds dL/dcoeffs into `d_coeffs` and returns dL/dmean (4).
-pub fn colour_backward<F: Real>(input: &ColourInput<F>, d_rgb: [F; 3], d_coeffs: &mut [F]) -> [F; 4] {
+pub fn colour_backward<F: Real>(
+    input: &ColourInput<F>,
+    d_rgb: [F; 3],
+    d_coeffs: &mut [F],
+) -> [F; 4] {
     let (rgb, (y, psi)) = colour_raw(input);
     let mut d_raw = [F::zero(); 3];
     for c in 0..3 {
@@ -184,13 +214,25 @@ pub fn colour_backward<F: Real>(input: &ColourInput<F>, d_rgb: [F; 3], d_coeffs:
         d_mean[3] += d_psi[j] * d_psi_dt[j];
     }
     if ns > 1 {
-        let (dir, norm) =
-            normalise3([m[0] - input.camera_centre[0], m[1] - input.camera_centre[1], m[2] - input.camera_centre[2]]);
+        let (dir, norm) = normalise3([
+            m[0] - input.camera_centre[0],
+            m[1] - input.camera_centre[1],
+            m[2] - input.camera_centre[2],
+        ]);
         let z = F::zero();
         let o = F::one();
-        let dx = Dual { v: dir[0], d: [o, z, z] };
-        let dy = Dual { v: dir[1], d: [z, o, z] };
-        let dz = Dual { v: dir[2], d: [z, z, o] };
+        let dx = Dual {
+            v: dir[0],
+            d: [o, z, z],
+        };
+        let dy = Dual {
+            v: dir[1],
+            d: [z, o, z],
+        };
+        let dz = Dual {
+            v: dir[2],
+            d: [z, z, o],
+        };
         let mut yd = [Dual { v: z, d: [z; 3] }; 16];
         basis::<F, Dual<F>>(dx, dy, dz, Dual { v: o, d: [z; 3] }, ns, &mut yd);
         let mut d_dir = [F::zero(); 3];

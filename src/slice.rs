@@ -71,7 +71,11 @@ pub fn slice<F: Real>(
     let lt = l[3];
     let raw44 = lt[0] * lt[0] + lt[1] * lt[1] + lt[2] * lt[2] + lt[3] * lt[3];
     let min44 = F::c(MIN_TIME_VARIANCE);
-    let (s44, s44_ok) = if raw44 > min44 { (raw44, true) } else { (min44, false) };
+    let (s44, s44_ok) = if raw44 > min44 {
+        (raw44, true)
+    } else {
+        (min44, false)
+    };
     let dt = t - mean[3];
     let omega = (-F::c(0.5) * dt * dt / s44).exp();
     if !(omega > F::c(TEMPORAL_CUTOFF)) {
@@ -92,12 +96,26 @@ pub fn slice<F: Real>(
         }
     }
     Some((
-        Slice { omega, mean: m3, factor: b },
-        SliceAux { rot, r, scale, scale_ok, l, s44, s44_ok, v, dt },
+        Slice {
+            omega,
+            mean: m3,
+            factor: b,
+        },
+        SliceAux {
+            rot,
+            r,
+            scale,
+            scale_ok,
+            l,
+            s44,
+            s44_ok,
+            v,
+            dt,
+        },
     ))
 }
 
-/// Backward of [`slice`]: from dL/dω, dL/dμ(t), dL/dB to the Gaussian's parameters.
+/// Backward of [`slice()`]: from dL/dω, dL/dμ(t), dL/dB to the Gaussian's parameters.
 pub fn slice_backward<F: Real>(
     out: &Slice<F>,
     aux: &SliceAux<F>,

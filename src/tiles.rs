@@ -42,7 +42,12 @@ pub fn pixel_rect(rect: [i32; 4], width: u32, height: u32) -> Option<[u32; 4]> {
 }
 
 /// Bin splats (given by pixel rectangle and depth) into tiles.
-pub fn bin_tiles<F: Real>(rects: &[Option<[u32; 4]>], depths: &[F], width: u32, height: u32) -> TileBins {
+pub fn bin_tiles<F: Real>(
+    rects: &[Option<[u32; 4]>],
+    depths: &[F],
+    width: u32,
+    height: u32,
+) -> TileBins {
     let tiles_x = width.div_ceil(TILE);
     let tiles_y = height.div_ceil(TILE);
     let n_tiles = (tiles_x * tiles_y) as usize;
@@ -85,5 +90,10 @@ pub fn bin_tiles<F: Real>(rects: &[Option<[u32; 4]>], depths: &[F], width: u32, 
     }
     slices.par_iter_mut().for_each(|s| s.sort_unstable());
     let entries = keys.par_iter().map(|k| (*k & 0xffff_ffff) as u32).collect();
-    TileBins { tiles_x, tiles_y, offsets, entries }
+    TileBins {
+        tiles_x,
+        tiles_y,
+        offsets,
+        entries,
+    }
 }

@@ -4,7 +4,9 @@
 mod common;
 
 use common::{Rng, SceneSpec, camera, dot, random_scene, rel_err, weights};
-use splat4d::blend::{PixelRect, Splat, SplatGrad, TileOut, TileUpstream, blend_tile_backward, blend_tile_forward};
+use splat4d::blend::{
+    PixelRect, Splat, SplatGrad, TileOut, TileUpstream, blend_tile_backward, blend_tile_forward,
+};
 use splat4d::model::ColourDegrees;
 use splat4d::project::{PinholeCamera, project, project_backward};
 use splat4d::sh::{ColourInput, colour, colour_backward};
@@ -44,7 +46,13 @@ fn slicing_gradients_match_finite_differences() {
         let t = 0.5 + 0.4 * rng.normal() * (x[7].exp());
         let w: Vec<f64> = (0..16).map(|_| rng.normal()).collect();
         let loss = |x: &[f64]| -> Option<f64> {
-            let (s, _) = slice(arr4(&x[0..4]), arr4(&x[4..8]), arr4(&x[8..12]), arr4(&x[12..16]), t)?;
+            let (s, _) = slice(
+                arr4(&x[0..4]),
+                arr4(&x[4..8]),
+                arr4(&x[8..12]),
+                arr4(&x[12..16]),
+                t,
+            )?;
             let mut l = w[0] * s.omega + w[1] * s.mean[0] + w[2] * s.mean[1] + w[3] * s.mean[2];
             for i in 0..3 {
                 for k in 0..4 {
@@ -53,7 +61,13 @@ fn slicing_gradients_match_finite_differences() {
             }
             Some(l)
         };
-        let Some((s, aux)) = slice(arr4(&x[0..4]), arr4(&x[4..8]), arr4(&x[8..12]), arr4(&x[12..16]), t) else {
+        let Some((s, aux)) = slice(
+            arr4(&x[0..4]),
+            arr4(&x[4..8]),
+            arr4(&x[8..12]),
+            arr4(&x[12..16]),
+            t,
+        ) else {
             continue;
         };
         let mut db = [[0.0; 4]; 3];
@@ -71,7 +85,11 @@ fn slicing_gradients_match_finite_differences() {
             ("rot_right", 12..16, g.rot_right),
         ] {
             let e = rel_err(&an, &numeric[range], 1e-9);
-            assert!(e < TOL, "seed {seed} {name}: rel err {e:e} ({an:?} vs {:?})", &numeric[..]);
+            assert!(
+                e < TOL,
+                "seed {seed} {name}: rel err {e:e} ({an:?} vs {:?})",
+                &numeric[..]
+            );
         }
     }
 }
@@ -81,7 +99,11 @@ fn projection_gradients_match_finite_differences() {
     let cam = PinholeCamera::<f64>::from_camera(&camera(64, 48), 0.01);
     for seed in 0..20u64 {
         let mut rng = Rng(100 + seed);
-        let mut x: Vec<f64> = vec![rng.range(-0.6, 0.6), rng.range(-0.6, 0.6), rng.range(-0.6, 0.6)];
+        let mut x: Vec<f64> = vec![
+            rng.range(-0.6, 0.6),
+            rng.range(-0.6, 0.6),
+            rng.range(-0.6, 0.6),
+        ];
         // Some seeds put the mean far off-screen to exercise the clamped Jacobian.
         if seed % 5 == 4 {
             x[0] += 6.0;
@@ -91,14 +113,28 @@ fn projection_gradients_match_finite_differences() {
         let loss = |x: &[f64]| -> f64 {
             let b = [arr4(&x[3..7]), arr4(&x[7..11]), arr4(&x[11..15])];
             let (p, _) = project(&cam, [x[0], x[1], x[2]], &b).expect("in front of camera");
-            w[0] * p.mean[0] + w[1] * p.mean[1] + 10.0 * (w[2] * p.conic[0] + w[3] * p.conic[1] + w[4] * p.conic[2]) + w[5] * p.depth
+            w[0] * p.mean[0]
+                + w[1] * p.mean[1]
+                + 10.0 * (w[2] * p.conic[0] + w[3] * p.conic[1] + w[4] * p.conic[2])
+                + w[5] * p.depth
         };
         let b = [arr4(&x[3..7]), arr4(&x[7..11]), arr4(&x[11..15])];
         let (_, aux) = project(&cam, [x[0], x[1], x[2]], &b).unwrap();
-        let (dm, db) = project_backward(&cam, &aux, &b, [w[0], w[1]], [10.0 * w[2], 10.0 * w[3], 10.0 * w[4]], w[5]);
+        let (dm, db) = project_backward(
+            &cam,
+            &aux,
+            &b,
+            [w[0], w[1]],
+            [10.0 * w[2], 10.0 * w[3], 10.0 * w[4]],
+            w[5],
+        );
         let numeric = fd(&x, &mut |v| loss(v));
         let e = rel_err(&dm, &numeric[0..3], 1e-9);
-        assert!(e < TOL, "seed {seed} mean: {e:e} {dm:?} vs {:?}", &numeric[0..3]);
+        assert!(
+            e < TOL,
+            "seed {seed} mean: {e:e} {dm:?} vs {:?}",
+            &numeric[0..3]
+        );
         let db_flat: Vec<f64> = db.iter().flatten().copied().collect();
         let e = rel_err(&db_flat, &numeric[3..], 1e-9);
         assert!(e < TOL, "seed {seed} factor: {e:e}");
@@ -109,24 +145,56 @@ fn projection_gradients_match_finite_differences() {
 fn colour_gradients_match_finite_differences() {
     for seed in 0..10u64 {
         let mut rng = Rng(200 + seed);
-        let degrees = [ColourDegrees::FULL, ColourDegrees { spatial: 1, temporal: 1 }, ColourDegrees::DC][seed as usize % 3];
+        let degrees = [
+            ColourDegrees::FULL,
+            ColourDegrees {
+                spatial: 1,
+                temporal: 1,
+            },
+            ColourDegrees::DC,
+        ][seed as usize % 3];
         let capacity = ColourDegrees::FULL;
         let k = capacity.coeff_count() * 3;
-        let mut x: Vec<f64> = vec![rng.normal(), rng.normal(), rng.normal(), rng.range(0.0, 1.0)];
+        let mut x: Vec<f64> = vec![
+            rng.normal(),
+            rng.normal(),
+            rng.normal(),
+            rng.range(0.0, 1.0),
+        ];
         x.extend((0..k).map(|_| 0.2 * rng.normal()));
         for c in 0..3 {
             x[4 + c] = 2.0; // positive colour: away from the clamp at 0
         }
         let w: Vec<f64> = (0..3).map(|_| rng.normal()).collect();
-        fn input(x: &[f64], capacity: ColourDegrees, active: ColourDegrees) -> ColourInput<'_, f64> {
-            ColourInput { mean: arr4(&x[0..4]), coeffs: &x[4..], capacity, active, camera_centre: [0.3, -4.0, 0.5], t: 0.37, period: 1.3 }
+        fn input(
+            x: &[f64],
+            capacity: ColourDegrees,
+            active: ColourDegrees,
+        ) -> ColourInput<'_, f64> {
+            ColourInput {
+                mean: arr4(&x[0..4]),
+                coeffs: &x[4..],
+                capacity,
+                active,
+                camera_centre: [0.3, -4.0, 0.5],
+                t: 0.37,
+                period: 1.3,
+            }
         }
         let loss = |x: &[f64]| dot(&colour(&input(x, capacity, degrees)), &w);
         let mut d_coeffs = vec![0.0; k];
-        let d_mean = colour_backward(&input(&x, capacity, degrees), [w[0], w[1], w[2]], &mut d_coeffs);
+        let d_mean = colour_backward(
+            &input(&x, capacity, degrees),
+            [w[0], w[1], w[2]],
+            &mut d_coeffs,
+        );
         let numeric = fd(&x, &mut |v| loss(v));
         let e = rel_err(&d_mean, &numeric[0..4], 1e-9);
-        assert!(e < TOL, "seed {seed} mean: {e:e} {d_mean:?} vs {:?}", &numeric[0..4]);
+        assert!(
+            e < TOL,
+            "seed {seed} mean: {e:e} {d_mean:?} vs {:?}",
+            &numeric[0..4]
+        );
         let e = rel_err(&d_coeffs, &numeric[4..], 1e-9);
         assert!(e < TOL, "seed {seed} coeffs: {e:e}");
     }
@@ -134,13 +202,26 @@ fn colour_gradients_match_finite_differences() {
 
 fn splats_from(x: &[f64]) -> Vec<Splat<f64>> {
     x.chunks_exact(10)
-        .map(|c| Splat::new([c[0], c[1]], [c[2], c[3], c[4]], c[5], [c[6], c[7], c[8]], c[9]))
+        .map(|c| {
+            Splat::new(
+                [c[0], c[1]],
+                [c[2], c[3], c[4]],
+                c[5],
+                [c[6], c[7], c[8]],
+                c[9],
+            )
+        })
         .collect()
 }
 
 #[test]
 fn blending_gradients_match_finite_differences() {
-    let rect = PixelRect { x0: 16, y0: 32, x1: 32, y1: 48 };
+    let rect = PixelRect {
+        x0: 16,
+        y0: 32,
+        x1: 32,
+        y1: 48,
+    };
     let n_pix = rect.len();
     for seed in 0..10u64 {
         let mut rng = Rng(300 + seed);
@@ -177,18 +258,49 @@ fn blending_gradients_match_finite_differences() {
         let mut out = TileOut::default();
         blend_tile_forward(rect, &splats, bg, &mut out);
         let mut grads = vec![SplatGrad::default(); splats.len()];
-        let up = TileUpstream { rgb: &wr, alpha: &wa, depth: &wd };
-        blend_tile_backward(rect, &splats, bg, &out.final_t, &out.n_contrib, &up, &mut grads);
+        let up = TileUpstream {
+            rgb: &wr,
+            alpha: &wa,
+            depth: &wd,
+        };
+        blend_tile_backward(
+            rect,
+            &splats,
+            bg,
+            &out.final_t,
+            &out.n_contrib,
+            &up,
+            &mut grads,
+        );
         let numeric = fd(&x, &mut |v| loss(v));
         let an: Vec<f64> = grads
             .iter()
             .flat_map(|g| {
-                [g.mean[0], g.mean[1], g.conic[0], g.conic[1], g.conic[2], g.opacity, g.colour[0], g.colour[1], g.colour[2], g.depth]
+                [
+                    g.mean[0],
+                    g.mean[1],
+                    g.conic[0],
+                    g.conic[1],
+                    g.conic[2],
+                    g.opacity,
+                    g.colour[0],
+                    g.colour[1],
+                    g.colour[2],
+                    g.depth,
+                ]
             })
             .collect();
-        for (name, fields) in [("mean", 0..2), ("conic", 2..5), ("opacity", 5..6), ("colour", 6..9), ("depth", 9..10)] {
+        for (name, fields) in [
+            ("mean", 0..2),
+            ("conic", 2..5),
+            ("opacity", 5..6),
+            ("colour", 6..9),
+            ("depth", 9..10),
+        ] {
             let pick = |v: &[f64]| -> Vec<f64> {
-                v.chunks_exact(10).flat_map(|c| c[fields.clone()].to_vec()).collect()
+                v.chunks_exact(10)
+                    .flat_map(|c| c[fields.clone()].to_vec())
+                    .collect()
             };
             let e = rel_err(&pick(&an), &pick(&numeric), 1e-9);
             assert!(e < TOL, "seed {seed} {name}: rel err {e:e}");
@@ -229,18 +341,34 @@ fn render_gradients_match_finite_differences_per_parameter_group() {
         let n = model.len();
         let factor: Vec<f64> = (0..n).map(|i| 0.6 + 0.05 * i as f64).collect();
         let npix = 48 * 40;
-        let (wr, wa, wd) = (weights(seed, 3 * npix), weights(seed + 7, npix), weights(seed + 9, npix));
+        let (wr, wa, wd) = (
+            weights(seed, 3 * npix),
+            weights(seed + 7, npix),
+            weights(seed + 9, npix),
+        );
         let t = 0.47;
         let loss = |m: &Gaussians<f64>, f: &[f64]| {
-            let opts = RenderOptions { background: [0.1, 0.3, 0.6], opacity_factor: Some(f), near_plane: 0.01 };
+            let opts = RenderOptions {
+                background: [0.1, 0.3, 0.6],
+                opacity_factor: Some(f),
+                near_plane: 0.01,
+            };
             let r = render_with(m, &cam, t, &opts).unwrap();
             dot(&r.rgb, &wr) + dot(&r.alpha, &wa) + 0.1 * dot(&r.depth, &wd)
         };
-        let opts = RenderOptions { background: [0.1, 0.3, 0.6], opacity_factor: Some(&factor), near_plane: 0.01 };
+        let opts = RenderOptions {
+            background: [0.1, 0.3, 0.6],
+            opacity_factor: Some(&factor),
+            near_plane: 0.01,
+        };
         let r = render_with(&model, &cam, t, &opts).unwrap();
         assert!(r.visible_count() >= n - 1, "scene should be visible");
         let wd_scaled: Vec<f64> = wd.iter().map(|w| 0.1 * w).collect();
-        let up = ImageGradients { rgb: &wr, alpha: Some(&wa), depth: Some(&wd_scaled) };
+        let up = ImageGradients {
+            rgb: &wr,
+            alpha: Some(&wa),
+            depth: Some(&wd_scaled),
+        };
         let g = r.backward(&model, &up).unwrap();
         let flat = |v: &Vec<[f64; 4]>| v.iter().flatten().copied().collect::<Vec<_>>();
         let analytic = [

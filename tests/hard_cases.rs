@@ -8,10 +8,19 @@ use common::{camera, weights};
 use glam::DVec3;
 use splat4d::model::ColourDegrees;
 use splat4d::reference::render_reference;
-use splat4d::{Camera, Distortion, Gaussians, ImageGradients, RenderError, RenderOptions, TimeMapping, render_with};
+use splat4d::{
+    Camera, Distortion, Gaussians, ImageGradients, RenderError, RenderOptions, TimeMapping,
+    render_with,
+};
 
 fn model() -> Gaussians<f64> {
-    let mut g = Gaussians::new(ColourDegrees { spatial: 1, temporal: 1 }, TimeMapping::default());
+    let mut g = Gaussians::new(
+        ColourDegrees {
+            spatial: 1,
+            temporal: 1,
+        },
+        TimeMapping::default(),
+    );
     g.active = g.capacity;
     g
 }
@@ -32,20 +41,52 @@ struct Outcome {
 /// check that everything is finite. Returns the f32-vs-reference error.
 fn check(model: &Gaussians<f64>, cam: &Camera, t: f64) -> Outcome {
     let bg = [0.25, 0.5, 0.75];
-    let opts = RenderOptions { background: bg, opacity_factor: None, near_plane: 0.01 };
+    let opts = RenderOptions {
+        background: bg,
+        opacity_factor: None,
+        near_plane: 0.01,
+    };
     let reference = render_reference(model, cam, t, &opts).unwrap();
     let r64 = render_with(model, cam, t, &opts).unwrap();
-    let e64 = r64.rgb.iter().zip(&reference.rgb).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
-    assert!(e64 < 1e-8, "f64 renderer differs from the reference by {e64}");
+    let e64 = r64
+        .rgb
+        .iter()
+        .zip(&reference.rgb)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(
+        e64 < 1e-8,
+        "f64 renderer differs from the reference by {e64}"
+    );
     let m32 = model.cast::<f32>();
-    let opts32 = RenderOptions { background: bg.map(|x| x as f32), opacity_factor: None, near_plane: 0.01f32 };
+    let opts32 = RenderOptions {
+        background: bg.map(|x| x as f32),
+        opacity_factor: None,
+        near_plane: 0.01f32,
+    };
     let r32 = render_with(&m32, cam, t as f32, &opts32).unwrap();
-    assert!(r32.rgb.iter().chain(&r32.alpha).chain(&r32.depth).all(|x| x.is_finite()), "non-finite f32 output");
+    assert!(
+        r32.rgb
+            .iter()
+            .chain(&r32.alpha)
+            .chain(&r32.depth)
+            .all(|x| x.is_finite()),
+        "non-finite f32 output"
+    );
     let npix = r32.alpha.len();
     let w = weights(7, 3 * npix);
     let w32: Vec<f32> = w.iter().map(|&x| x as f32).collect();
     let wa: Vec<f32> = w32[..npix].to_vec();
-    let g32 = r32.backward(&m32, &ImageGradients { rgb: &w32, alpha: Some(&wa), depth: Some(&wa) }).unwrap();
+    let g32 = r32
+        .backward(
+            &m32,
+            &ImageGradients {
+                rgb: &w32,
+                alpha: Some(&wa),
+                depth: Some(&wa),
+            },
+        )
+        .unwrap();
     let all32 = g32
         .means
         .iter()
@@ -60,9 +101,29 @@ fn check(model: &Gaussians<f64>, cam: &Camera, t: f64) -> Outcome {
         assert!(x.is_finite(), "non-finite f32 gradient");
     }
     let wa64: Vec<f64> = w[..npix].to_vec();
-    let g64 = r64.backward(model, &ImageGradients { rgb: &w, alpha: Some(&wa64), depth: Some(&wa64) }).unwrap();
-    assert!(g64.means.iter().flatten().chain(&g64.opacity_logits).all(|x| x.is_finite()));
-    let diffs: Vec<f64> = r32.rgb.iter().zip(&reference.rgb).map(|(&a, b)| (a as f64 - b).abs()).collect();
+    let g64 = r64
+        .backward(
+            model,
+            &ImageGradients {
+                rgb: &w,
+                alpha: Some(&wa64),
+                depth: Some(&wa64),
+            },
+        )
+        .unwrap();
+    assert!(
+        g64.means
+            .iter()
+            .flatten()
+            .chain(&g64.opacity_logits)
+            .all(|x| x.is_finite())
+    );
+    let diffs: Vec<f64> = r32
+        .rgb
+        .iter()
+        .zip(&reference.rgb)
+        .map(|(&a, b)| (a as f64 - b).abs())
+        .collect();
     Outcome {
         mean_err: diffs.iter().sum::<f64>() / diffs.len() as f64,
         max_err: diffs.iter().copied().fold(0.0, f64::max),
@@ -71,7 +132,12 @@ fn check(model: &Gaussians<f64>, cam: &Camera, t: f64) -> Outcome {
 }
 
 fn assert_accurate(o: &Outcome, what: &str) {
-    assert!(o.mean_err < 1e-3 && o.max_err < 3e-2, "{what}: f32 vs reference mean {} max {}", o.mean_err, o.max_err);
+    assert!(
+        o.mean_err < 1e-3 && o.max_err < 3e-2,
+        "{what}: f32 vs reference mean {} max {}",
+        o.mean_err,
+        o.max_err
+    );
 }
 
 #[test]
@@ -79,16 +145,29 @@ fn tiny_and_huge_temporal_variance() {
     let cam = camera(64, 48);
     let mut g = model();
     // Σ44 = e^-32 ≈ 1e-14: a Gaussian that exists for an instant.
-    let a = g.push([0.0, 0.0, 0.0, 0.5], [-1.5, -1.5, -1.5, -16.0], 2.0, [1.0, 0.2, 0.1]);
+    let a = g.push(
+        [0.0, 0.0, 0.0, 0.5],
+        [-1.5, -1.5, -1.5, -16.0],
+        2.0,
+        [1.0, 0.2, 0.1],
+    );
     g.rot_left[a] = [1.0, 0.2, -0.1, 0.3]; // a pure spatial rotation (ql = qr)
     g.rot_right[a] = [1.0, 0.2, -0.1, 0.3];
-    let b = g.push([0.3, 0.1, 0.2, 0.5], [-1.6, -1.4, -1.9, 8.0], 1.0, [0.1, 0.9, 0.1]);
+    let b = g.push(
+        [0.3, 0.1, 0.2, 0.5],
+        [-1.6, -1.4, -1.9, 8.0],
+        1.0,
+        [0.1, 0.9, 0.1],
+    );
     g.rot_left[b] = [0.9, 0.3, 0.2, -0.4];
     let o = check(&g, &cam, 0.5);
     assert_eq!(o.visible, 2);
     assert_accurate(&o, "Σ44 tiny/huge at t = μt");
     let o = check(&g, &cam, 0.5 + 1e-3);
-    assert_eq!(o.visible, 1, "the temporally tiny Gaussian is culled away from its instant");
+    assert_eq!(
+        o.visible, 1,
+        "the temporally tiny Gaussian is culled away from its instant"
+    );
     assert_accurate(&o, "Σ44 tiny/huge off its instant");
 }
 
@@ -96,13 +175,43 @@ fn tiny_and_huge_temporal_variance() {
 fn nearly_singular_covariances_and_extreme_scales() {
     let cam = camera(64, 48);
     let mut g = model();
-    let a = g.push([0.0, 0.0, 0.0, 0.5], [-14.0, -1.0, -14.0, 0.0], 1.5, [0.9, 0.9, 0.1]);
+    let a = g.push(
+        [0.0, 0.0, 0.0, 0.5],
+        [-14.0, -1.0, -14.0, 0.0],
+        1.5,
+        [0.9, 0.9, 0.1],
+    );
     g.rot_left[a] = [0.8, 0.1, 0.5, 0.2];
-    let b = g.push([0.2, 0.0, -0.2, 0.5], [-1.0, -13.8, -13.8, 0.0], 1.5, [0.1, 0.9, 0.9]);
+    let b = g.push(
+        [0.2, 0.0, -0.2, 0.5],
+        [-1.0, -13.8, -13.8, 0.0],
+        1.5,
+        [0.1, 0.9, 0.9],
+    );
     g.rot_left[b] = [0.7, -0.4, 0.1, 0.6];
-    g.push([-0.3, 0.2, 0.1, 0.5], [(1e-6f64).ln(); 3].into_iter().chain([0.0]).collect::<Vec<_>>().try_into().unwrap(), 3.0, [1.0, 0.0, 0.0]);
-    g.push([0.1, 2.0, 0.0, 0.5], [(1e3f64).ln(), (1e3f64).ln(), (1e3f64).ln(), 0.0], -2.0, [0.0, 0.0, 1.0]);
-    g.push([0.0, 0.0, 0.3, 0.5], [(1e3f64).ln(), (1e-6f64).ln(), (1e-6f64).ln(), 0.0], 0.0, [0.3, 0.3, 0.3]);
+    g.push(
+        [-0.3, 0.2, 0.1, 0.5],
+        [(1e-6f64).ln(); 3]
+            .into_iter()
+            .chain([0.0])
+            .collect::<Vec<_>>()
+            .try_into()
+            .unwrap(),
+        3.0,
+        [1.0, 0.0, 0.0],
+    );
+    g.push(
+        [0.1, 2.0, 0.0, 0.5],
+        [(1e3f64).ln(), (1e3f64).ln(), (1e3f64).ln(), 0.0],
+        -2.0,
+        [0.0, 0.0, 1.0],
+    );
+    g.push(
+        [0.0, 0.0, 0.3, 0.5],
+        [(1e3f64).ln(), (1e-6f64).ln(), (1e-6f64).ln(), 0.0],
+        0.0,
+        [0.3, 0.3, 0.3],
+    );
     let o = check(&g, &cam, 0.5);
     assert!(o.visible >= 4);
     assert_accurate(&o, "singular / extreme scales");
@@ -112,11 +221,36 @@ fn nearly_singular_covariances_and_extreme_scales() {
 fn near_plane_and_behind_the_camera() {
     let cam = camera(64, 48);
     let mut g = model();
-    g.push(at_camera(&cam, 0.0, 0.0, 0.005, 0.5), [-3.0, -3.0, -3.0, 0.0], 2.0, [1.0, 0.0, 0.0]);
-    g.push(at_camera(&cam, 0.01, 0.0, 0.05, 0.5), [0.0, 0.0, 0.0, 0.0], 2.0, [0.0, 1.0, 0.0]);
-    g.push(at_camera(&cam, 0.0, 0.0, -1.0, 0.5), [0.5, 0.5, 0.5, 0.0], 2.0, [0.0, 0.0, 1.0]);
-    g.push(at_camera(&cam, 0.0, 0.0, 0.0, 0.5), [0.0, 0.0, 0.0, 0.0], 2.0, [1.0, 1.0, 0.0]);
-    g.push(at_camera(&cam, 30.0, 0.0, 0.02, 0.5), [-1.0, -1.0, -1.0, 0.0], 2.0, [1.0, 0.0, 1.0]);
+    g.push(
+        at_camera(&cam, 0.0, 0.0, 0.005, 0.5),
+        [-3.0, -3.0, -3.0, 0.0],
+        2.0,
+        [1.0, 0.0, 0.0],
+    );
+    g.push(
+        at_camera(&cam, 0.01, 0.0, 0.05, 0.5),
+        [0.0, 0.0, 0.0, 0.0],
+        2.0,
+        [0.0, 1.0, 0.0],
+    );
+    g.push(
+        at_camera(&cam, 0.0, 0.0, -1.0, 0.5),
+        [0.5, 0.5, 0.5, 0.0],
+        2.0,
+        [0.0, 0.0, 1.0],
+    );
+    g.push(
+        at_camera(&cam, 0.0, 0.0, 0.0, 0.5),
+        [0.0, 0.0, 0.0, 0.0],
+        2.0,
+        [1.0, 1.0, 0.0],
+    );
+    g.push(
+        at_camera(&cam, 30.0, 0.0, 0.02, 0.5),
+        [-1.0, -1.0, -1.0, 0.0],
+        2.0,
+        [1.0, 0.0, 1.0],
+    );
     let o = check(&g, &cam, 0.5);
     assert_accurate(&o, "near plane");
 }
@@ -144,7 +278,12 @@ fn ten_thousand_splats_stacked_on_one_pixel() {
     let mut g = model();
     for k in 0..10_000 {
         let d = 1e-5 * k as f64;
-        let id = g.push([0.0, d, 0.0, 0.5], [-4.0, -4.0, -4.0, 0.0], -4.5 + 1e-4 * (k % 7) as f64, [(k % 3) as f64 / 2.0, 0.5, 1.0]);
+        let id = g.push(
+            [0.0, d, 0.0, 0.5],
+            [-4.0, -4.0, -4.0, 0.0],
+            -4.5 + 1e-4 * (k % 7) as f64,
+            [(k % 3) as f64 / 2.0, 0.5, 1.0],
+        );
         g.rot_left[id] = [1.0, 1e-3 * (k % 5) as f64, 0.0, 0.0];
     }
     let o = check(&g, &cam, 0.5);
@@ -152,15 +291,41 @@ fn ten_thousand_splats_stacked_on_one_pixel() {
     assert_accurate(&o, "stacked");
     // f32 and f64 gradients of the stacked pile agree (no drift in the back-to-front
     // transmittance recovery).
-    let opts = RenderOptions { background: [0.0; 3], opacity_factor: None, near_plane: 0.01 };
+    let opts = RenderOptions {
+        background: [0.0; 3],
+        opacity_factor: None,
+        near_plane: 0.01,
+    };
     let r64 = render_with(&g, &cam, 0.5, &opts).unwrap();
     let w = vec![1.0; 3 * 32 * 32];
-    let g64 = r64.backward(&g, &ImageGradients { rgb: &w, alpha: None, depth: None }).unwrap();
+    let g64 = r64
+        .backward(
+            &g,
+            &ImageGradients {
+                rgb: &w,
+                alpha: None,
+                depth: None,
+            },
+        )
+        .unwrap();
     let m32 = g.cast::<f32>();
-    let opts32 = RenderOptions { background: [0.0f32; 3], opacity_factor: None, near_plane: 0.01 };
+    let opts32 = RenderOptions {
+        background: [0.0f32; 3],
+        opacity_factor: None,
+        near_plane: 0.01,
+    };
     let r32 = render_with(&m32, &cam, 0.5, &opts32).unwrap();
     let w32 = vec![1.0f32; 3 * 32 * 32];
-    let g32 = r32.backward(&m32, &ImageGradients { rgb: &w32, alpha: None, depth: None }).unwrap();
+    let g32 = r32
+        .backward(
+            &m32,
+            &ImageGradients {
+                rgb: &w32,
+                alpha: None,
+                depth: None,
+            },
+        )
+        .unwrap();
     let a: Vec<f64> = g64.opacity_logits.clone();
     let b: Vec<f64> = g32.opacity_logits.iter().map(|&x| x as f64).collect();
     let e = common::rel_err(&a, &b, 1e-12);
@@ -171,7 +336,12 @@ fn ten_thousand_splats_stacked_on_one_pixel() {
 fn zero_norm_quaternions_act_as_identity() {
     let cam = camera(48, 32);
     let mut g = model();
-    let a = g.push([0.0, 0.0, 0.0, 0.5], [-1.5, -1.0, -2.0, 0.0], 1.0, [0.5, 0.2, 0.9]);
+    let a = g.push(
+        [0.0, 0.0, 0.0, 0.5],
+        [-1.5, -1.0, -2.0, 0.0],
+        1.0,
+        [0.5, 0.2, 0.9],
+    );
     let mut h = g.clone();
     g.rot_left[a] = [0.0; 4];
     g.rot_right[a] = [0.0; 4];
@@ -202,16 +372,33 @@ fn empty_scene_tiny_image_and_huge_image() {
     let big = camera(4000, 3000);
     for k in 0..20 {
         let f = k as f64 / 20.0;
-        g.push([f - 0.5, 0.3 * f, 0.4 - f, 0.5], [-2.5, -2.0, -3.0, 0.0], 0.5, [f, 1.0 - f, 0.5]);
+        g.push(
+            [f - 0.5, 0.3 * f, 0.4 - f, 0.5],
+            [-2.5, -2.0, -3.0, 0.0],
+            0.5,
+            [f, 1.0 - f, 0.5],
+        );
     }
     let m32 = g.cast::<f32>();
     let r = render_with(&m32, &big, 0.5, &RenderOptions::default()).unwrap();
     assert_eq!(r.rgb.len(), 3 * 4000 * 3000);
     assert!(r.rgb.iter().all(|x| x.is_finite()));
     let covered = r.alpha.iter().filter(|&&a| a > 0.5).count();
-    assert!(covered > 100_000, "the big Gaussian covers much of the big image ({covered} px)");
+    assert!(
+        covered > 100_000,
+        "the big Gaussian covers much of the big image ({covered} px)"
+    );
     let w = vec![1.0f32; 3 * 4000 * 3000];
-    let grads = r.backward(&m32, &ImageGradients { rgb: &w, alpha: None, depth: None }).unwrap();
+    let grads = r
+        .backward(
+            &m32,
+            &ImageGradients {
+                rgb: &w,
+                alpha: None,
+                depth: None,
+            },
+        )
+        .unwrap();
     assert!(grads.means.iter().flatten().all(|x| x.is_finite()));
 }
 
@@ -220,31 +407,73 @@ fn refuses_bad_inputs_with_typed_errors() {
     let mut g = model();
     g.push([0.0, 0.0, 0.0, 0.5], [-1.0; 4], 1.0, [0.9, 0.1, 0.1]);
     let mut cam = camera(16, 16);
-    cam.distortion = Distortion::Opencv { k1: 0.1, k2: 0.0, p1: 0.0, p2: 0.0, k3: 0.0 };
+    cam.distortion = Distortion::Opencv {
+        k1: 0.1,
+        k2: 0.0,
+        p1: 0.0,
+        p2: 0.0,
+        k3: 0.0,
+    };
     let err = render_with(&g, &cam, 0.5, &RenderOptions::default()).unwrap_err();
     assert!(matches!(err, RenderError::DistortedCamera { .. }), "{err}");
     assert!(err.to_string().contains("undistort"));
 
     let cam = camera(16, 16);
     let factor = [0.5, 0.5];
-    let opts = RenderOptions { opacity_factor: Some(&factor[..]), ..RenderOptions::default() };
-    assert!(matches!(render_with(&g, &cam, 0.5, &opts), Err(RenderError::OpacityFactorLength { expected: 1, got: 2 })));
+    let opts = RenderOptions {
+        opacity_factor: Some(&factor[..]),
+        ..RenderOptions::default()
+    };
+    assert!(matches!(
+        render_with(&g, &cam, 0.5, &opts),
+        Err(RenderError::OpacityFactorLength {
+            expected: 1,
+            got: 2
+        })
+    ));
 
     let mut zero = camera(16, 16);
     zero.intrinsics.width = 0;
-    assert!(matches!(render_with(&g, &zero, 0.5, &RenderOptions::default()), Err(RenderError::EmptyImage { .. })));
+    assert!(matches!(
+        render_with(&g, &zero, 0.5, &RenderOptions::default()),
+        Err(RenderError::EmptyImage { .. })
+    ));
 
     let r = render_with(&g, &cam, 0.5, &RenderOptions::default()).unwrap();
     let short = vec![0.0; 5];
-    let err = r.backward(&g, &ImageGradients { rgb: &short, alpha: None, depth: None }).unwrap_err();
-    assert!(matches!(err, RenderError::GradientLength { what: "rgb", .. }));
+    let err = r
+        .backward(
+            &g,
+            &ImageGradients {
+                rgb: &short,
+                alpha: None,
+                depth: None,
+            },
+        )
+        .unwrap_err();
+    assert!(matches!(
+        err,
+        RenderError::GradientLength { what: "rgb", .. }
+    ));
     let mut bigger = g.clone();
     bigger.push([0.0; 4], [0.0; 4], 0.0, [0.0; 3]);
     let full = vec![0.0; 3 * 256];
-    let err = r.backward(&bigger, &ImageGradients { rgb: &full, alpha: None, depth: None }).unwrap_err();
+    let err = r
+        .backward(
+            &bigger,
+            &ImageGradients {
+                rgb: &full,
+                alpha: None,
+                depth: None,
+            },
+        )
+        .unwrap_err();
     assert!(matches!(err, RenderError::ModelMismatch { .. }));
 
     let mut broken = g.clone();
     broken.colours.pop();
-    assert!(matches!(render_with(&broken, &cam, 0.5, &RenderOptions::default()), Err(RenderError::InconsistentModel(_))));
+    assert!(matches!(
+        render_with(&broken, &cam, 0.5, &RenderOptions::default()),
+        Err(RenderError::InconsistentModel(_))
+    ));
 }

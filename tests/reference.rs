@@ -10,7 +10,10 @@ use splat4d::reference::render_reference;
 use splat4d::{ImageGradients, RenderOptions, render_with};
 
 fn max_abs(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max)
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
 }
 
 fn mean_abs(a: &[f64], b: &[f64]) -> f64 {
@@ -67,19 +70,51 @@ proptest! {
 fn f32_gradients_agree_with_f64_gradients() {
     let cam = camera(96, 72);
     for seed in 0..4u64 {
-        let model = random_scene(seed, SceneSpec { count: 40, ..SceneSpec::default() });
+        let model = random_scene(
+            seed,
+            SceneSpec {
+                count: 40,
+                ..SceneSpec::default()
+            },
+        );
         let npix = 96 * 72;
         let wr = weights(seed, 3 * npix);
         let wa = weights(seed + 3, npix);
-        let opts = RenderOptions { background: [0.2, 0.2, 0.2], opacity_factor: None, near_plane: 0.01 };
+        let opts = RenderOptions {
+            background: [0.2, 0.2, 0.2],
+            opacity_factor: None,
+            near_plane: 0.01,
+        };
         let r64 = render_with(&model, &cam, 0.5, &opts).unwrap();
-        let g64 = r64.backward(&model, &ImageGradients { rgb: &wr, alpha: Some(&wa), depth: None }).unwrap();
+        let g64 = r64
+            .backward(
+                &model,
+                &ImageGradients {
+                    rgb: &wr,
+                    alpha: Some(&wa),
+                    depth: None,
+                },
+            )
+            .unwrap();
         let m32 = model.cast::<f32>();
-        let opts32 = RenderOptions { background: [0.2f32; 3], opacity_factor: None, near_plane: 0.01 };
+        let opts32 = RenderOptions {
+            background: [0.2f32; 3],
+            opacity_factor: None,
+            near_plane: 0.01,
+        };
         let r32 = render_with(&m32, &cam, 0.5, &opts32).unwrap();
         let wr32: Vec<f32> = wr.iter().map(|&x| x as f32).collect();
         let wa32: Vec<f32> = wa.iter().map(|&x| x as f32).collect();
-        let g32 = r32.backward(&m32, &ImageGradients { rgb: &wr32, alpha: Some(&wa32), depth: None }).unwrap();
+        let g32 = r32
+            .backward(
+                &m32,
+                &ImageGradients {
+                    rgb: &wr32,
+                    alpha: Some(&wa32),
+                    depth: None,
+                },
+            )
+            .unwrap();
         let f4 = |v: &Vec<[f64; 4]>| v.iter().flatten().copied().collect::<Vec<_>>();
         let f4_32 = |v: &Vec<[f32; 4]>| v.iter().flatten().map(|&x| x as f64).collect::<Vec<_>>();
         let f1_32 = |v: &Vec<f32>| v.iter().map(|&x| x as f64).collect::<Vec<_>>();
@@ -88,9 +123,17 @@ fn f32_gradients_agree_with_f64_gradients() {
             ("log_scales", f4(&g64.log_scales), f4_32(&g32.log_scales)),
             ("rot_left", f4(&g64.rot_left), f4_32(&g32.rot_left)),
             ("rot_right", f4(&g64.rot_right), f4_32(&g32.rot_right)),
-            ("opacity", g64.opacity_logits.clone(), f1_32(&g32.opacity_logits)),
+            (
+                "opacity",
+                g64.opacity_logits.clone(),
+                f1_32(&g32.opacity_logits),
+            ),
             ("colours", g64.colours.clone(), f1_32(&g32.colours)),
-            ("mean2d_norm", g64.mean2d_norm.clone(), f1_32(&g32.mean2d_norm)),
+            (
+                "mean2d_norm",
+                g64.mean2d_norm.clone(),
+                f1_32(&g32.mean2d_norm),
+            ),
         ];
         for (name, a, b) in pairs {
             let e = rel_err(&a, &b, 1e-9);

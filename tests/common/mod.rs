@@ -3,7 +3,9 @@
 #![allow(dead_code)]
 
 use glam::{DMat3, DVec3};
-use splat4d::{Camera, ColourDegrees, Distortion, Gaussians, Intrinsics, TimeMapping, WorldToCamera};
+use splat4d::{
+    Camera, ColourDegrees, Distortion, Gaussians, Intrinsics, TimeMapping, WorldToCamera,
+};
 
 /// SplitMix64: deterministic, dependency-free.
 pub struct Rng(pub u64);
@@ -64,28 +66,61 @@ pub struct SceneSpec {
 
 impl Default for SceneSpec {
     fn default() -> Self {
-        Self { count: 8, log_scale: (-2.2, -1.2), logit: (-1.0, 1.5), rest: 0.15, degrees: ColourDegrees::FULL }
+        Self {
+            count: 8,
+            log_scale: (-2.2, -1.2),
+            logit: (-1.0, 1.5),
+            rest: 0.15,
+            degrees: ColourDegrees::FULL,
+        }
     }
 }
 
 /// A random scene around the origin, time span [0, 1], with random rotations.
 pub fn random_scene(seed: u64, spec: SceneSpec) -> Gaussians<f64> {
     let mut rng = Rng(seed);
-    let mut g = Gaussians::<f64>::new(spec.degrees, TimeMapping { start_seconds: 0.0, units_per_second: 1.0, duration: 1.0 });
+    let mut g = Gaussians::<f64>::new(
+        spec.degrees,
+        TimeMapping {
+            start_seconds: 0.0,
+            units_per_second: 1.0,
+            duration: 1.0,
+        },
+    );
     g.active = spec.degrees;
     for _ in 0..spec.count {
-        let mean = [rng.range(-0.8, 0.8), rng.range(-0.8, 0.8), rng.range(-0.6, 0.6), rng.range(0.3, 0.7)];
+        let mean = [
+            rng.range(-0.8, 0.8),
+            rng.range(-0.8, 0.8),
+            rng.range(-0.6, 0.6),
+            rng.range(0.3, 0.7),
+        ];
         let ls = [
             rng.range(spec.log_scale.0, spec.log_scale.1),
             rng.range(spec.log_scale.0, spec.log_scale.1),
             rng.range(spec.log_scale.0, spec.log_scale.1),
             rng.range(-0.8, 0.0),
         ];
-        let i = g.push(mean, ls, rng.range(spec.logit.0, spec.logit.1), [rng.uniform(), rng.uniform(), rng.uniform()]);
+        let i = g.push(
+            mean,
+            ls,
+            rng.range(spec.logit.0, spec.logit.1),
+            [rng.uniform(), rng.uniform(), rng.uniform()],
+        );
         // Rotations: near identity in the space-time planes (so the Gaussian stays
         // visible in time), arbitrary in space.
-        g.rot_left[i] = [1.0 + 0.3 * rng.normal(), 0.4 * rng.normal(), 0.4 * rng.normal(), 0.4 * rng.normal()];
-        g.rot_right[i] = [1.0 + 0.3 * rng.normal(), 0.15 * rng.normal(), 0.15 * rng.normal(), 0.15 * rng.normal()];
+        g.rot_left[i] = [
+            1.0 + 0.3 * rng.normal(),
+            0.4 * rng.normal(),
+            0.4 * rng.normal(),
+            0.4 * rng.normal(),
+        ];
+        g.rot_right[i] = [
+            1.0 + 0.3 * rng.normal(),
+            0.15 * rng.normal(),
+            0.15 * rng.normal(),
+            0.15 * rng.normal(),
+        ];
         let k = g.coeffs_per_channel();
         let base = i * 3 * k;
         for j in 3..3 * k {
@@ -107,7 +142,12 @@ pub fn dot(a: &[f64], b: &[f64]) -> f64 {
 
 /// Relative error `|a − b| / max(|a|, |b|, floor)` of two gradient vectors (2-norms).
 pub fn rel_err(analytic: &[f64], numeric: &[f64], floor: f64) -> f64 {
-    let diff: f64 = analytic.iter().zip(numeric).map(|(a, b)| (a - b) * (a - b)).sum::<f64>().sqrt();
+    let diff: f64 = analytic
+        .iter()
+        .zip(numeric)
+        .map(|(a, b)| (a - b) * (a - b))
+        .sum::<f64>()
+        .sqrt();
     let na: f64 = analytic.iter().map(|a| a * a).sum::<f64>().sqrt();
     let nb: f64 = numeric.iter().map(|a| a * a).sum::<f64>().sqrt();
     diff / na.max(nb).max(floor)
