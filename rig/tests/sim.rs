@@ -12,11 +12,29 @@ fn offsets(dir: &std::path::Path) -> OffsetsFile {
     serde_json::from_slice(&std::fs::read(dir.join("groundtruth/offsets.json")).unwrap()).unwrap()
 }
 
+/// Counts progress units.
+#[derive(Default)]
+struct Count(std::sync::atomic::AtomicU64, std::sync::atomic::AtomicU64);
+
+impl splat4d::Progress for Count {
+    fn start(&self, total: u64, _unit: &str) {
+        self.0.store(total, std::sync::atomic::Ordering::SeqCst);
+    }
+    fn advance(&self, n: u64) {
+        self.1.fetch_add(n, std::sync::atomic::Ordering::SeqCst);
+    }
+    fn message(&self, _msg: &str) {}
+    fn finish(&self) {}
+}
+
 #[test]
 fn tiny_writes_a_capture_laid_out_like_a_real_one() {
     let scene = Scene::from_file(&fixture("tiny.toml")).unwrap();
     let tmp = tempfile::tempdir().unwrap();
-    let summary = simulate(&scene, tmp.path(), &NoProgress).unwrap();
+    let count = Count::default();
+    let summary = simulate(&scene, tmp.path(), &count).unwrap();
+    let (total, done) = (count.0.into_inner(), count.1.into_inner());
+    assert_eq!((total, done), (4 * 15 + 15 + 8, 4 * 15 + 15 + 8));
     assert_eq!(summary.videos.len(), 4);
     assert_eq!(summary.video_frames, 4 * 15);
     let raw: Vec<_> = std::fs::read_dir(tmp.path().join("raw")).unwrap().map(|e| e.unwrap().file_name()).collect();
@@ -140,6 +158,33 @@ fn video_timestamps_follow_offsets_drops_and_chapters() {
     };
     let (now, before, after) = (err_at(t5), err_at(t5 - 1.0 / 15.0), err_at(t5 + 1.0 / 15.0));
     assert!(now < 0.5 * before && now < 0.5 * after, "{now} {before} {after}");
+}
+
+fn mean(rgb: &[u8]) -> f64 {
+    rgb.iter().map(|&v| v as f64).sum::<f64>() / rgb.len() as f64
+}
+
+#[test]
+fn exposure_and_sensor_noise_change_the_frames_they_should() {
+    let plain = Scene::from_file(&fixture("tiny.toml")).unwrap();
+    let mut t = fixture_table("tiny.toml");
+    video_cam(&mut t, 2).insert("exposure".into(), 0.6.into());
+    t.insert("noise".into(), toml::toml! { sigma = 0.03 }.into());
+    let effects = scene_of(&t, "tiny-exposure-noise");
+    let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    simulate(&plain, a.path(), &NoProgress).unwrap();
+    simulate(&effects, b.path(), &NoProgress).unwrap();
+    let frames = |dir: &std::path::Path, cam: usize| video_frames(&dir.join(format!("raw/cam{cam}/GX010001.MP4")));
+    let (p2, e2) = (frames(a.path(), 2), frames(b.path(), 2));
+    let ratio = mean(&e2[4].1) / mean(&p2[4].1);
+    assert!((ratio - 0.6).abs() < 0.03, "exposure 0.6 gave a brightness ratio of {ratio}");
+    let (p0, e0) = (frames(a.path(), 0), frames(b.path(), 0));
+    let ratio0 = mean(&e0[4].1) / mean(&p0[4].1);
+    assert!((ratio0 - 1.0).abs() < 0.02, "cam0 keeps its exposure: {ratio0}");
+    // Noise: frames differ pixel by pixel, by about sigma (H.264 smooths some of it away).
+    let diff: f64 = p0[4].1.iter().zip(&e0[4].1).map(|(x, y)| (*x as f64 - *y as f64).powi(2)).sum::<f64>()
+        / p0[4].1.len() as f64;
+    assert!(diff.sqrt() > 0.3 * 0.03 * 255.0, "rms difference {}", diff.sqrt());
 }
 
 /// Lag (seconds) of the scene's clap in `samples`, by cross-correlation with the clap
