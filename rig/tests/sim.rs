@@ -431,6 +431,9 @@ fn bad_scene_files_give_clear_errors() {
     assert!(e.contains("bad.toml") && e.contains("colour"), "{e}");
     let e = bad(&tiny.replace("fps = 15", "fps = 0"));
     assert!(e.contains("fps") && e.contains("bad.toml"), "{e}");
+    assert!(bad(&tiny.replace("fps = 15", "fps = 23.5")).contains("NTSC"));
+    let ntsc = Scene::from_toml_str(&tiny.replace("fps = 15", "fps = 29.97"), "ntsc.toml").unwrap();
+    assert_eq!(ntsc.fps(), 30000.0 / 1001.0);
     let e = bad(&tiny.replacen("look_at = [0.0, 0.0, 0.6]", "look_at = [3.0, -2.0, 1.6]", 1));
     assert!(e.contains("cam0") && e.contains("looks at nothing"), "{e}");
     // Outside an empty world, looking away from the objects.
@@ -475,4 +478,30 @@ fn every_fixture_is_a_valid_scene() {
         .collect();
     let span = dirs.iter().cloned().fold(f64::MIN, f64::max) - dirs.iter().cloned().fold(f64::MAX, f64::min);
     assert!((100.0..=120.0).contains(&span), "span {span}");
+}
+
+#[test]
+fn inline_meshes_and_a_dome_render_where_declared() {
+    let mut t = fixture_table("tiny.toml");
+    let bg = t["background"].as_table_mut().unwrap();
+    bg.insert("kind".into(), "dome".into());
+    bg.insert("radius".into(), 6.0.into());
+    // A 1 m square of two triangles standing at the origin, facing +x.
+    let mesh: toml::Table = toml::toml! {
+        shape = "mesh"
+        vertices = [[0.0, -0.5, 0.2], [0.0, 0.5, 0.2], [0.0, 0.5, 1.2], [0.0, -0.5, 1.2]]
+        triangles = [[0, 1, 2], [0, 2, 3]]
+        texture = { kind = "solid", colors = [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]] }
+    };
+    t["objects"].as_array_mut().unwrap().push(mesh.into());
+    let scene = scene_of(&t, "tiny-mesh-dome");
+    let r = rig::sim::render_clean(&scene, "cam1", 0.0).unwrap();
+    let mesh_id = 2 + 3; // background 1, three tiny objects, then the mesh
+    let cam = &scene.cameras[1].camera;
+    let (centre, _) = cam.project(DVec3::new(0.0, 0.0, 0.7)).unwrap();
+    let k = centre.y.floor() as usize * r.width + centre.x.floor() as usize;
+    assert_eq!(r.id[k], mesh_id as u16, "the mesh's centre is on its pixel");
+    assert!(r.color[k][2] > 0.3 && r.color[k][0] < 0.05);
+    assert!(r.id.iter().filter(|&&i| i == 1).count() > r.id.len() / 3, "the dome fills the background");
+    assert!(r.id.iter().all(|&i| i != 0), "the dome closes the view");
 }

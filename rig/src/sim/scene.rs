@@ -441,8 +441,9 @@ impl Scene {
 
     /// Parse and validate a scene from TOML text; `origin` names it in errors.
     pub fn from_toml_str(text: &str, origin: &str) -> Result<Scene, SimError> {
-        let file: SceneFile = toml::from_str(text)
+        let mut file: SceneFile = toml::from_str(text)
             .map_err(|e| SimError::Parse { origin: origin.to_string(), message: e.to_string() })?;
+        file.scene.fps = exact_fps(file.scene.fps, origin)?;
         let cameras = validate(&file, origin)?;
         let scene = Scene { file, origin: origin.to_string(), cameras };
         super::check_views(&scene)?;
@@ -474,6 +475,28 @@ impl Scene {
     }
 }
 
+/// The frame rate as the exact value the video files carry: an integer, or an NTSC rate
+/// `N·1000/1001` (29.97 → 30000/1001).
+fn exact_fps(fps: f64, origin: &str) -> Result<f64, SimError> {
+    if !(fps.is_finite() && fps > 0.0 && fps <= 1000.0) {
+        return Err(SimError::invalid(
+            origin,
+            format!("[scene] fps = {fps} is not a frame rate; give a positive number such as 30"),
+        ));
+    }
+    if (fps - fps.round()).abs() < 1e-9 {
+        return Ok(fps.round());
+    }
+    let ntsc = (fps * 1.001).round();
+    if (fps * 1.001 - ntsc).abs() < 2e-3 {
+        return Ok(ntsc * 1000.0 / 1001.0);
+    }
+    Err(SimError::invalid(
+        origin,
+        format!("[scene] fps = {fps} must be an integer or an NTSC rate (e.g. 29.97 = 30000/1001)"),
+    ))
+}
+
 fn finite(origin: &str, what: &str, values: &[f64]) -> Result<(), SimError> {
     if values.iter().all(|v| v.is_finite()) {
         Ok(())
@@ -488,13 +511,6 @@ fn validate(file: &SceneFile, origin: &str) -> Result<Vec<SimCamera>, SimError> 
         return Err(SimError::invalid(
             origin,
             format!("[scene] fps = {} is not a frame rate; give a positive number such as 30", s.fps),
-        ));
-    }
-    if (s.fps - s.fps.round()).abs() > 1e-9 && (s.fps * 1001.0 / 1000.0 - (s.fps * 1001.0 / 1000.0).round()).abs() > 1e-6
-    {
-        return Err(SimError::invalid(
-            origin,
-            format!("[scene] fps = {} must be an integer or an NTSC rate (e.g. 29.97 = 30000/1001)", s.fps),
         ));
     }
     if !(s.duration.is_finite() && s.duration > 0.0 && s.duration <= 600.0) {
