@@ -3,6 +3,8 @@
 //! key by key in `docs/simulator.md`; keep the two in step.
 //!
 //! World convention: metres, z up, cameras in the OpenCV convention of `splat4d::camera`.
+// `!(x > 0.0)` is deliberate below: it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
 
 use std::path::Path;
 
@@ -634,11 +636,10 @@ fn validate(file: &SceneFile, origin: &str) -> Result<Vec<SimCamera>, SimError> 
             ));
         }
     }
-    if let Some(n) = &file.noise {
-        if !(n.sigma.is_finite() && n.sigma >= 0.0) {
+    if let Some(n) = &file.noise
+        && !(n.sigma.is_finite() && n.sigma >= 0.0) {
             return Err(SimError::invalid(origin, "[noise] sigma must be a non-negative number"));
         }
-    }
     Ok(out)
 }
 
@@ -732,7 +733,7 @@ fn resolve_camera(
     finite(origin, &format!("camera {name}"), &[spec.offset, spec.phase, spec.exposure])?;
     let width = spec.width.unwrap_or(defaults.width);
     let height = spec.height.unwrap_or(defaults.height);
-    if width < 16 || height < 16 || width > 8192 || height > 8192 || width % 2 != 0 || height % 2 != 0 {
+    if width < 16 || height < 16 || width > 8192 || height > 8192 || !width.is_multiple_of(2) || !height.is_multiple_of(2) {
         return Err(SimError::invalid(
             origin,
             format!("camera {name}: resolution {width}×{height} must be even and between 16 and 8192 pixels"),
@@ -795,11 +796,10 @@ fn resolve_camera(
             format!("camera {name}: dropped frame {bad} must be in 1..{frames} (frame 0 starts the file)"),
         ));
     }
-    if let Some(c) = spec.chapter_frames {
-        if c == 0 || frames.div_ceil(c) > 99 {
+    if let Some(c) = spec.chapter_frames
+        && (c == 0 || frames.div_ceil(c) > 99) {
             return Err(SimError::invalid(origin, format!("camera {name}: chapter_frames must give 1..=99 chapters")));
         }
-    }
     let start_time = spec.offset + spec.phase / fps;
     Ok(SimCamera {
         camera: Camera { name, intrinsics, distortion: spec.distortion, world_to_camera },

@@ -87,7 +87,7 @@ fn glyph(seed: u64, cell: (u64, u64), gx: f32, gy: f32) -> bool {
     let (col, row) = ((u * 5.0) as u64, (v * 7.0) as u64);
     let bits = hash(h, col, row);
     // About 45% of blocks on; whole cells left blank now and then.
-    h % 7 != 0 && bits % 100 < 45
+    !h.is_multiple_of(7) && bits % 100 < 45
 }
 
 impl Texture {
