@@ -12,11 +12,29 @@ fn offsets(dir: &std::path::Path) -> OffsetsFile {
     serde_json::from_slice(&std::fs::read(dir.join("groundtruth/offsets.json")).unwrap()).unwrap()
 }
 
+/// Counts progress units.
+#[derive(Default)]
+struct Count(std::sync::atomic::AtomicU64, std::sync::atomic::AtomicU64);
+
+impl splat4d::Progress for Count {
+    fn start(&self, total: u64, _unit: &str) {
+        self.0.store(total, std::sync::atomic::Ordering::SeqCst);
+    }
+    fn advance(&self, n: u64) {
+        self.1.fetch_add(n, std::sync::atomic::Ordering::SeqCst);
+    }
+    fn message(&self, _msg: &str) {}
+    fn finish(&self) {}
+}
+
 #[test]
 fn tiny_writes_a_capture_laid_out_like_a_real_one() {
     let scene = Scene::from_file(&fixture("tiny.toml")).unwrap();
     let tmp = tempfile::tempdir().unwrap();
-    let summary = simulate(&scene, tmp.path(), &NoProgress).unwrap();
+    let count = Count::default();
+    let summary = simulate(&scene, tmp.path(), &count).unwrap();
+    let (total, done) = (count.0.into_inner(), count.1.into_inner());
+    assert_eq!((total, done), (4 * 15 + 15 + 8, 4 * 15 + 15 + 8));
     assert_eq!(summary.videos.len(), 4);
     assert_eq!(summary.video_frames, 4 * 15);
     let raw: Vec<_> = std::fs::read_dir(tmp.path().join("raw")).unwrap().map(|e| e.unwrap().file_name()).collect();
@@ -140,6 +158,33 @@ fn video_timestamps_follow_offsets_drops_and_chapters() {
     };
     let (now, before, after) = (err_at(t5), err_at(t5 - 1.0 / 15.0), err_at(t5 + 1.0 / 15.0));
     assert!(now < 0.5 * before && now < 0.5 * after, "{now} {before} {after}");
+}
+
+fn mean(rgb: &[u8]) -> f64 {
+    rgb.iter().map(|&v| v as f64).sum::<f64>() / rgb.len() as f64
+}
+
+#[test]
+fn exposure_and_sensor_noise_change_the_frames_they_should() {
+    let plain = Scene::from_file(&fixture("tiny.toml")).unwrap();
+    let mut t = fixture_table("tiny.toml");
+    video_cam(&mut t, 2).insert("exposure".into(), 0.6.into());
+    t.insert("noise".into(), toml::toml! { sigma = 0.03 }.into());
+    let effects = scene_of(&t, "tiny-exposure-noise");
+    let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    simulate(&plain, a.path(), &NoProgress).unwrap();
+    simulate(&effects, b.path(), &NoProgress).unwrap();
+    let frames = |dir: &std::path::Path, cam: usize| video_frames(&dir.join(format!("raw/cam{cam}/GX010001.MP4")));
+    let (p2, e2) = (frames(a.path(), 2), frames(b.path(), 2));
+    let ratio = mean(&e2[4].1) / mean(&p2[4].1);
+    assert!((ratio - 0.6).abs() < 0.03, "exposure 0.6 gave a brightness ratio of {ratio}");
+    let (p0, e0) = (frames(a.path(), 0), frames(b.path(), 0));
+    let ratio0 = mean(&e0[4].1) / mean(&p0[4].1);
+    assert!((ratio0 - 1.0).abs() < 0.02, "cam0 keeps its exposure: {ratio0}");
+    // Noise: frames differ pixel by pixel, by about sigma (H.264 smooths some of it away).
+    let diff: f64 = p0[4].1.iter().zip(&e0[4].1).map(|(x, y)| (*x as f64 - *y as f64).powi(2)).sum::<f64>()
+        / p0[4].1.len() as f64;
+    assert!(diff.sqrt() > 0.3 * 0.03 * 255.0, "rms difference {}", diff.sqrt());
 }
 
 /// Lag (seconds) of the scene's clap in `samples`, by cross-correlation with the clap
@@ -386,6 +431,9 @@ fn bad_scene_files_give_clear_errors() {
     assert!(e.contains("bad.toml") && e.contains("colour"), "{e}");
     let e = bad(&tiny.replace("fps = 15", "fps = 0"));
     assert!(e.contains("fps") && e.contains("bad.toml"), "{e}");
+    assert!(bad(&tiny.replace("fps = 15", "fps = 23.5")).contains("NTSC"));
+    let ntsc = Scene::from_toml_str(&tiny.replace("fps = 15", "fps = 29.97"), "ntsc.toml").unwrap();
+    assert_eq!(ntsc.fps(), 30000.0 / 1001.0);
     let e = bad(&tiny.replacen("look_at = [0.0, 0.0, 0.6]", "look_at = [3.0, -2.0, 1.6]", 1));
     assert!(e.contains("cam0") && e.contains("looks at nothing"), "{e}");
     // Outside an empty world, looking away from the objects.
@@ -430,4 +478,30 @@ fn every_fixture_is_a_valid_scene() {
         .collect();
     let span = dirs.iter().cloned().fold(f64::MIN, f64::max) - dirs.iter().cloned().fold(f64::MAX, f64::min);
     assert!((100.0..=120.0).contains(&span), "span {span}");
+}
+
+#[test]
+fn inline_meshes_and_a_dome_render_where_declared() {
+    let mut t = fixture_table("tiny.toml");
+    let bg = t["background"].as_table_mut().unwrap();
+    bg.insert("kind".into(), "dome".into());
+    bg.insert("radius".into(), 6.0.into());
+    // A 1 m square of two triangles standing at the origin, facing +x.
+    let mesh: toml::Table = toml::toml! {
+        shape = "mesh"
+        vertices = [[0.0, -0.5, 0.2], [0.0, 0.5, 0.2], [0.0, 0.5, 1.2], [0.0, -0.5, 1.2]]
+        triangles = [[0, 1, 2], [0, 2, 3]]
+        texture = { kind = "solid", colors = [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]] }
+    };
+    t["objects"].as_array_mut().unwrap().push(mesh.into());
+    let scene = scene_of(&t, "tiny-mesh-dome");
+    let r = rig::sim::render_clean(&scene, "cam1", 0.0).unwrap();
+    let mesh_id = 2 + 3; // background 1, three tiny objects, then the mesh
+    let cam = &scene.cameras[1].camera;
+    let (centre, _) = cam.project(DVec3::new(0.0, 0.0, 0.7)).unwrap();
+    let k = centre.y.floor() as usize * r.width + centre.x.floor() as usize;
+    assert_eq!(r.id[k], mesh_id as u16, "the mesh's centre is on its pixel");
+    assert!(r.color[k][2] > 0.3 && r.color[k][0] < 0.05);
+    assert!(r.id.iter().filter(|&&i| i == 1).count() > r.id.len() / 3, "the dome fills the background");
+    assert!(r.id.iter().all(|&i| i != 0), "the dome closes the view");
 }

@@ -23,6 +23,9 @@ pub fn border_pixels(width: u32, height: u32, n: u32) -> Vec<DVec2> {
     out
 }
 
+/// Canvas coordinates of every sub-sample and of every pixel centre.
+type SampleMap = (Vec<[f32; 2]>, Vec<[f32; 2]>);
+
 /// How one camera's image is made from a pinhole canvas.
 #[derive(Clone, Debug)]
 pub struct LensPlan {
@@ -32,7 +35,7 @@ pub struct LensPlan {
     ss: usize,
     /// For distorted cameras: canvas coordinates (continuous, pixel-centre at +0.5) of every
     /// sub-sample (`ss²` per pixel) and of every pixel centre.
-    map: Option<(Vec<[f32; 2]>, Vec<[f32; 2]>)>,
+    map: Option<SampleMap>,
 }
 
 impl LensPlan {

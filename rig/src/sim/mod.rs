@@ -210,11 +210,10 @@ pub(crate) fn check_views(scene: &Scene) -> Result<(), SimError> {
 fn refuse_existing(dir: &Path) -> Result<(), SimError> {
     for sub in ["raw", "stills", "groundtruth"] {
         let p = dir.join(sub);
-        if let Ok(mut entries) = std::fs::read_dir(&p) {
-            if entries.next().is_some() {
+        if let Ok(mut entries) = std::fs::read_dir(&p)
+            && entries.next().is_some() {
                 return Err(SimError::CaptureExists { path: dir.to_path_buf(), found: format!("{sub}/") });
             }
-        }
     }
     Ok(())
 }

@@ -3,6 +3,8 @@
 //! key by key in `docs/simulator.md`; keep the two in step.
 //!
 //! World convention: metres, z up, cameras in the OpenCV convention of `splat4d::camera`.
+// `!(x > 0.0)` is deliberate below: it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
 
 use std::path::Path;
 
@@ -441,8 +443,9 @@ impl Scene {
 
     /// Parse and validate a scene from TOML text; `origin` names it in errors.
     pub fn from_toml_str(text: &str, origin: &str) -> Result<Scene, SimError> {
-        let file: SceneFile = toml::from_str(text)
+        let mut file: SceneFile = toml::from_str(text)
             .map_err(|e| SimError::Parse { origin: origin.to_string(), message: e.to_string() })?;
+        file.scene.fps = exact_fps(file.scene.fps, origin)?;
         let cameras = validate(&file, origin)?;
         let scene = Scene { file, origin: origin.to_string(), cameras };
         super::check_views(&scene)?;
@@ -474,6 +477,28 @@ impl Scene {
     }
 }
 
+/// The frame rate as the exact value the video files carry: an integer, or an NTSC rate
+/// `N·1000/1001` (29.97 → 30000/1001).
+fn exact_fps(fps: f64, origin: &str) -> Result<f64, SimError> {
+    if !(fps.is_finite() && fps > 0.0 && fps <= 1000.0) {
+        return Err(SimError::invalid(
+            origin,
+            format!("[scene] fps = {fps} is not a frame rate; give a positive number such as 30"),
+        ));
+    }
+    if (fps - fps.round()).abs() < 1e-9 {
+        return Ok(fps.round());
+    }
+    let ntsc = (fps * 1.001).round();
+    if (fps * 1.001 - ntsc).abs() < 2e-3 {
+        return Ok(ntsc * 1000.0 / 1001.0);
+    }
+    Err(SimError::invalid(
+        origin,
+        format!("[scene] fps = {fps} must be an integer or an NTSC rate (e.g. 29.97 = 30000/1001)"),
+    ))
+}
+
 fn finite(origin: &str, what: &str, values: &[f64]) -> Result<(), SimError> {
     if values.iter().all(|v| v.is_finite()) {
         Ok(())
@@ -488,13 +513,6 @@ fn validate(file: &SceneFile, origin: &str) -> Result<Vec<SimCamera>, SimError> 
         return Err(SimError::invalid(
             origin,
             format!("[scene] fps = {} is not a frame rate; give a positive number such as 30", s.fps),
-        ));
-    }
-    if (s.fps - s.fps.round()).abs() > 1e-9 && (s.fps * 1001.0 / 1000.0 - (s.fps * 1001.0 / 1000.0).round()).abs() > 1e-6
-    {
-        return Err(SimError::invalid(
-            origin,
-            format!("[scene] fps = {} must be an integer or an NTSC rate (e.g. 29.97 = 30000/1001)", s.fps),
         ));
     }
     if !(s.duration.is_finite() && s.duration > 0.0 && s.duration <= 600.0) {
@@ -618,11 +636,10 @@ fn validate(file: &SceneFile, origin: &str) -> Result<Vec<SimCamera>, SimError> 
             ));
         }
     }
-    if let Some(n) = &file.noise {
-        if !(n.sigma.is_finite() && n.sigma >= 0.0) {
+    if let Some(n) = &file.noise
+        && !(n.sigma.is_finite() && n.sigma >= 0.0) {
             return Err(SimError::invalid(origin, "[noise] sigma must be a non-negative number"));
         }
-    }
     Ok(out)
 }
 
@@ -716,7 +733,7 @@ fn resolve_camera(
     finite(origin, &format!("camera {name}"), &[spec.offset, spec.phase, spec.exposure])?;
     let width = spec.width.unwrap_or(defaults.width);
     let height = spec.height.unwrap_or(defaults.height);
-    if width < 16 || height < 16 || width > 8192 || height > 8192 || width % 2 != 0 || height % 2 != 0 {
+    if width < 16 || height < 16 || width > 8192 || height > 8192 || !width.is_multiple_of(2) || !height.is_multiple_of(2) {
         return Err(SimError::invalid(
             origin,
             format!("camera {name}: resolution {width}×{height} must be even and between 16 and 8192 pixels"),
@@ -779,11 +796,10 @@ fn resolve_camera(
             format!("camera {name}: dropped frame {bad} must be in 1..{frames} (frame 0 starts the file)"),
         ));
     }
-    if let Some(c) = spec.chapter_frames {
-        if c == 0 || frames.div_ceil(c) > 99 {
+    if let Some(c) = spec.chapter_frames
+        && (c == 0 || frames.div_ceil(c) > 99) {
             return Err(SimError::invalid(origin, format!("camera {name}: chapter_frames must give 1..=99 chapters")));
         }
-    }
     let start_time = spec.offset + spec.phase / fps;
     Ok(SimCamera {
         camera: Camera { name, intrinsics, distortion: spec.distortion, world_to_camera },

@@ -13,14 +13,23 @@ pub struct Texture {
     macro_seed: Option<u64>,
 }
 
+/// `x.floor()` as an integer without a libm call (hot in texture sampling).
+#[inline(always)]
+fn floor_i(x: f32) -> i64 {
+    let i = x as i64;
+    if (i as f32) > x { i - 1 } else { i }
+}
+
 /// Non-periodic value noise on the unbounded lattice (breaks the tiling of textures).
+#[inline]
 fn open_noise(seed: u64, x: f32, y: f32) -> f32 {
-    let (ix, iy) = (x.floor(), y.floor());
-    let (tx, ty) = (x - ix, y - iy);
+    let (ix, iy) = (floor_i(x), floor_i(y));
+    let (tx, ty) = (x - ix as f32, y - iy as f32);
     let (sx, sy) = (tx * tx * (3.0 - 2.0 * tx), ty * ty * (3.0 - 2.0 * ty));
-    let at = |i: f32, j: f32| unit(hash(seed, i as i64 as u64, j as i64 as u64));
-    let top = at(ix, iy) + (at(ix + 1.0, iy) - at(ix, iy)) * sx;
-    let bottom = at(ix, iy + 1.0) + (at(ix + 1.0, iy + 1.0) - at(ix, iy + 1.0)) * sx;
+    let at = |i: i64, j: i64| unit(hash(seed, i as u64, j as u64));
+    let (v00, v10, v01, v11) = (at(ix, iy), at(ix + 1, iy), at(ix, iy + 1), at(ix + 1, iy + 1));
+    let top = v00 + (v10 - v00) * sx;
+    let bottom = v01 + (v11 - v01) * sx;
     top + (bottom - top) * sy
 }
 
@@ -78,7 +87,7 @@ fn glyph(seed: u64, cell: (u64, u64), gx: f32, gy: f32) -> bool {
     let (col, row) = ((u * 5.0) as u64, (v * 7.0) as u64);
     let bits = hash(h, col, row);
     // About 45% of blocks on; whole cells left blank now and then.
-    h % 7 != 0 && bits % 100 < 45
+    !h.is_multiple_of(7) && bits % 100 < 45
 }
 
 impl Texture {
@@ -150,7 +159,7 @@ impl Texture {
         match self.macro_seed {
             None => c,
             Some(seed) => {
-                let m = 0.5 * open_noise(seed, u * 0.41, v * 0.41) + 0.5 * open_noise(seed ^ 1, u * 0.93, v * 0.93);
+                let m = open_noise(seed, u * 0.53, v * 0.53);
                 let tint = open_noise(seed ^ 2, u * 0.29, v * 0.29) - 0.5;
                 let g = 0.65 + 0.7 * m;
                 [(c[0] * g * (1.0 + 0.3 * tint)).min(1.0), (c[1] * g).min(1.0), (c[2] * g * (1.0 - 0.3 * tint)).min(1.0)]
@@ -164,11 +173,11 @@ impl Texture {
         let n = self.size;
         let x = u * n as f32 - 0.5;
         let y = v * n as f32 - 0.5;
-        let (fx, fy) = (x.floor(), y.floor());
-        let (tx, ty) = (x - fx, y - fy);
-        let wrap = |a: f32| (a as i64).rem_euclid(n as i64) as usize;
+        let (fx, fy) = (floor_i(x), floor_i(y));
+        let (tx, ty) = (x - fx as f32, y - fy as f32);
+        let wrap = |a: i64| a.rem_euclid(n as i64) as usize;
         let (x0, y0) = (wrap(fx), wrap(fy));
-        let (x1, y1) = ((x0 + 1) % n, (y0 + 1) % n);
+        let (x1, y1) = (if x0 + 1 == n { 0 } else { x0 + 1 }, if y0 + 1 == n { 0 } else { y0 + 1 });
         let (a, b, c, d) =
             (self.texels[y0 * n + x0], self.texels[y0 * n + x1], self.texels[y1 * n + x0], self.texels[y1 * n + x1]);
         [0, 1, 2].map(|k| {
