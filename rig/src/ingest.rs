@@ -146,7 +146,7 @@ pub struct VideoInfo {
     pub variable_frame_rate: bool,
     /// Number of frames.
     pub frame_count: usize,
-    /// Intervals longer than 1.5 median intervals: likely dropped frames.
+    /// Intervals longer than 1.75 local median intervals: likely dropped frames.
     pub gaps: usize,
     /// Seconds from the first frame to the end of the last one.
     pub duration_s: f64,
@@ -349,6 +349,28 @@ pub(crate) fn median_interval(times: &[f64]) -> Option<f64> {
     Some(d[d.len() / 2])
 }
 
+/// Counts gaps (intervals over 1.75× the local median interval: dropped frames) and tells
+/// whether the frame rate varies (local median intervals differ by over 5 %, or over 5 % of
+/// the intervals stray from their local median by over 5 %).
+pub(crate) fn frame_rate_regularity(times: &[f64]) -> (usize, bool) {
+    let d: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
+    if d.is_empty() {
+        return (0, false);
+    }
+    let half = 15;
+    let local: Vec<f64> = (0..d.len())
+        .map(|i| {
+            let mut w = d[i.saturating_sub(half)..(i + half + 1).min(d.len())].to_vec();
+            w.sort_by(f64::total_cmp);
+            w[w.len() / 2]
+        })
+        .collect();
+    let gaps = d.iter().zip(&local).filter(|(d, m)| **d > 1.75 * **m).count();
+    let irregular = d.iter().zip(&local).filter(|(d, m)| (**d - **m).abs() > 0.05 * **m && **d <= 1.75 * **m).count();
+    let (lo, hi) = local.iter().fold((f64::MAX, f64::MIN), |(lo, hi), &m| (lo.min(m), hi.max(m)));
+    (gaps, hi > 1.05 * lo || irregular > d.len() / 20 + 1)
+}
+
 /// Probes one camera: its files, per-frame timestamps and stream facts.
 pub fn probe_camera(camera: &str, path: &Path) -> Result<CameraStream, IngestError> {
     let files = camera_files(camera, path)?;
@@ -375,11 +397,7 @@ pub fn probe_camera(camera: &str, path: &Path) -> Result<CameraStream, IngestErr
         return Err(IngestError::NoVideo { camera: camera.into(), path: path.into() });
     };
     let interval = median_interval(&timestamps).unwrap_or(1.0 / 30.0);
-    let intervals: Vec<f64> = timestamps.windows(2).map(|w| w[1] - w[0]).collect();
-    let gaps = intervals.iter().filter(|d| **d > 1.5 * interval).count();
-    let irregular =
-        intervals.iter().filter(|d| (**d - interval).abs() > 0.05 * interval && **d <= 1.5 * interval).count();
-    let variable_frame_rate = irregular > intervals.len() / 20 + 1;
+    let (gaps, variable_frame_rate) = frame_rate_regularity(&timestamps);
     let duration_s = offset - timestamps.first().copied().unwrap_or(0.0);
     Ok(CameraStream {
         name: camera.to_string(),
@@ -447,7 +465,7 @@ pub fn mismatch_warnings(cameras: &[CameraStream]) -> Vec<String> {
             warnings.push(format!("{} has a variable frame rate: per-frame timestamps are used as they are", c.name));
         }
         if c.video.gaps > 0 {
-            warnings.push(format!("{}: {} gaps longer than 1.5 frames (dropped frames?)", c.name, c.video.gaps));
+            warnings.push(format!("{}: {} gaps longer than 1.75 frame intervals (dropped frames?)", c.name, c.video.gaps));
         }
     }
     warnings
