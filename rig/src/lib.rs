@@ -5,5 +5,6 @@
 
 pub mod frames;
 pub mod ingest;
+pub mod record;
 pub mod source;
 pub mod sync;
