@@ -260,14 +260,16 @@ fn write_camera(
         batch.clear();
         Ok(())
     };
+    let mut last: Option<std::sync::Arc<Vec<u8>>> = None;
     while next < wanted.len() {
         let Some(frame) = source.next_frame().map_err(src)? else { break };
         // Identify the frame by its timestamp (robust to frames the decoder skipped).
         let k = nearest(&stream.timestamps, frame.timestamp);
         let data = std::sync::Arc::new(frame.data);
+        last = Some(data.clone());
         while next < wanted.len() && wanted[next].0 <= k {
             let (s, out) = wanted[next];
-            if s == k || s < k {
+            if s <= k {
                 // s < k: the decoder skipped frame s; the nearest later frame stands in.
                 batch.push((data.clone(), dir.join(format!("{out:06}.png"))));
             }
@@ -278,6 +280,16 @@ fn write_camera(
         }
         if k >= last_needed {
             break;
+        }
+    }
+    if next < wanted.len() {
+        // The decoder ended early (a truncated file): the last decoded frame stands in.
+        tracing::warn!("{}: {} frames could not be decoded; using the last decoded frame", stream.name, wanted.len() - next);
+        let Some(data) = last else {
+            return Err(FramesError::Mismatch(format!("{} decoded no frames", stream.name)));
+        };
+        for &(_, out) in &wanted[next..] {
+            batch.push((data.clone(), dir.join(format!("{out:06}.png"))));
         }
     }
     flush(&mut batch)?;

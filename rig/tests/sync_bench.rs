@@ -24,7 +24,7 @@ fn one_minute_of_four_1080p_cameras() {
     let starts = [0.0, 0.3137, 1.0511, 0.6789];
     // Master scene: moving test pattern, a white flash from 20 s to 21 s, shared room noise
     // with a clap (a 10 ms burst of loud noise) at 15 s.
-    let master = dir.path().join("master.mkv");
+    let master = dir.path().join("master.mov");
     let total = format!("{}", seconds + 2.0);
     let video = "testsrc2=size=1920x1080:rate=30,drawbox=enable='between(t,20,21)':c=white:t=fill";
     let audio = "anoisesrc=color=pink:amplitude=0.02:seed=7:sample_rate=48000,\
@@ -50,6 +50,11 @@ fn one_minute_of_four_1080p_cameras() {
     let ingest_s = t.elapsed().as_secs_f64();
     println!("ingest: {ingest_s:.2} s ({:.2} s per minute of footage)", ingest_s * per_minute);
 
+    let t = Instant::now();
+    for c in &streams.cameras {
+        rig::ingest::decode_audio(c).unwrap();
+    }
+    println!("audio decoding alone: {:.2} s per minute of footage", t.elapsed().as_secs_f64() * per_minute);
     let config = SyncConfig { max_offset_s: 2.0, ..Default::default() };
     for method in [SyncMethod::Audio, SyncMethod::Flash] {
         let t = Instant::now();
@@ -61,7 +66,10 @@ fn one_minute_of_four_1080p_cameras() {
             secs * per_minute,
             errs.iter().map(|e| (e * 1000.0).round() / 1000.0).collect::<Vec<_>>()
         );
-        let bound = if method == SyncMethod::Audio { 0.1 } else { 1000.0 / 30.0 };
+        // The truth here is only as exact as ffmpeg's cutting of the master (a fraction of a
+        // millisecond); sub-sample accuracy is checked with exact truth in sync_audio.rs and
+        // sync_files.rs.
+        let bound = if method == SyncMethod::Audio { 1.0 } else { 1000.0 / 30.0 };
         assert!(errs.iter().all(|e| e.abs() < bound), "{errs:?}");
         if method == SyncMethod::Audio {
             let t = Instant::now();

@@ -165,7 +165,7 @@ impl CameraSource for V4l2Source {
             let (buf, meta) = self.stream.next().map_err(|e| dev_err(e.to_string()))?;
             let used = &buf[..(meta.bytesused as usize).min(buf.len())];
             let Some(timestamp) =
-                self.clock.stamp(meta.timestamp.sec as i64, meta.timestamp.usec as i64, Some(meta.sequence))
+                self.clock.stamp(meta.timestamp.sec.into(), meta.timestamp.usec.into(), Some(meta.sequence))
             else {
                 continue;
             };

@@ -96,7 +96,8 @@ fn excerpt(track: &AudioTrack, from: f64, to: f64) -> (f64, &[f32]) {
 
 /// Offsets of every track relative to `tracks[reference]` (whose offset is 0).
 ///
-/// `None` for a track that is missing or silent. `max_offset_s` bounds the search.
+/// `None` for a track that is missing or silent (all `None` when the reference is).
+/// `max_offset_s` bounds the search.
 /// Offsets are on the reference clock: `t_reference = t_camera + offset_s`.
 pub fn audio_offsets(
     tracks: &[Option<AudioTrack>],
@@ -105,6 +106,9 @@ pub fn audio_offsets(
     config: &AudioSyncConfig,
 ) -> Vec<Option<AudioOffset>> {
     let Some(Some(ref_track)) = tracks.get(reference) else { return vec![None; tracks.len()] };
+    if ref_track.samples.iter().all(|&v| v == 0.0) {
+        return vec![None; tracks.len()];
+    }
     let rate = ref_track.sample_rate;
     let fs = f64::from(rate);
     let ref_end = ref_track.start_s + ref_track.samples.len() as f64 / fs;

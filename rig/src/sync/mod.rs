@@ -235,10 +235,11 @@ fn accept(
     for (i, r) in attempt.iter().enumerate() {
         match r {
             Ok((offset, conf)) => {
-                if let Some(min) = min_confidence {
-                    if conf.is_finite() && *conf < min {
-                        problems.push(format!("{} peak confidence {conf:.1} < {min}", names[i]));
-                    }
+                if let Some(min) = min_confidence
+                    && conf.is_finite()
+                    && *conf < min
+                {
+                    problems.push(format!("{} peak confidence {conf:.1} < {min}", names[i]));
                 }
                 out.push((*offset, if i == reference { None } else { Some(*conf) }));
             }
@@ -277,17 +278,19 @@ fn audio_attempt(
             let Some(o) = offsets[i] else {
                 return Err(match &tracks[i] {
                     None => "no audio track".to_string(),
-                    Some(_) if i == reference => "reference camera has no audio".to_string(),
+                    Some(_) if i != reference && offsets[reference].is_none() => {
+                        format!("reference camera {} has no usable audio", streams.cameras[reference].name)
+                    }
                     Some(_) => "silent audio track".to_string(),
                 });
             };
             let mut offset = o.offset_s;
-            if let (Some(acoustic), Some(rd)) = (&config.acoustic, ref_delay) {
-                if let Some(d) = acoustic.delay_s(&c.name) {
-                    offset += d - rd;
-                    if i != reference {
-                        notes.push(format!("{}: acoustic path correction {:+.3} ms", c.name, (d - rd) * 1e3));
-                    }
+            if let (Some(acoustic), Some(rd)) = (&config.acoustic, ref_delay)
+                && let Some(d) = acoustic.delay_s(&c.name)
+            {
+                offset += d - rd;
+                if i != reference {
+                    notes.push(format!("{}: acoustic path correction {:+.3} ms", c.name, (d - rd) * 1e3));
                 }
             }
             Ok((offset, o.confidence))

@@ -108,7 +108,7 @@ pub fn write_camera(dir: &Path, cam: &TestCamera, sound: &SceneSound, seed: u64)
             } else if cam.exposure > 0.0 {
                 let overlap = end.min(FLASH_T + 1.0) - (end - cam.exposure).max(FLASH_T);
                 (overlap / cam.exposure).clamp(0.0, 1.0)
-            } else if end >= FLASH_T && end < FLASH_T + 1.0 {
+            } else if (FLASH_T..FLASH_T + 1.0).contains(&end) {
                 1.0
             } else {
                 0.0
