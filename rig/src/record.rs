@@ -23,13 +23,17 @@ pub mod v4l2;
 #[derive(Debug, thiserror::Error)]
 pub enum RecordError {
     /// No camera device is present.
-    #[error("no V4L2 device found ({0}); plug the cameras in, check `ls /dev/video*` and that you are in the `video` group")]
+    #[error(
+        "no V4L2 device found ({0}); plug the cameras in, check `ls /dev/video*` and that you are in the `video` group"
+    )]
     NoDevice(String),
     /// Too many devices.
     #[error("{0} devices given; record at most 4 cameras at once")]
     TooMany(usize),
     /// The device offers no usable format.
-    #[error("{device}: no usable capture format (offered: {offered}); pick another device or resolution")]
+    #[error(
+        "{device}: no usable capture format (offered: {offered}); pick another device or resolution"
+    )]
     NoFormat {
         /// The device.
         device: String,
@@ -67,7 +71,13 @@ pub struct RecordConfig {
 
 impl Default for RecordConfig {
     fn default() -> Self {
-        RecordConfig { width: 1280, height: 720, fps: 30.0, duration_s: None, flash_prompt: true }
+        RecordConfig {
+            width: 1280,
+            height: 720,
+            fps: 30.0,
+            duration_s: None,
+            flash_prompt: true,
+        }
     }
 }
 
@@ -93,15 +103,28 @@ pub fn negotiate(offered: &[FormatOption], want: &RecordConfig) -> Option<(Forma
     let size_cost = |o: &FormatOption| {
         let dw = (f64::from(o.width) - f64::from(want.width)).abs();
         let dh = (f64::from(o.height) - f64::from(want.height)).abs();
-        let smaller = if o.width < want.width || o.height < want.height { 0.5 } else { 0.0 };
+        let smaller = if o.width < want.width || o.height < want.height {
+            0.5
+        } else {
+            0.0
+        };
         dw + dh + smaller
     };
     let fps_of = |o: &FormatOption| {
-        o.fps.iter().copied().min_by(|a, b| (a - want.fps).abs().total_cmp(&(b - want.fps).abs())).unwrap_or(want.fps)
+        o.fps
+            .iter()
+            .copied()
+            .min_by(|a, b| (a - want.fps).abs().total_cmp(&(b - want.fps).abs()))
+            .unwrap_or(want.fps)
     };
     offered
         .iter()
-        .filter_map(|o| SUPPORTED_FOURCC.iter().position(|f| *f == o.fourcc).map(|rank| (rank, o)))
+        .filter_map(|o| {
+            SUPPORTED_FOURCC
+                .iter()
+                .position(|f| *f == o.fourcc)
+                .map(|rank| (rank, o))
+        })
         .min_by(|(ra, a), (rb, b)| {
             let ka = (size_cost(a), (fps_of(a) - want.fps).abs(), *ra);
             let kb = (size_cost(b), (fps_of(b) - want.fps).abs(), *rb);
@@ -125,7 +148,12 @@ pub struct FrameClock {
 impl FrameClock {
     /// A clock whose zero is kernel time `origin_s` (shared by all cameras of a session).
     pub fn new(origin_s: f64) -> Self {
-        FrameClock { origin_s, last_sequence: None, last_time: None, dropped: 0 }
+        FrameClock {
+            origin_s,
+            last_sequence: None,
+            last_time: None,
+            dropped: 0,
+        }
     }
 
     /// Session time of a frame with kernel timestamp `(sec, usec)` and driver `sequence`.
@@ -164,14 +192,29 @@ impl CaptureWriter {
     pub fn create(dir: &Path, size: (u32, u32)) -> Result<Self, RecordError> {
         init_ffmpeg();
         let tmp = dir.join("capture.tmp.mov");
-        let err = |e: ffmpeg::Error| RecordError::Write { path: tmp.clone(), message: e.to_string() };
-        std::fs::create_dir_all(dir).map_err(|e| RecordError::Write { path: dir.into(), message: e.to_string() })?;
+        let err = |e: ffmpeg::Error| RecordError::Write {
+            path: tmp.clone(),
+            message: e.to_string(),
+        };
+        std::fs::create_dir_all(dir).map_err(|e| RecordError::Write {
+            path: dir.into(),
+            message: e.to_string(),
+        })?;
         let mut output = ffmpeg::format::output_as(&tmp, "mov").map_err(err)?;
-        let codec = ffmpeg::encoder::find(ffmpeg::codec::Id::MJPEG)
-            .ok_or_else(|| RecordError::Write { path: tmp.clone(), message: "FFmpeg has no MJPEG encoder".into() })?;
-        let global = output.format().flags().contains(ffmpeg::format::Flags::GLOBAL_HEADER);
+        let codec =
+            ffmpeg::encoder::find(ffmpeg::codec::Id::MJPEG).ok_or_else(|| RecordError::Write {
+                path: tmp.clone(),
+                message: "FFmpeg has no MJPEG encoder".into(),
+            })?;
+        let global = output
+            .format()
+            .flags()
+            .contains(ffmpeg::format::Flags::GLOBAL_HEADER);
         let mut ost = output.add_stream(codec).map_err(err)?;
-        let mut enc = ffmpeg::codec::context::Context::new_with_codec(codec).encoder().video().map_err(err)?;
+        let mut enc = ffmpeg::codec::context::Context::new_with_codec(codec)
+            .encoder()
+            .video()
+            .map_err(err)?;
         enc.set_width(size.0);
         enc.set_height(size.1);
         enc.set_format(ffmpeg::format::Pixel::YUVJ420P);
@@ -207,12 +250,18 @@ impl CaptureWriter {
     /// Appends one frame; `frame.timestamp` (seconds, ≥ 0, increasing) becomes its pts.
     pub fn write(&mut self, frame: &Frame) -> Result<(), RecordError> {
         let path = self.tmp_path();
-        let err = |e: ffmpeg::Error| RecordError::Write { path: path.clone(), message: e.to_string() };
+        let err = |e: ffmpeg::Error| RecordError::Write {
+            path: path.clone(),
+            message: e.to_string(),
+        };
         let (w, h) = self.size;
         if (frame.width, frame.height) != (w, h) {
             return Err(RecordError::Write {
                 path: path.clone(),
-                message: format!("frame {}x{} in a {w}x{h} recording", frame.width, frame.height),
+                message: format!(
+                    "frame {}x{} in a {w}x{h} recording",
+                    frame.width, frame.height
+                ),
             });
         }
         let pixel = match frame.layout {
@@ -236,7 +285,8 @@ impl CaptureWriter {
         let row = w as usize * frame.layout.channels();
         let stride = src.stride(0);
         for y in 0..h as usize {
-            src.data_mut(0)[y * stride..y * stride + row].copy_from_slice(&frame.data[y * row..(y + 1) * row]);
+            src.data_mut(0)[y * stride..y * stride + row]
+                .copy_from_slice(&frame.data[y * row..(y + 1) * row]);
         }
         let mut yuv = ffmpeg::frame::Video::empty();
         if let Some((_, s)) = self.scaler.as_mut() {
@@ -246,7 +296,8 @@ impl CaptureWriter {
         yuv.set_pts(Some(pts));
         self.encoder.send_frame(&yuv).map_err(err)?;
         self.drain()?;
-        self.csv.push_str(&format!("{},{:.6}\n", self.frames, frame.timestamp));
+        self.csv
+            .push_str(&format!("{},{:.6}\n", self.frames, frame.timestamp));
         self.frames += 1;
         Ok(())
     }
@@ -259,7 +310,10 @@ impl CaptureWriter {
             packet.rescale_ts(TIME_BASE, self.stream_time_base);
             packet
                 .write_interleaved(&mut self.output)
-                .map_err(|e| RecordError::Write { path: path.clone(), message: e.to_string() })?;
+                .map_err(|e| RecordError::Write {
+                    path: path.clone(),
+                    message: e.to_string(),
+                })?;
         }
         Ok(())
     }
@@ -267,11 +321,17 @@ impl CaptureWriter {
     /// Flushes, closes and renames the files; returns the video's path.
     pub fn finish(mut self) -> Result<PathBuf, RecordError> {
         let path = self.tmp_path();
-        let err = |e: ffmpeg::Error| RecordError::Write { path: path.clone(), message: e.to_string() };
+        let err = |e: ffmpeg::Error| RecordError::Write {
+            path: path.clone(),
+            message: e.to_string(),
+        };
         self.encoder.send_eof().map_err(err)?;
         self.drain()?;
         self.output.write_trailer().map_err(err)?;
-        let io = |p: &Path, e: std::io::Error| RecordError::Write { path: p.into(), message: e.to_string() };
+        let io = |p: &Path, e: std::io::Error| RecordError::Write {
+            path: p.into(),
+            message: e.to_string(),
+        };
         let csv = self.dir.join("timestamps.csv");
         let csv_tmp = self.dir.join("timestamps.csv.tmp");
         std::fs::write(&csv_tmp, &self.csv).map_err(|e| io(&csv_tmp, e))?;
@@ -305,7 +365,9 @@ pub fn record_source(
     let mut writer = CaptureWriter::create(dir, source.frame_size())?;
     let mut first: Option<f64> = None;
     while !stop.load(Ordering::Relaxed) {
-        let Some(frame) = source.next_frame()? else { break };
+        let Some(frame) = source.next_frame()? else {
+            break;
+        };
         let t0 = *first.get_or_insert(frame.timestamp);
         if max_duration_s.is_some_and(|d| frame.timestamp - t0 > d) {
             break;
@@ -315,7 +377,11 @@ pub fn record_source(
     }
     let frames = writer.frames;
     writer.finish()?;
-    Ok(RecordedCamera { name: source.name().to_string(), dir: dir.to_path_buf(), frames })
+    Ok(RecordedCamera {
+        name: source.name().to_string(),
+        dir: dir.to_path_buf(),
+        frames,
+    })
 }
 
 /// Records every device concurrently (one thread each) into `capture_dir/raw/camN/`.
@@ -334,7 +400,11 @@ pub fn record(
         }
         return Err(RecordError::NoDevice(format!(
             "none given; present: {}",
-            found.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
+            found
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
         )));
     }
     if devices.len() > 4 {
@@ -343,10 +413,18 @@ pub fn record(
     let origin = v4l2::monotonic_now();
     let mut sources = Vec::new();
     for (i, d) in devices.iter().enumerate() {
-        sources.push(v4l2::V4l2Source::open(&format!("cam{i}"), d, config, origin)?);
+        sources.push(v4l2::V4l2Source::open(
+            &format!("cam{i}"),
+            d,
+            config,
+            origin,
+        )?);
     }
     if config.flash_prompt {
-        tracing::info!("all {} cameras are recording: fire the flash (or clap) now", sources.len());
+        tracing::info!(
+            "all {} cameras are recording: fire the flash (or clap) now",
+            sources.len()
+        );
     }
     progress.start(0, "frames");
     let results: Vec<Result<RecordedCamera, RecordError>> = std::thread::scope(|scope| {
@@ -360,7 +438,11 @@ pub fn record(
             .collect();
         handles
             .into_iter()
-            .map(|h| h.join().unwrap_or_else(|_| Err(RecordError::NoDevice("a recording thread panicked".into()))))
+            .map(|h| {
+                h.join().unwrap_or_else(|_| {
+                    Err(RecordError::NoDevice("a recording thread panicked".into()))
+                })
+            })
             .collect()
     });
     progress.finish();

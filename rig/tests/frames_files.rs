@@ -27,8 +27,19 @@ fn aligned_frames_are_written_with_exact_timestamps() {
     let mut cams: Vec<_> = starts.iter().map(|&s| TestCamera::new(s)).collect();
     cams[1].dropped = vec![30, 31, 32];
     let streams = ingest(&write_capture(&dir.path().join("raw"), &cams), &NoProgress).unwrap();
-    let sync = synchronise(&streams, &SyncConfig { max_offset_s: 1.0, ..Default::default() }, &NoProgress).unwrap();
-    let config = FramesConfig { long_side: 48, ..Default::default() };
+    let sync = synchronise(
+        &streams,
+        &SyncConfig {
+            max_offset_s: 1.0,
+            ..Default::default()
+        },
+        &NoProgress,
+    )
+    .unwrap();
+    let config = FramesConfig {
+        long_side: 48,
+        ..Default::default()
+    };
     let out = dir.path().join("work/frames");
     let index = extract(&streams, &sync, &config, &out, &NoProgress).unwrap();
 
@@ -36,7 +47,10 @@ fn aligned_frames_are_written_with_exact_timestamps() {
     let start = starts[2] - starts[0];
     let end = (starts[0] + 119.0 / 30.0) - starts[0];
     assert!((index.start_s - start).abs() < 1e-3, "{}", index.start_s);
-    assert_eq!(index.frames.len(), ((end - start) * 30.0 + 1e-9).floor() as usize + 1);
+    assert_eq!(
+        index.frames.len(),
+        ((end - start) * 30.0 + 1e-9).floor() as usize + 1
+    );
     assert_eq!((index.cameras[0].width, index.cameras[0].height), (48, 36));
     let mut max_residual = [0.0f64; 4];
     for f in &index.frames {
@@ -46,11 +60,18 @@ fn aligned_frames_are_written_with_exact_timestamps() {
             assert!(out.join(&v.file).exists(), "{}", v.file);
         }
     }
-    println!("max |residual| per camera (ms): {:?}", max_residual.map(|r| (r * 1e4).round() / 10.0));
+    println!(
+        "max |residual| per camera (ms): {:?}",
+        max_residual.map(|r| (r * 1e4).round() / 10.0)
+    );
     // Without drops, the nearest frame is within half a frame; across the 3-frame drop of
     // cam1 it can be up to two frames away.
     for c in [0, 2, 3] {
-        assert!(max_residual[c] <= 0.5 / 30.0 + 1e-6, "cam{c}: {}", max_residual[c]);
+        assert!(
+            max_residual[c] <= 0.5 / 30.0 + 1e-6,
+            "cam{c}: {}",
+            max_residual[c]
+        );
     }
     assert!(max_residual[1] > 0.5 / 30.0 && max_residual[1] <= 2.0 / 30.0 + 1e-3);
 
@@ -74,7 +95,15 @@ fn aligned_frames_are_written_with_exact_timestamps() {
     assert_eq!(json["frames"].as_array().unwrap().len(), index.frames.len());
 
     // Planning alone agrees with what was written, and max_frames trims.
-    let planned = plan(&streams, &sync, &FramesConfig { max_frames: Some(5), ..config }).unwrap();
+    let planned = plan(
+        &streams,
+        &sync,
+        &FramesConfig {
+            max_frames: Some(5),
+            ..config
+        },
+    )
+    .unwrap();
     assert_eq!(planned.frames.len(), 5);
     assert_eq!(planned.frames[4], index.frames[4]);
 }

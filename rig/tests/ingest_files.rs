@@ -14,9 +14,29 @@ use sync_support::{ffmpeg, ffmpeg_available};
 fn clip(path: &Path, seconds: f64, fps: u32, size: &str, extra: &[&str]) {
     let v = format!("testsrc2=size={size}:rate={fps}");
     let t = format!("{seconds}");
-    let mut args = vec!["-f", "lavfi", "-i", &v, "-f", "lavfi", "-i", "sine=f=440:sample_rate=48000", "-t", &t];
+    let mut args = vec![
+        "-f",
+        "lavfi",
+        "-i",
+        &v,
+        "-f",
+        "lavfi",
+        "-i",
+        "sine=f=440:sample_rate=48000",
+        "-t",
+        &t,
+    ];
     args.extend_from_slice(extra);
-    args.extend_from_slice(&["-pix_fmt", "yuv420p", "-c:v", "libx264", "-preset", "ultrafast", "-c:a", "aac"]);
+    args.extend_from_slice(&[
+        "-pix_fmt",
+        "yuv420p",
+        "-c:v",
+        "libx264",
+        "-preset",
+        "ultrafast",
+        "-c:a",
+        "aac",
+    ]);
     let p = path.to_string_lossy().to_string();
     args.push(&p);
     ffmpeg(&args);
@@ -33,7 +53,10 @@ fn a_plain_file_reports_frames_timestamps_and_audio() {
     clip(&cam.join("clip.mp4"), 2.0, 30, "320x240", &[]);
     let streams = ingest(&[("cam0".into(), cam.clone())], &NoProgress).unwrap();
     let c = &streams.cameras[0];
-    assert_eq!((c.video.width, c.video.height, c.video.frame_count), (320, 240, 60));
+    assert_eq!(
+        (c.video.width, c.video.height, c.video.frame_count),
+        (320, 240, 60)
+    );
     assert!((c.video.fps - 30.0).abs() < 1e-6);
     assert!(!c.video.variable_frame_rate);
     assert_eq!(c.video.gaps, 0);
@@ -43,9 +66,18 @@ fn a_plain_file_reports_frames_timestamps_and_audio() {
     let audio = c.audio.as_ref().unwrap();
     assert_eq!((audio.sample_rate, audio.channels), (48_000, 1));
     let track = decode_audio(c).unwrap().unwrap();
-    println!("audio: {} samples from {:.4} s", track.samples.len(), track.start_s);
-    assert!((track.samples.len() as f64 / 48_000.0 - 2.0).abs() < 0.03, "{}", track.samples.len());
-    let rms = (track.samples.iter().map(|v| v * v).sum::<f32>() / track.samples.len() as f32).sqrt();
+    println!(
+        "audio: {} samples from {:.4} s",
+        track.samples.len(),
+        track.start_s
+    );
+    assert!(
+        (track.samples.len() as f64 / 48_000.0 - 2.0).abs() < 0.03,
+        "{}",
+        track.samples.len()
+    );
+    let rms =
+        (track.samples.iter().map(|v| v * v).sum::<f32>() / track.samples.len() as f32).sqrt();
     assert!(rms > 0.05, "the sine is decoded: rms {rms}");
     // streams.json round trip, written atomically.
     let json = dir.path().join("work/ingest/streams.json");
@@ -69,20 +101,48 @@ fn gopro_chapters_are_joined_in_order() {
     // so name them so that a wrong (recording-first) order would be visible.
     for (name, from, len) in [("GX010042.MP4", "0", "1.5"), ("GX020042.MP4", "1.5", "1.5")] {
         let out = cam.join(name).to_string_lossy().to_string();
-        ffmpeg(&["-ss", from, "-i", &w, "-t", len, "-c:v", "libx264", "-preset", "ultrafast", "-c:a", "aac", &out]);
+        ffmpeg(&[
+            "-ss",
+            from,
+            "-i",
+            &w,
+            "-t",
+            len,
+            "-c:v",
+            "libx264",
+            "-preset",
+            "ultrafast",
+            "-c:a",
+            "aac",
+            &out,
+        ]);
     }
     let files = camera_files("cam0", &cam).unwrap();
-    let names: Vec<_> = files.iter().map(|p| p.file_name().unwrap().to_string_lossy().to_string()).collect();
+    let names: Vec<_> = files
+        .iter()
+        .map(|p| p.file_name().unwrap().to_string_lossy().to_string())
+        .collect();
     assert_eq!(names, ["GX010042.MP4", "GX020042.MP4"]);
     let streams = ingest(&[("cam0".into(), cam.clone())], &NoProgress).unwrap();
     let c = &streams.cameras[0];
     assert_eq!(c.chapters.len(), 2);
     assert_eq!(c.video.frame_count, 90);
-    assert!((c.chapters[1].offset_s - 1.5).abs() < 0.02, "{:?}", c.chapters);
+    assert!(
+        (c.chapters[1].offset_s - 1.5).abs() < 0.02,
+        "{:?}",
+        c.chapters
+    );
     let d: Vec<f64> = c.timestamps.windows(2).map(|w| w[1] - w[0]).collect();
-    assert!(d.iter().all(|d| (d - 1.0 / 30.0).abs() < 2e-3), "continuous across the join: {d:?}");
+    assert!(
+        d.iter().all(|d| (d - 1.0 / 30.0).abs() < 2e-3),
+        "continuous across the join: {d:?}"
+    );
     let track = decode_audio(c).unwrap().unwrap();
-    assert!((track.samples.len() as f64 / 48_000.0 - 3.0).abs() < 0.05, "{}", track.samples.len());
+    assert!(
+        (track.samples.len() as f64 / 48_000.0 - 3.0).abs() < 0.05,
+        "{}",
+        track.samples.len()
+    );
     // A second recording in the same folder is refused with advice.
     std::fs::copy(cam.join("GX010042.MP4"), cam.join("GX010043.MP4")).unwrap();
     let err = camera_files("cam0", &cam).unwrap_err();
@@ -98,23 +158,70 @@ fn variable_frame_rate_and_dropped_frames_keep_exact_timestamps() {
     let dir = tempfile::tempdir().unwrap();
     let vfr = dir.path().join("vfr.mkv");
     // Frame n is shown at n/30 s for the first half, then every 1/20 s.
-    clip(&vfr, 2.0, 30, "160x120", &["-vf", "settb=1/1000,setpts='if(lt(N,30),N/30,1+(N-30)/20)/TB'", "-fps_mode", "passthrough", "-enc_time_base", "1/1000"]);
+    clip(
+        &vfr,
+        2.0,
+        30,
+        "160x120",
+        &[
+            "-vf",
+            "settb=1/1000,setpts='if(lt(N,30),N/30,1+(N-30)/20)/TB'",
+            "-fps_mode",
+            "passthrough",
+            "-enc_time_base",
+            "1/1000",
+        ],
+    );
     let drop = dir.path().join("drop.mp4");
-    clip(&drop, 2.0, 30, "160x120", &["-vf", "select='not(between(n,10,12))'", "-fps_mode", "vfr"]);
-    let streams =
-        ingest(&[("cam0".into(), vfr.clone()), ("cam1".into(), drop.clone())], &NoProgress).unwrap();
+    clip(
+        &drop,
+        2.0,
+        30,
+        "160x120",
+        &["-vf", "select='not(between(n,10,12))'", "-fps_mode", "vfr"],
+    );
+    let streams = ingest(
+        &[("cam0".into(), vfr.clone()), ("cam1".into(), drop.clone())],
+        &NoProgress,
+    )
+    .unwrap();
     let v = &streams.cameras[0];
     assert!(v.video.variable_frame_rate, "{:?}", v.video);
     assert_eq!(v.video.gaps, 0, "a slower rate is not a gap");
     let t0 = v.timestamps[0];
-    assert!((v.timestamps[29] - t0 - 29.0 / 30.0).abs() < 2e-3, "{:?}", &v.timestamps[25..35]);
-    assert!((v.timestamps[31] - t0 - 1.05).abs() < 2e-3, "{:?}", &v.timestamps[25..35]);
+    assert!(
+        (v.timestamps[29] - t0 - 29.0 / 30.0).abs() < 2e-3,
+        "{:?}",
+        &v.timestamps[25..35]
+    );
+    assert!(
+        (v.timestamps[31] - t0 - 1.05).abs() < 2e-3,
+        "{:?}",
+        &v.timestamps[25..35]
+    );
     let d = &streams.cameras[1];
-    assert_eq!((d.video.frame_count, d.video.gaps, d.video.variable_frame_rate), (57, 1, false));
+    assert_eq!(
+        (
+            d.video.frame_count,
+            d.video.gaps,
+            d.video.variable_frame_rate
+        ),
+        (57, 1, false)
+    );
     assert!((d.timestamps[10] - 13.0 / 30.0).abs() < 1e-3);
     println!("warnings: {:#?}", streams.warnings);
-    assert!(streams.warnings.iter().any(|w| w.contains("cam0") && w.contains("variable frame rate")));
-    assert!(streams.warnings.iter().any(|w| w.contains("cam1") && w.contains("dropped")));
+    assert!(
+        streams
+            .warnings
+            .iter()
+            .any(|w| w.contains("cam0") && w.contains("variable frame rate"))
+    );
+    assert!(
+        streams
+            .warnings
+            .iter()
+            .any(|w| w.contains("cam1") && w.contains("dropped"))
+    );
 }
 
 #[test]
@@ -145,7 +252,10 @@ fn missing_or_empty_inputs_fail_with_advice() {
     assert!(err.to_string().contains("no video file in"), "{err}");
     let err = ingest(&[("cam1".into(), dir.path().join("nope"))], &NoProgress).unwrap_err();
     assert!(err.to_string().contains("does not exist"), "{err}");
-    assert!(matches!(ingest(&[], &NoProgress), Err(IngestError::NoCameras)));
+    assert!(matches!(
+        ingest(&[], &NoProgress),
+        Err(IngestError::NoCameras)
+    ));
     let bogus = empty.join("broken.mp4");
     std::fs::write(&bogus, b"garbage").unwrap();
     let err = ingest(&[("cam0".into(), bogus)], &NoProgress).unwrap_err();
@@ -156,13 +266,23 @@ fn missing_or_empty_inputs_fail_with_advice() {
 /// own per-frame times in `timestamps.csv`.
 #[test]
 fn caliscope_recording_matches_its_timestamps_csv() {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/caliscope-4cam/calibration/extrinsic");
-    let root = if root.exists() { root } else { PathBuf::from("/work/shared/data/caliscope-4cam/calibration/extrinsic") };
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data/caliscope-4cam/calibration/extrinsic");
+    let root = if root.exists() {
+        root
+    } else {
+        PathBuf::from("/work/shared/data/caliscope-4cam/calibration/extrinsic")
+    };
     if !root.join("timestamps.csv").exists() {
-        eprintln!("SKIPPED: {} not found (the caliscope-4cam sample lives in ../shared/data)", root.display());
+        eprintln!(
+            "SKIPPED: {} not found (the caliscope-4cam sample lives in ../shared/data)",
+            root.display()
+        );
         return;
     }
-    let cams: Vec<(String, PathBuf)> = (0..4).map(|i| (format!("cam{i}"), root.join(format!("cam_{i}.mp4")))).collect();
+    let cams: Vec<(String, PathBuf)> = (0..4)
+        .map(|i| (format!("cam{i}"), root.join(format!("cam_{i}.mp4"))))
+        .collect();
     let streams = ingest(&cams, &NoProgress).unwrap();
     let csv = std::fs::read_to_string(root.join("timestamps.csv")).unwrap();
     let mut recorded: Vec<Vec<f64>> = vec![vec![]; 4];
@@ -174,7 +294,11 @@ fn caliscope_recording_matches_its_timestamps_csv() {
     for (i, c) in streams.cameras.iter().enumerate() {
         let mut rec = recorded[i].clone();
         rec.sort_by(f64::total_cmp);
-        assert_eq!(c.video.frame_count, rec.len(), "cam{i}: one video frame per csv row");
+        assert_eq!(
+            c.video.frame_count,
+            rec.len(),
+            "cam{i}: one video frame per csv row"
+        );
         assert_eq!((c.video.width, c.video.height), (1280, 720));
         // The files are written at a constant 6 fps; the csv holds the real capture times.
         let max_dev = c
@@ -187,9 +311,18 @@ fn caliscope_recording_matches_its_timestamps_csv() {
         let span_csv = rec[rec.len() - 1] - rec[0];
         println!(
             "caliscope cam{i}: {} frames, {:.3} fps in the file, span {span_file:.3} s (csv {span_csv:.3} s), max deviation {:.1} ms",
-            c.video.frame_count, c.video.fps, max_dev * 1e3
+            c.video.frame_count,
+            c.video.fps,
+            max_dev * 1e3
         );
-        assert!(max_dev < 0.5 / 6.0, "cam{i}: file and csv times differ by {max_dev} s");
+        assert!(
+            max_dev < 0.5 / 6.0,
+            "cam{i}: file and csv times differ by {max_dev} s"
+        );
     }
-    assert!(streams.warnings.iter().all(|w| !w.contains("fps but")), "{:?}", streams.warnings);
+    assert!(
+        streams.warnings.iter().all(|w| !w.contains("fps but")),
+        "{:?}",
+        streams.warnings
+    );
 }

@@ -7,7 +7,9 @@ use std::sync::atomic::AtomicBool;
 
 use rig::ingest::ingest;
 use rig::record::v4l2::yuyv_to_rgb;
-use rig::record::{FormatOption, FrameClock, RecordConfig, RecordError, negotiate, record, record_source};
+use rig::record::{
+    FormatOption, FrameClock, RecordConfig, RecordError, negotiate, record, record_source,
+};
 use rig::source::{CameraSource, Frame, PixelLayout, SourceError};
 use splat4d::progress::NoProgress;
 
@@ -19,8 +21,9 @@ struct TestCamera {
 
 impl TestCamera {
     fn new() -> Self {
-        let mut times: Vec<f64> =
-            (0..45).map(|k| 12.5 + k as f64 / 30.0 + 0.0007 * ((k * 7919) % 11) as f64 / 11.0).collect();
+        let mut times: Vec<f64> = (0..45)
+            .map(|k| 12.5 + k as f64 / 30.0 + 0.0007 * ((k * 7919) % 11) as f64 / 11.0)
+            .collect();
         times.remove(20);
         TestCamera { index: 0, times }
     }
@@ -37,32 +40,58 @@ impl CameraSource for TestCamera {
         Some(30.0)
     }
     fn next_frame(&mut self) -> Result<Option<Frame>, SourceError> {
-        let Some(&t) = self.times.get(self.index) else { return Ok(None) };
+        let Some(&t) = self.times.get(self.index) else {
+            return Ok(None);
+        };
         let mut data = vec![30u8; 64 * 48 * 3];
         let bar = self.index % 64;
         for y in 0..48 {
             data[(y * 64 + bar) * 3..(y * 64 + bar) * 3 + 3].copy_from_slice(&[250, 250, 250]);
         }
         self.index += 1;
-        Ok(Some(Frame { index: self.index - 1, timestamp: t, width: 64, height: 48, layout: PixelLayout::Rgb8, data }))
+        Ok(Some(Frame {
+            index: self.index - 1,
+            timestamp: t,
+            width: 64,
+            height: 48,
+            layout: PixelLayout::Rgb8,
+            data,
+        }))
     }
 }
 
 #[test]
 fn negotiation_prefers_mjpeg_at_the_wanted_size_and_rate() {
-    let opt = |f: &[u8; 4], w, h, fps: &[f64]| FormatOption { fourcc: *f, width: w, height: h, fps: fps.to_vec() };
+    let opt = |f: &[u8; 4], w, h, fps: &[f64]| FormatOption {
+        fourcc: *f,
+        width: w,
+        height: h,
+        fps: fps.to_vec(),
+    };
     let offered = vec![
         opt(b"YUYV", 1280, 720, &[10.0]),
         opt(b"MJPG", 1280, 720, &[30.0, 60.0]),
         opt(b"MJPG", 640, 480, &[30.0]),
         opt(b"H264", 1920, 1080, &[30.0]),
     ];
-    let want = RecordConfig { width: 1280, height: 720, fps: 60.0, ..Default::default() };
+    let want = RecordConfig {
+        width: 1280,
+        height: 720,
+        fps: 60.0,
+        ..Default::default()
+    };
     let (choice, fps) = negotiate(&offered, &want).unwrap();
     assert_eq!((&choice.fourcc, choice.width, fps), (b"MJPG", 1280, 60.0));
-    let want = RecordConfig { width: 1920, height: 1080, ..Default::default() };
+    let want = RecordConfig {
+        width: 1920,
+        height: 1080,
+        ..Default::default()
+    };
     let (choice, _) = negotiate(&offered, &want).unwrap();
-    assert_eq!(choice.width, 1280, "H264 is not supported; the closest supported size wins");
+    assert_eq!(
+        choice.width, 1280,
+        "H264 is not supported; the closest supported size wins"
+    );
     assert!(negotiate(&[opt(b"H264", 640, 480, &[30.0])], &want).is_none());
 }
 
@@ -71,7 +100,11 @@ fn the_frame_clock_counts_drops_and_ignores_repeats() {
     let mut c = FrameClock::new(100.0);
     assert_eq!(c.stamp(100, 500_000, Some(7)), Some(0.5));
     assert!((c.stamp(100, 533_333, Some(8)).unwrap() - 0.533333).abs() < 1e-9);
-    assert_eq!(c.stamp(100, 533_333, Some(8)), None, "a repeated buffer is not a new frame");
+    assert_eq!(
+        c.stamp(100, 533_333, Some(8)),
+        None,
+        "a repeated buffer is not a new frame"
+    );
     assert!(c.stamp(100, 633_333, Some(11)).is_some());
     assert_eq!(c.dropped, 2);
 }
@@ -98,8 +131,16 @@ fn recorded_frames_keep_their_exact_timestamps_through_ingest() {
     let c = &streams.cameras[0];
     assert_eq!(c.video.frame_count, 44);
     assert_eq!(c.video.gaps, 1, "the dropped frame shows as a gap");
-    let max_err = c.timestamps.iter().zip(&expected).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
-    println!("recorder timestamp round trip: max error {:.3} µs", max_err * 1e6);
+    let max_err = c
+        .timestamps
+        .iter()
+        .zip(&expected)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    println!(
+        "recorder timestamp round trip: max error {:.3} µs",
+        max_err * 1e6
+    );
     assert!(max_err < 2e-6, "{max_err}");
 }
 
@@ -108,9 +149,23 @@ fn recording_without_a_device_fails_cleanly() {
     let dir = tempfile::tempdir().unwrap();
     let stop = AtomicBool::new(false);
     let missing = PathBuf::from("/dev/video-does-not-exist");
-    let err = record(&[missing], dir.path(), &RecordConfig::default(), &stop, &NoProgress).unwrap_err();
+    let err = record(
+        &[missing],
+        dir.path(),
+        &RecordConfig::default(),
+        &stop,
+        &NoProgress,
+    )
+    .unwrap_err();
     assert!(matches!(err, RecordError::NoDevice(_)), "{err}");
     assert!(err.to_string().starts_with("no V4L2 device found"), "{err}");
-    let err = record(&[], dir.path(), &RecordConfig::default(), &stop, &NoProgress).unwrap_err();
+    let err = record(
+        &[],
+        dir.path(),
+        &RecordConfig::default(),
+        &stop,
+        &NoProgress,
+    )
+    .unwrap_err();
     assert!(err.to_string().contains("no V4L2 device found"), "{err}");
 }

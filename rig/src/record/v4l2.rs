@@ -13,7 +13,11 @@ pub fn list_devices() -> Vec<PathBuf> {
         .map(|d| {
             d.filter_map(Result::ok)
                 .map(|e| e.path())
-                .filter(|p| p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("video")))
+                .filter(|p| {
+                    p.file_name()
+                        .and_then(|n| n.to_str())
+                        .is_some_and(|n| n.starts_with("video"))
+                })
                 .collect()
         })
         .unwrap_or_default();
@@ -25,7 +29,10 @@ pub fn list_devices() -> Vec<PathBuf> {
 pub fn monotonic_now() -> f64 {
     #[cfg(target_os = "linux")]
     {
-        let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+        let mut ts = libc::timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        };
         // SAFETY: clock_gettime writes into the timespec we own.
         if unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) } == 0 {
             return ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9;
@@ -70,17 +77,28 @@ pub struct V4l2Source {
 }
 
 fn device_err(device: &Path, e: impl std::fmt::Display) -> RecordError {
-    RecordError::Source(SourceError::Device { device: device.display().to_string(), message: e.to_string() })
+    RecordError::Source(SourceError::Device {
+        device: device.display().to_string(),
+        message: e.to_string(),
+    })
 }
 
 impl V4l2Source {
     /// Opens `path`, negotiates a mode close to `config`, and starts streaming; frame
     /// timestamps are kernel time minus `origin_s`.
     #[cfg(target_os = "linux")]
-    pub fn open(name: &str, path: &Path, config: &RecordConfig, origin_s: f64) -> Result<Self, RecordError> {
+    pub fn open(
+        name: &str,
+        path: &Path,
+        config: &RecordConfig,
+        origin_s: f64,
+    ) -> Result<Self, RecordError> {
         use v4l::video::Capture;
         if !path.exists() {
-            return Err(RecordError::NoDevice(format!("{} does not exist", path.display())));
+            return Err(RecordError::NoDevice(format!(
+                "{} does not exist",
+                path.display()
+            )));
         }
         let dev = v4l::Device::with_path(path).map_err(|e| device_err(path, e))?;
         let mut offered = Vec::new();
@@ -92,23 +110,40 @@ impl V4l2Source {
                         .unwrap_or_default()
                         .into_iter()
                         .filter_map(|i| match i.interval {
-                            v4l::frameinterval::FrameIntervalEnum::Discrete(f) if f.numerator > 0 => {
+                            v4l::frameinterval::FrameIntervalEnum::Discrete(f)
+                                if f.numerator > 0 =>
+                            {
                                 Some(f64::from(f.denominator) / f64::from(f.numerator))
                             }
                             _ => None,
                         })
                         .collect();
-                    offered.push(FormatOption { fourcc: desc.fourcc.repr, width: d.width, height: d.height, fps });
+                    offered.push(FormatOption {
+                        fourcc: desc.fourcc.repr,
+                        width: d.width,
+                        height: d.height,
+                        fps,
+                    });
                 }
             }
         }
         let Some((choice, fps)) = negotiate(&offered, config) else {
             let list = offered
                 .iter()
-                .map(|o| format!("{} {}x{}", String::from_utf8_lossy(&o.fourcc), o.width, o.height))
+                .map(|o| {
+                    format!(
+                        "{} {}x{}",
+                        String::from_utf8_lossy(&o.fourcc),
+                        o.width,
+                        o.height
+                    )
+                })
                 .collect::<Vec<_>>()
                 .join(", ");
-            return Err(RecordError::NoFormat { device: path.display().to_string(), offered: list });
+            return Err(RecordError::NoFormat {
+                device: path.display().to_string(),
+                offered: list,
+            });
         };
         let mut fmt = dev.format().map_err(|e| device_err(path, e))?;
         fmt.width = choice.width;
@@ -134,8 +169,16 @@ impl V4l2Source {
 
     /// V4L2 is Linux-only.
     #[cfg(not(target_os = "linux"))]
-    pub fn open(_name: &str, path: &Path, _config: &RecordConfig, _origin_s: f64) -> Result<Self, RecordError> {
-        Err(RecordError::NoDevice(format!("{}: V4L2 needs Linux", path.display())))
+    pub fn open(
+        _name: &str,
+        path: &Path,
+        _config: &RecordConfig,
+        _origin_s: f64,
+    ) -> Result<Self, RecordError> {
+        Err(RecordError::NoDevice(format!(
+            "{}: V4L2 needs Linux",
+            path.display()
+        )))
     }
 
     /// Frames the driver dropped so far.
@@ -160,21 +203,28 @@ impl CameraSource for V4l2Source {
     #[cfg(target_os = "linux")]
     fn next_frame(&mut self) -> Result<Option<Frame>, SourceError> {
         use v4l::io::traits::CaptureStream;
-        let dev_err = |m: String| SourceError::Device { device: self.device.clone(), message: m };
+        let dev_err = |m: String| SourceError::Device {
+            device: self.device.clone(),
+            message: m,
+        };
         loop {
             let (buf, meta) = self.stream.next().map_err(|e| dev_err(e.to_string()))?;
             let used = &buf[..(meta.bytesused as usize).min(buf.len())];
-            let Some(timestamp) =
-                self.clock.stamp(meta.timestamp.sec.into(), meta.timestamp.usec.into(), Some(meta.sequence))
-            else {
+            let Some(timestamp) = self.clock.stamp(
+                meta.timestamp.sec.into(),
+                meta.timestamp.usec.into(),
+                Some(meta.sequence),
+            ) else {
                 continue;
             };
             let (w, h) = self.size;
             let (layout, data) = match &self.fourcc {
-                b"MJPG" => match image::load_from_memory_with_format(used, image::ImageFormat::Jpeg) {
-                    Ok(img) => (PixelLayout::Rgb8, img.to_rgb8().into_raw()),
-                    Err(_) => continue, // a corrupt MJPEG frame counts as dropped
-                },
+                b"MJPG" => {
+                    match image::load_from_memory_with_format(used, image::ImageFormat::Jpeg) {
+                        Ok(img) => (PixelLayout::Rgb8, img.to_rgb8().into_raw()),
+                        Err(_) => continue, // a corrupt MJPEG frame counts as dropped
+                    }
+                }
                 b"YUYV" => (PixelLayout::Rgb8, yuyv_to_rgb(used, w, h)),
                 _ => {
                     let mut g = used.to_vec();
@@ -184,7 +234,14 @@ impl CameraSource for V4l2Source {
             };
             let index = self.index;
             self.index += 1;
-            return Ok(Some(Frame { index, timestamp, width: w, height: h, layout, data }));
+            return Ok(Some(Frame {
+                index,
+                timestamp,
+                width: w,
+                height: h,
+                layout,
+                data,
+            }));
         }
     }
 
