@@ -210,11 +210,14 @@ impl CameraSource for V4l2Source {
         loop {
             let (buf, meta) = self.stream.next().map_err(|e| dev_err(e.to_string()))?;
             let used = &buf[..(meta.bytesused as usize).min(buf.len())];
-            let Some(timestamp) = self.clock.stamp(
+            // `time_t` is i64 on 64-bit Linux and i32 on 32-bit: widen either way.
+            #[allow(clippy::useless_conversion)]
+            let stamped = self.clock.stamp(
                 meta.timestamp.sec.into(),
                 meta.timestamp.usec.into(),
                 Some(meta.sequence),
-            ) else {
+            );
+            let Some(timestamp) = stamped else {
                 continue;
             };
             let (w, h) = self.size;
