@@ -194,8 +194,14 @@ impl FileSource {
         if rate.numerator() > 0 && rate.denominator() > 0 {
             self.fps = Some(f64::from(rate));
         }
-        let ctx = ffmpeg::codec::context::Context::from_parameters(stream.parameters())
+        let mut ctx = ffmpeg::codec::context::Context::from_parameters(stream.parameters())
             .map_err(decode_err(&path))?;
+        // Frame threads on every core (FFmpeg's default is one thread).
+        ctx.set_threading(ffmpeg::codec::threading::Config {
+            kind: ffmpeg::codec::threading::Type::Frame,
+            count: 0,
+            ..Default::default()
+        });
         let decoder = ctx.decoder().video().map_err(decode_err(&path))?;
         self.current = Some(OpenChapter {
             path,
