@@ -35,7 +35,13 @@ pub struct FramesConfig {
 
 impl Default for FramesConfig {
     fn default() -> Self {
-        FramesConfig { long_side: 960, allow_upscale: false, fps: None, start_s: 0.0, max_frames: None }
+        FramesConfig {
+            long_side: 960,
+            allow_upscale: false,
+            fps: None,
+            start_s: 0.0,
+            max_frames: None,
+        }
     }
 }
 
@@ -127,7 +133,10 @@ pub enum FramesError {
 impl FramesIndex {
     /// Writes `frames.json` atomically.
     pub fn write_json(&self, path: &Path) -> Result<(), FramesError> {
-        write_json_atomic(path, self).map_err(|source| FramesError::Io { path: path.into(), source })
+        write_json_atomic(path, self).map_err(|source| FramesError::Io {
+            path: path.into(),
+            source,
+        })
     }
 }
 
@@ -139,7 +148,10 @@ pub fn working_size(size: (u32, u32), long_side: u32, allow_upscale: bool) -> (u
         return (w, h);
     }
     let s = f64::from(long_side) / f64::from(long);
-    (((f64::from(w) * s).round() as u32).max(1), ((f64::from(h) * s).round() as u32).max(1))
+    (
+        ((f64::from(w) * s).round() as u32).max(1),
+        ((f64::from(h) * s).round() as u32).max(1),
+    )
 }
 
 /// Index of the value in increasing `times` nearest to `t`.
@@ -155,7 +167,11 @@ fn nearest(times: &[f64], t: f64) -> usize {
 }
 
 /// Plans the output timeline (no decoding): which frame of each camera goes where.
-pub fn plan(streams: &Streams, sync: &SyncResult, config: &FramesConfig) -> Result<FramesIndex, FramesError> {
+pub fn plan(
+    streams: &Streams,
+    sync: &SyncResult,
+    config: &FramesConfig,
+) -> Result<FramesIndex, FramesError> {
     if streams.cameras.len() != sync.cameras.len() {
         return Err(FramesError::Mismatch(format!(
             "{} cameras in streams, {} in sync",
@@ -165,7 +181,10 @@ pub fn plan(streams: &Streams, sync: &SyncResult, config: &FramesConfig) -> Resu
     }
     for (s, c) in streams.cameras.iter().zip(&sync.cameras) {
         if s.name != c.name || s.timestamps.len() != c.timestamps.len() || c.timestamps.is_empty() {
-            return Err(FramesError::Mismatch(format!("camera {} differs or has no frames", s.name)));
+            return Err(FramesError::Mismatch(format!(
+                "camera {} differs or has no frames",
+                s.name
+            )));
         }
     }
     let fps = config
@@ -188,8 +207,16 @@ pub fn plan(streams: &Streams, sync: &SyncResult, config: &FramesConfig) -> Resu
         .cameras
         .iter()
         .map(|c| {
-            let (width, height) = working_size((c.video.width, c.video.height), config.long_side, config.allow_upscale);
-            CameraImages { name: c.name.clone(), width, height }
+            let (width, height) = working_size(
+                (c.video.width, c.video.height),
+                config.long_side,
+                config.allow_upscale,
+            );
+            CameraImages {
+                name: c.name.clone(),
+                width,
+                height,
+            }
         })
         .collect();
     let frames = (0..count)
@@ -208,10 +235,19 @@ pub fn plan(streams: &Streams, sync: &SyncResult, config: &FramesConfig) -> Resu
                     }
                 })
                 .collect();
-            AlignedFrame { index, time_s, views }
+            AlignedFrame {
+                index,
+                time_s,
+                views,
+            }
         })
         .collect();
-    Ok(FramesIndex { fps, start_s: start, cameras, frames })
+    Ok(FramesIndex {
+        fps,
+        start_s: start,
+        cameras,
+        frames,
+    })
 }
 
 /// Plans the timeline, decodes every camera and writes `out_dir/<camera>/NNNNNN.png` and
@@ -244,30 +280,47 @@ fn write_camera(
     let stream = &streams.cameras[ci];
     let size = (index.cameras[ci].width, index.cameras[ci].height);
     let dir = out_dir.join(&stream.name);
-    std::fs::create_dir_all(&dir).map_err(|source| FramesError::Io { path: dir.clone(), source })?;
+    std::fs::create_dir_all(&dir).map_err(|source| FramesError::Io {
+        path: dir.clone(),
+        source,
+    })?;
     // Output frames wanting each source frame, in source order.
-    let mut wanted: Vec<(usize, usize)> =
-        index.frames.iter().map(|f| (f.views[ci].source_frame, f.index)).collect();
+    let mut wanted: Vec<(usize, usize)> = index
+        .frames
+        .iter()
+        .map(|f| (f.views[ci].source_frame, f.index))
+        .collect();
     wanted.sort_unstable();
-    let Some(&(last_needed, _)) = wanted.last() else { return Ok(()) };
-    let src = |source: SourceError| IngestError::Source { camera: stream.name.clone(), source };
+    let Some(&(last_needed, _)) = wanted.last() else {
+        return Ok(());
+    };
+    let src = |source: SourceError| IngestError::Source {
+        camera: stream.name.clone(),
+        source,
+    };
     let mut source = stream.open(PixelLayout::Rgb8, Some(size)).map_err(src)?;
     let mut next = 0;
     let mut batch: Vec<(std::sync::Arc<Vec<u8>>, PathBuf)> = Vec::new();
     let flush = |batch: &mut Vec<(std::sync::Arc<Vec<u8>>, PathBuf)>| -> Result<(), FramesError> {
-        batch.par_iter().try_for_each(|(data, path)| write_png(path, data, size))?;
+        batch
+            .par_iter()
+            .try_for_each(|(data, path)| write_png(path, data, size))?;
         progress.advance(batch.len() as u64);
         batch.clear();
         Ok(())
     };
+    let mut last: Option<std::sync::Arc<Vec<u8>>> = None;
     while next < wanted.len() {
-        let Some(frame) = source.next_frame().map_err(src)? else { break };
+        let Some(frame) = source.next_frame().map_err(src)? else {
+            break;
+        };
         // Identify the frame by its timestamp (robust to frames the decoder skipped).
         let k = nearest(&stream.timestamps, frame.timestamp);
         let data = std::sync::Arc::new(frame.data);
+        last = Some(data.clone());
         while next < wanted.len() && wanted[next].0 <= k {
             let (s, out) = wanted[next];
-            if s == k || s < k {
+            if s <= k {
                 // s < k: the decoder skipped frame s; the nearest later frame stands in.
                 batch.push((data.clone(), dir.join(format!("{out:06}.png"))));
             }
@@ -280,6 +333,23 @@ fn write_camera(
             break;
         }
     }
+    if next < wanted.len() {
+        // The decoder ended early (a truncated file): the last decoded frame stands in.
+        tracing::warn!(
+            "{}: {} frames could not be decoded; using the last decoded frame",
+            stream.name,
+            wanted.len() - next
+        );
+        let Some(data) = last else {
+            return Err(FramesError::Mismatch(format!(
+                "{} decoded no frames",
+                stream.name
+            )));
+        };
+        for &(_, out) in &wanted[next..] {
+            batch.push((data.clone(), dir.join(format!("{out:06}.png"))));
+        }
+    }
     flush(&mut batch)?;
     Ok(())
 }
@@ -287,7 +357,20 @@ fn write_camera(
 /// Writes an RGB8 PNG via a temporary name and a rename.
 fn write_png(path: &Path, data: &[u8], (w, h): (u32, u32)) -> Result<(), FramesError> {
     let tmp = path.with_extension("png.tmp");
-    image::save_buffer_with_format(&tmp, data, w, h, image::ExtendedColorType::Rgb8, image::ImageFormat::Png)
-        .map_err(|source| FramesError::Image { path: path.into(), source })?;
-    std::fs::rename(&tmp, path).map_err(|source| FramesError::Io { path: path.into(), source })
+    image::save_buffer_with_format(
+        &tmp,
+        data,
+        w,
+        h,
+        image::ExtendedColorType::Rgb8,
+        image::ImageFormat::Png,
+    )
+    .map_err(|source| FramesError::Image {
+        path: path.into(),
+        source,
+    })?;
+    std::fs::rename(&tmp, path).map_err(|source| FramesError::Io {
+        path: path.into(),
+        source,
+    })
 }

@@ -8,8 +8,8 @@
 
 use std::path::{Path, PathBuf};
 
-use ffmpeg_next as ffmpeg;
 use ffmpeg::media::Type;
+use ffmpeg_next as ffmpeg;
 use serde::{Deserialize, Serialize};
 
 use crate::source::{FileSource, PixelLayout, SourceError, decode_err, init_ffmpeg};
@@ -146,7 +146,7 @@ pub struct VideoInfo {
     pub variable_frame_rate: bool,
     /// Number of frames.
     pub frame_count: usize,
-    /// Intervals longer than 1.5 median intervals: likely dropped frames.
+    /// Intervals longer than 1.75 local median intervals: likely dropped frames.
     pub gaps: usize,
     /// Seconds from the first frame to the end of the last one.
     pub duration_s: f64,
@@ -182,21 +182,32 @@ impl Streams {
 
     /// Writes `streams.json` atomically (temporary name, then rename).
     pub fn write_json(&self, path: &Path) -> Result<(), IngestError> {
-        write_json_atomic(path, self).map_err(|source| IngestError::Io { path: path.into(), source })
+        write_json_atomic(path, self).map_err(|source| IngestError::Io {
+            path: path.into(),
+            source,
+        })
     }
 
     /// Reads a `streams.json`.
     pub fn read_json(path: &Path) -> Result<Self, IngestError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|source| IngestError::Io { path: path.into(), source })?;
-        serde_json::from_str(&text).map_err(|source| IngestError::Json { path: path.into(), source })
+        let text = std::fs::read_to_string(path).map_err(|source| IngestError::Io {
+            path: path.into(),
+            source,
+        })?;
+        serde_json::from_str(&text).map_err(|source| IngestError::Json {
+            path: path.into(),
+            source,
+        })
     }
 }
 
 impl CameraStream {
     /// Chapters as (path, offset) pairs for [`FileSource::open`].
     pub fn chapter_list(&self) -> Vec<(PathBuf, f64)> {
-        self.chapters.iter().map(|c| (c.path.clone(), c.offset_s)).collect()
+        self.chapters
+            .iter()
+            .map(|c| (c.path.clone(), c.offset_s))
+            .collect()
     }
 
     /// Opens the camera's frames for decoding.
@@ -211,10 +222,10 @@ impl CameraStream {
 
 /// Serialises `value` as pretty JSON to `path` via a temporary file and a rename.
 pub(crate) fn write_json_atomic<T: Serialize>(path: &Path, value: &T) -> std::io::Result<()> {
-    if let Some(dir) = path.parent() {
-        if !dir.as_os_str().is_empty() {
-            std::fs::create_dir_all(dir)?;
-        }
+    if let Some(dir) = path.parent()
+        && !dir.as_os_str().is_empty()
+    {
+        std::fs::create_dir_all(dir)?;
     }
     let text = serde_json::to_string_pretty(value).map_err(std::io::Error::other)?;
     let tmp = path.with_extension("json.tmp");
@@ -241,31 +252,56 @@ fn gopro_chapter(name: &str) -> Option<(u32, u32)> {
 /// The video files of one camera in playback order.
 pub fn camera_files(camera: &str, path: &Path) -> Result<Vec<PathBuf>, IngestError> {
     if !path.exists() {
-        return Err(IngestError::Missing { camera: camera.into(), path: path.into() });
+        return Err(IngestError::Missing {
+            camera: camera.into(),
+            path: path.into(),
+        });
     }
     if path.is_file() {
         return Ok(vec![path.to_path_buf()]);
     }
-    let io = |source| IngestError::Io { path: path.into(), source };
+    let io = |source| IngestError::Io {
+        path: path.into(),
+        source,
+    };
     let mut files = Vec::new();
     for entry in std::fs::read_dir(path).map_err(io)? {
         let p = entry.map_err(io)?.path();
-        let ext = p.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+        let ext = p
+            .extension()
+            .and_then(|e| e.to_str())
+            .unwrap_or("")
+            .to_ascii_lowercase();
         if p.is_file() && VIDEO_EXTENSIONS.contains(&ext.as_str()) {
             files.push(p);
         }
     }
     if files.is_empty() {
-        return Err(IngestError::NoVideo { camera: camera.into(), path: path.into() });
+        return Err(IngestError::NoVideo {
+            camera: camera.into(),
+            path: path.into(),
+        });
     }
-    let name_of = |p: &PathBuf| p.file_name().and_then(|n| n.to_str()).unwrap_or("").to_string();
-    let gopro: Vec<_> = files.iter().filter_map(|p| gopro_chapter(&name_of(p)).map(|k| (k, p.clone()))).collect();
+    let name_of = |p: &PathBuf| {
+        p.file_name()
+            .and_then(|n| n.to_str())
+            .unwrap_or("")
+            .to_string()
+    };
+    let gopro: Vec<_> = files
+        .iter()
+        .filter_map(|p| gopro_chapter(&name_of(p)).map(|k| (k, p.clone())))
+        .collect();
     if !gopro.is_empty() && gopro.len() == files.len() {
         let mut recordings: Vec<u32> = gopro.iter().map(|((r, _), _)| *r).collect();
         recordings.sort_unstable();
         recordings.dedup();
         if recordings.len() > 1 {
-            let list = recordings.iter().map(|r| format!("{r:04}")).collect::<Vec<_>>().join(", ");
+            let list = recordings
+                .iter()
+                .map(|r| format!("{r:04}"))
+                .collect::<Vec<_>>()
+                .join(", ");
             return Err(IngestError::SeveralRecordings {
                 camera: camera.into(),
                 path: path.into(),
@@ -296,16 +332,27 @@ fn probe_file(path: &Path) -> Result<FileProbe, SourceError> {
     init_ffmpeg();
     let mut input = ffmpeg::format::input(&path).map_err(decode_err(path))?;
     let (index, time_base, codec, width, height, rate) = {
-        let stream = input.streams().best(Type::Video).ok_or_else(|| SourceError::NoStream {
-            path: path.into(),
-            kind: "video",
-            hint: "",
-        })?;
+        let stream = input
+            .streams()
+            .best(Type::Video)
+            .ok_or_else(|| SourceError::NoStream {
+                path: path.into(),
+                kind: "video",
+                hint: "",
+            })?;
         let params = stream.parameters();
-        let ctx = ffmpeg::codec::context::Context::from_parameters(params).map_err(decode_err(path))?;
+        let ctx =
+            ffmpeg::codec::context::Context::from_parameters(params).map_err(decode_err(path))?;
         let codec = ctx.id().name().to_string();
         let video = ctx.decoder().video().map_err(decode_err(path))?;
-        (stream.index(), f64::from(stream.time_base()), codec, video.width(), video.height(), stream.avg_frame_rate())
+        (
+            stream.index(),
+            f64::from(stream.time_base()),
+            codec,
+            video.width(),
+            video.height(),
+            stream.avg_frame_rate(),
+        )
     };
     let audio = match input.streams().best(Type::Audio) {
         Some(stream) => {
@@ -313,7 +360,11 @@ fn probe_file(path: &Path) -> Result<FileProbe, SourceError> {
                 .map_err(decode_err(path))?;
             let codec = ctx.id().name().to_string();
             let dec = ctx.decoder().audio().map_err(decode_err(path))?;
-            Some(AudioInfo { codec, sample_rate: dec.rate(), channels: dec.channels() })
+            Some(AudioInfo {
+                codec,
+                sample_rate: dec.rate(),
+                channels: dec.channels(),
+            })
         }
         None => None,
     };
@@ -323,7 +374,9 @@ fn probe_file(path: &Path) -> Result<FileProbe, SourceError> {
         if stream.index() != index {
             continue;
         }
-        let Some(ts) = packet.pts().or(packet.dts()) else { continue };
+        let Some(ts) = packet.pts().or(packet.dts()) else {
+            continue;
+        };
         // AV_PKT_FLAG_DISCARD: decoded but not shown (edit lists), so not a frame.
         if packet.flags().bits() & ffmpeg::ffi::AV_PKT_FLAG_DISCARD != 0 {
             continue;
@@ -333,15 +386,34 @@ fn probe_file(path: &Path) -> Result<FileProbe, SourceError> {
     }
     times.sort_by(f64::total_cmp);
     times.dedup();
-    let fallback = if rate.numerator() > 0 { f64::from(rate.invert()) } else { 0.0 };
-    let step = if last_duration > 0.0 { last_duration } else { fallback };
+    let fallback = if rate.numerator() > 0 {
+        f64::from(rate.invert())
+    } else {
+        0.0
+    };
+    let step = if last_duration > 0.0 {
+        last_duration
+    } else {
+        fallback
+    };
     let end = times.last().map_or(0.0, |t| t + step);
-    Ok(FileProbe { codec, width, height, times, end, audio })
+    Ok(FileProbe {
+        codec,
+        width,
+        height,
+        times,
+        end,
+        audio,
+    })
 }
 
 /// Median of the positive intervals of increasing `times`.
 pub(crate) fn median_interval(times: &[f64]) -> Option<f64> {
-    let mut d: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).filter(|d| *d > 0.0).collect();
+    let mut d: Vec<f64> = times
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|d| *d > 0.0)
+        .collect();
     if d.is_empty() {
         return None;
     }
@@ -349,10 +421,45 @@ pub(crate) fn median_interval(times: &[f64]) -> Option<f64> {
     Some(d[d.len() / 2])
 }
 
+/// Counts gaps (intervals over 1.75× the local median interval: dropped frames) and tells
+/// whether the frame rate varies (local median intervals differ by over 5 %, or over 5 % of
+/// the intervals stray from their local median by over 5 %).
+pub(crate) fn frame_rate_regularity(times: &[f64]) -> (usize, bool) {
+    let d: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
+    if d.is_empty() {
+        return (0, false);
+    }
+    let half = 15;
+    let local: Vec<f64> = (0..d.len())
+        .map(|i| {
+            let mut w = d[i.saturating_sub(half)..(i + half + 1).min(d.len())].to_vec();
+            w.sort_by(f64::total_cmp);
+            w[w.len() / 2]
+        })
+        .collect();
+    let gaps = d
+        .iter()
+        .zip(&local)
+        .filter(|(d, m)| **d > 1.75 * **m)
+        .count();
+    let irregular = d
+        .iter()
+        .zip(&local)
+        .filter(|(d, m)| (**d - **m).abs() > 0.05 * **m && **d <= 1.75 * **m)
+        .count();
+    let (lo, hi) = local
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(lo, hi), &m| (lo.min(m), hi.max(m)));
+    (gaps, hi > 1.05 * lo || irregular > d.len() / 20 + 1)
+}
+
 /// Probes one camera: its files, per-frame timestamps and stream facts.
 pub fn probe_camera(camera: &str, path: &Path) -> Result<CameraStream, IngestError> {
     let files = camera_files(camera, path)?;
-    let src = |source| IngestError::Source { camera: camera.into(), source };
+    let src = |source| IngestError::Source {
+        camera: camera.into(),
+        source,
+    };
     let mut chapters = Vec::new();
     let mut timestamps = Vec::new();
     let mut first: Option<FileProbe> = None;
@@ -360,26 +467,35 @@ pub fn probe_camera(camera: &str, path: &Path) -> Result<CameraStream, IngestErr
     for file in &files {
         let probe = probe_file(file).map_err(src)?;
         if probe.times.is_empty() {
-            return Err(IngestError::NoFrames { camera: camera.into(), path: file.clone() });
+            return Err(IngestError::NoFrames {
+                camera: camera.into(),
+                path: file.clone(),
+            });
         }
         // A chapter continues where the previous one ended.
-        let chapter_offset = if chapters.is_empty() { 0.0 } else { offset - probe.times[0] };
+        let chapter_offset = if chapters.is_empty() {
+            0.0
+        } else {
+            offset - probe.times[0]
+        };
         timestamps.extend(probe.times.iter().map(|t| t + chapter_offset));
         offset = chapter_offset + probe.end;
-        chapters.push(Chapter { path: file.clone(), offset_s: chapter_offset });
+        chapters.push(Chapter {
+            path: file.clone(),
+            offset_s: chapter_offset,
+        });
         if first.is_none() {
             first = Some(probe);
         }
     }
     let Some(first) = first else {
-        return Err(IngestError::NoVideo { camera: camera.into(), path: path.into() });
+        return Err(IngestError::NoVideo {
+            camera: camera.into(),
+            path: path.into(),
+        });
     };
     let interval = median_interval(&timestamps).unwrap_or(1.0 / 30.0);
-    let intervals: Vec<f64> = timestamps.windows(2).map(|w| w[1] - w[0]).collect();
-    let gaps = intervals.iter().filter(|d| **d > 1.5 * interval).count();
-    let irregular =
-        intervals.iter().filter(|d| (**d - interval).abs() > 0.05 * interval && **d <= 1.5 * interval).count();
-    let variable_frame_rate = irregular > intervals.len() / 20 + 1;
+    let (gaps, variable_frame_rate) = frame_rate_regularity(&timestamps);
     let duration_s = offset - timestamps.first().copied().unwrap_or(0.0);
     Ok(CameraStream {
         name: camera.to_string(),
@@ -402,7 +518,10 @@ pub fn probe_camera(camera: &str, path: &Path) -> Result<CameraStream, IngestErr
 
 /// Probes every camera folder (`(name, path)`; a path may also be a single video file)
 /// and reports mismatches between cameras in [`Streams::warnings`].
-pub fn ingest(camera_dirs: &[(String, PathBuf)], progress: &dyn Progress) -> Result<Streams, IngestError> {
+pub fn ingest(
+    camera_dirs: &[(String, PathBuf)],
+    progress: &dyn Progress,
+) -> Result<Streams, IngestError> {
     if camera_dirs.is_empty() {
         return Err(IngestError::NoCameras);
     }
@@ -424,7 +543,9 @@ pub fn ingest(camera_dirs: &[(String, PathBuf)], progress: &dyn Progress) -> Res
 /// Warnings about fps, resolution and audio differences between cameras.
 pub fn mismatch_warnings(cameras: &[CameraStream]) -> Vec<String> {
     let mut warnings = Vec::new();
-    let Some(first) = cameras.first() else { return warnings };
+    let Some(first) = cameras.first() else {
+        return warnings;
+    };
     for c in &cameras[1..] {
         if (c.video.fps - first.video.fps).abs() > 0.01 * first.video.fps {
             warnings.push(format!(
@@ -435,19 +556,33 @@ pub fn mismatch_warnings(cameras: &[CameraStream]) -> Vec<String> {
         if (c.video.width, c.video.height) != (first.video.width, first.video.height) {
             warnings.push(format!(
                 "{} is {}x{} but {} is {}x{}: each camera keeps its own intrinsics",
-                c.name, c.video.width, c.video.height, first.name, first.video.width, first.video.height
+                c.name,
+                c.video.width,
+                c.video.height,
+                first.name,
+                first.video.width,
+                first.video.height
             ));
         }
     }
     for c in cameras {
         if c.audio.is_none() {
-            warnings.push(format!("{} has no audio track: audio sync cannot use it", c.name));
+            warnings.push(format!(
+                "{} has no audio track: audio sync cannot use it",
+                c.name
+            ));
         }
         if c.video.variable_frame_rate {
-            warnings.push(format!("{} has a variable frame rate: per-frame timestamps are used as they are", c.name));
+            warnings.push(format!(
+                "{} has a variable frame rate: per-frame timestamps are used as they are",
+                c.name
+            ));
         }
         if c.video.gaps > 0 {
-            warnings.push(format!("{}: {} gaps longer than 1.5 frames (dropped frames?)", c.name, c.video.gaps));
+            warnings.push(format!(
+                "{}: {} gaps longer than 1.75 frame intervals (dropped frames?)",
+                c.name, c.video.gaps
+            ));
         }
     }
     warnings
@@ -458,18 +593,35 @@ pub fn mismatch_warnings(cameras: &[CameraStream]) -> Vec<String> {
 /// Returns `Ok(None)` when the camera has no audio stream. Each chapter's samples are
 /// placed at their timestamps and cut at the chapter's end (AAC pads its last frame).
 pub fn decode_audio(stream: &CameraStream) -> Result<Option<AudioTrack>, IngestError> {
-    let Some(info) = &stream.audio else { return Ok(None) };
+    let Some(info) = &stream.audio else {
+        return Ok(None);
+    };
     let rate = info.sample_rate;
-    let src = |source| IngestError::Source { camera: stream.name.clone(), source };
+    let src = |source| IngestError::Source {
+        camera: stream.name.clone(),
+        source,
+    };
     let mut track: Option<AudioTrack> = None;
     let n = stream.chapters.len();
     for (i, chapter) in stream.chapters.iter().enumerate() {
-        let end = if i + 1 < n { Some(stream.chapters[i + 1].offset_s) } else { None };
-        let Some((start, samples)) = decode_audio_file(&chapter.path).map_err(src)? else { continue };
+        let end = if i + 1 < n {
+            Some(stream.chapters[i + 1].offset_s)
+        } else {
+            None
+        };
+        let Some((start, samples)) = decode_audio_file(&chapter.path).map_err(src)? else {
+            continue;
+        };
         let start = start + chapter.offset_s;
-        let track = track.get_or_insert_with(|| AudioTrack { sample_rate: rate, start_s: start, samples: vec![] });
+        let track = track.get_or_insert_with(|| AudioTrack {
+            sample_rate: rate,
+            start_s: start,
+            samples: vec![],
+        });
         let at = ((start - track.start_s) * f64::from(rate)).round().max(0.0) as usize;
-        let stop = end.map_or(usize::MAX, |e| ((e - track.start_s) * f64::from(rate)).round().max(0.0) as usize);
+        let stop = end.map_or(usize::MAX, |e| {
+            ((e - track.start_s) * f64::from(rate)).round().max(0.0) as usize
+        });
         track.samples.resize(at, 0.0);
         let take = stop.saturating_sub(at).min(samples.len());
         track.samples.extend_from_slice(&samples[..take]);
@@ -481,23 +633,34 @@ pub fn decode_audio(stream: &CameraStream) -> Result<Option<AudioTrack>, IngestE
 fn decode_audio_file(path: &Path) -> Result<Option<(f64, Vec<f32>)>, SourceError> {
     init_ffmpeg();
     let mut input = ffmpeg::format::input(&path).map_err(decode_err(path))?;
-    let Some(stream) = input.streams().best(Type::Audio) else { return Ok(None) };
+    let Some(stream) = input.streams().best(Type::Audio) else {
+        return Ok(None);
+    };
     let index = stream.index();
     let time_base = f64::from(stream.time_base());
-    let duration = if stream.duration() > 0 { Some(stream.duration() as f64 * time_base) } else { None };
-    let ctx = ffmpeg::codec::context::Context::from_parameters(stream.parameters()).map_err(decode_err(path))?;
+    let duration = if stream.duration() > 0 {
+        Some(stream.duration() as f64 * time_base)
+    } else {
+        None
+    };
+    let ctx = ffmpeg::codec::context::Context::from_parameters(stream.parameters())
+        .map_err(decode_err(path))?;
     let mut decoder = ctx.decoder().audio().map_err(decode_err(path))?;
     let mut samples = Vec::new();
     let mut start: Option<f64> = None;
     let mut frame = ffmpeg::frame::Audio::empty();
-    let mut drain = |decoder: &mut ffmpeg::decoder::Audio, samples: &mut Vec<f32>, start: &mut Option<f64>| {
-        while decoder.receive_frame(&mut frame).is_ok() {
-            if start.is_none() {
-                *start = frame.timestamp().or(frame.pts()).map(|p| p as f64 * time_base);
+    let mut drain =
+        |decoder: &mut ffmpeg::decoder::Audio, samples: &mut Vec<f32>, start: &mut Option<f64>| {
+            while decoder.receive_frame(&mut frame).is_ok() {
+                if start.is_none() {
+                    *start = frame
+                        .timestamp()
+                        .or(frame.pts())
+                        .map(|p| p as f64 * time_base);
+                }
+                mix_to_mono(&frame, samples);
             }
-            mix_to_mono(&frame, samples);
-        }
-    };
+        };
     for (s, packet) in input.packets() {
         if s.index() == index && decoder.send_packet(&packet).is_ok() {
             drain(&mut decoder, &mut samples, &mut start);
@@ -507,7 +670,8 @@ fn decode_audio_file(path: &Path) -> Result<Option<(f64, Vec<f32>)>, SourceError
     drain(&mut decoder, &mut samples, &mut start);
     let start = start.unwrap_or(0.0);
     if let Some(d) = duration {
-        let keep = ((d - (start - (stream_start(&input, index)))) * f64::from(decoder.rate())).round();
+        let keep =
+            ((d - (start - (stream_start(&input, index)))) * f64::from(decoder.rate())).round();
         if keep > 0.0 && (keep as usize) < samples.len() {
             samples.truncate(keep as usize);
         }
@@ -520,7 +684,11 @@ fn stream_start(input: &ffmpeg::format::context::Input, index: usize) -> f64 {
         .stream(index)
         .map(|s| {
             let st = s.start_time();
-            if st == ffmpeg::ffi::AV_NOPTS_VALUE { 0.0 } else { st as f64 * f64::from(s.time_base()) }
+            if st == ffmpeg::ffi::AV_NOPTS_VALUE {
+                0.0
+            } else {
+                st as f64 * f64::from(s.time_base())
+            }
         })
         .unwrap_or(0.0)
 }
@@ -551,8 +719,9 @@ fn mix_to_mono(frame: &ffmpeg::frame::Audio, out: &mut Vec<f32>) {
                 for i in 0..n {
                     for c in 0..ch {
                         let at = (i * ch + c) * size;
-                        let bytes: [u8; std::mem::size_of::<$t>()] =
-                            data[at..at + size].try_into().unwrap_or([0; std::mem::size_of::<$t>()]);
+                        let bytes: [u8; std::mem::size_of::<$t>()] = data[at..at + size]
+                            .try_into()
+                            .unwrap_or([0; std::mem::size_of::<$t>()]);
                         add(i, $conv(<$t>::from_ne_bytes(bytes)));
                     }
                 }
@@ -563,8 +732,19 @@ fn mix_to_mono(frame: &ffmpeg::frame::Audio, out: &mut Vec<f32>) {
         Sample::F32(l) => mix!(f32, |v: f32| v, l == Layout::Planar),
         Sample::F64(l) => mix!(f64, |v: f64| v as f32, l == Layout::Planar),
         Sample::I16(l) => mix!(i16, |v: i16| f32::from(v) / 32768.0, l == Layout::Planar),
-        Sample::I32(l) => mix!(i32, |v: i32| v as f32 / 2_147_483_648.0, l == Layout::Planar),
-        Sample::U8(l) => mix!(u8, |v: u8| (f32::from(v) - 128.0) / 128.0, l == Layout::Planar),
-        _ => tracing::warn!("unsupported audio sample format {:?}; treated as silence", frame.format()),
+        Sample::I32(l) => mix!(
+            i32,
+            |v: i32| v as f32 / 2_147_483_648.0,
+            l == Layout::Planar
+        ),
+        Sample::U8(l) => mix!(
+            u8,
+            |v: u8| (f32::from(v) - 128.0) / 128.0,
+            l == Layout::Planar
+        ),
+        _ => tracing::warn!(
+            "unsupported audio sample format {:?}; treated as silence",
+            frame.format()
+        ),
     }
 }

@@ -7,16 +7,18 @@
 
 use std::path::{Path, PathBuf};
 
-use ffmpeg_next as ffmpeg;
 use ffmpeg::format::Pixel;
 use ffmpeg::media::Type;
 use ffmpeg::software::scaling;
+use ffmpeg_next as ffmpeg;
 
 /// Errors from opening or decoding a camera source.
 #[derive(Debug, thiserror::Error)]
 pub enum SourceError {
     /// FFmpeg could not open or decode a file.
-    #[error("cannot decode {path}: {source}. Check that the file plays in a video player (ffprobe {path})")]
+    #[error(
+        "cannot decode {path}: {source}. Check that the file plays in a video player (ffprobe {path})"
+    )]
     Decode {
         /// The file.
         path: PathBuf,
@@ -102,7 +104,10 @@ pub(crate) fn init_ffmpeg() {
 }
 
 pub(crate) fn decode_err(path: &Path) -> impl FnOnce(ffmpeg::Error) -> SourceError + '_ {
-    move |source| SourceError::Decode { path: path.to_path_buf(), source }
+    move |source| SourceError::Decode {
+        path: path.to_path_buf(),
+        source,
+    }
 }
 
 /// A scaler owned by one source.
@@ -175,19 +180,28 @@ impl FileSource {
         };
         self.next_chapter += 1;
         let input = ffmpeg::format::input(&path).map_err(decode_err(&path))?;
-        let stream = input.streams().best(Type::Video).ok_or_else(|| SourceError::NoStream {
-            path: path.clone(),
-            kind: "video",
-            hint: "",
-        })?;
+        let stream = input
+            .streams()
+            .best(Type::Video)
+            .ok_or_else(|| SourceError::NoStream {
+                path: path.clone(),
+                kind: "video",
+                hint: "",
+            })?;
         let stream_index = stream.index();
         let time_base = f64::from(stream.time_base());
         let rate = stream.avg_frame_rate();
         if rate.numerator() > 0 && rate.denominator() > 0 {
             self.fps = Some(f64::from(rate));
         }
-        let ctx = ffmpeg::codec::context::Context::from_parameters(stream.parameters())
+        let mut ctx = ffmpeg::codec::context::Context::from_parameters(stream.parameters())
             .map_err(decode_err(&path))?;
+        // Frame threads on every core (FFmpeg's default is one thread).
+        ctx.set_threading(ffmpeg::codec::threading::Config {
+            kind: ffmpeg::codec::threading::Type::Frame,
+            count: 0,
+            ..Default::default()
+        });
         let decoder = ctx.decoder().video().map_err(decode_err(&path))?;
         self.current = Some(OpenChapter {
             path,
@@ -204,7 +218,9 @@ impl FileSource {
 
     fn convert(&mut self, decoded: &ffmpeg::frame::Video) -> Result<(), SourceError> {
         let (layout, out_size) = (self.layout, self.out_size);
-        let Some(ch) = self.current.as_mut() else { return Ok(()) };
+        let Some(ch) = self.current.as_mut() else {
+            return Ok(());
+        };
         let (w, h) = out_size.unwrap_or((decoded.width(), decoded.height()));
         let pixel = match layout {
             PixelLayout::Rgb8 => Pixel::RGB24,
@@ -234,7 +250,9 @@ impl FileSource {
         }
         let mut out = ffmpeg::frame::Video::empty();
         if let Some(Scaler(scaler)) = ch.scaler.as_mut() {
-            scaler.run(decoded, &mut out).map_err(decode_err(&ch.path))?;
+            scaler
+                .run(decoded, &mut out)
+                .map_err(decode_err(&ch.path))?;
         }
         let row = w as usize * layout.channels();
         let stride = out.stride(0);
@@ -262,7 +280,9 @@ impl FileSource {
         let mut got = false;
         loop {
             let mut decoded = ffmpeg::frame::Video::empty();
-            let Some(ch) = self.current.as_mut() else { return Ok(got) };
+            let Some(ch) = self.current.as_mut() else {
+                return Ok(got);
+            };
             if ch.decoder.receive_frame(&mut decoded).is_err() {
                 return Ok(got);
             }
@@ -290,7 +310,9 @@ impl CameraSource for FileSource {
             if let Some(f) = self.pending.pop_front() {
                 return Ok(Some(f));
             }
-            let Some(ch) = self.current.as_mut() else { return Ok(None) };
+            let Some(ch) = self.current.as_mut() else {
+                return Ok(None);
+            };
             if ch.eof_sent {
                 self.receive_all()?;
                 if self.pending.is_empty() && !self.open_next()? {
@@ -314,7 +336,10 @@ impl CameraSource for FileSource {
                 }
                 Err(ffmpeg::Error::Other { errno }) if errno == ffmpeg::util::error::EAGAIN => {}
                 Err(e) => {
-                    return Err(SourceError::Decode { path: ch.path.clone(), source: e });
+                    return Err(SourceError::Decode {
+                        path: ch.path.clone(),
+                        source: e,
+                    });
                 }
             }
         }

@@ -24,19 +24,37 @@ impl Scene {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut tones = |n: usize, lo: f64, hi: f64, amp: f64| {
             (0..n)
-                .map(|_| (lo + (hi - lo) * rng.random::<f64>(), amp * (0.5 + rng.random::<f64>()), TAU * rng.random::<f64>()))
+                .map(|_| {
+                    (
+                        lo + (hi - lo) * rng.random::<f64>(),
+                        amp * (0.5 + rng.random::<f64>()),
+                        TAU * rng.random::<f64>(),
+                    )
+                })
                 .collect::<Vec<_>>()
         };
-        Scene { ambient: tones(30, 80.0, 6000.0, 0.004), clap: tones(60, 300.0, 12_000.0, 0.05) }
+        Scene {
+            ambient: tones(30, 80.0, 6000.0, 0.004),
+            clap: tones(60, 300.0, 12_000.0, 0.05),
+        }
     }
 
     /// Sound pressure at scene time `t` (seconds).
     fn at(&self, t: f64) -> f64 {
-        let mut v: f64 = self.ambient.iter().map(|(f, a, p)| a * (TAU * f * t + p).sin()).sum();
+        let mut v: f64 = self
+            .ambient
+            .iter()
+            .map(|(f, a, p)| a * (TAU * f * t + p).sin())
+            .sum();
         let x = t - CLAP_T;
         if x.abs() < 0.03 {
             let env = (-0.5 * (x / 0.004).powi(2)).exp();
-            v += env * self.clap.iter().map(|(f, a, p)| a * (TAU * f * x + p).sin()).sum::<f64>();
+            v += env
+                * self
+                    .clap
+                    .iter()
+                    .map(|(f, a, p)| a * (TAU * f * x + p).sin())
+                    .sum::<f64>();
         }
         v
     }
@@ -52,7 +70,11 @@ fn record(scene: &Scene, offset: f64, delay: f64, seed: u64) -> AudioTrack {
             (scene.at(t - delay) + 0.002 * (rng.random::<f64>() - 0.5)) as f32
         })
         .collect();
-    AudioTrack { sample_rate: RATE, start_s: 0.0, samples }
+    AudioTrack {
+        sample_rate: RATE,
+        start_s: 0.0,
+        samples,
+    }
 }
 
 const OFFSETS: [f64; 4] = [0.0, 0.012_345_6, -0.350_123_4, 0.800_037_1];
@@ -60,14 +82,26 @@ const OFFSETS: [f64; 4] = [0.0, 0.012_345_6, -0.350_123_4, 0.800_037_1];
 #[test]
 fn gcc_phat_offsets_are_sub_sample() {
     let scene = Scene::new(7);
-    let tracks: Vec<_> = OFFSETS.iter().enumerate().map(|(i, &o)| Some(record(&scene, o, 0.0, i as u64))).collect();
+    let tracks: Vec<_> = OFFSETS
+        .iter()
+        .enumerate()
+        .map(|(i, &o)| Some(record(&scene, o, 0.0, i as u64)))
+        .collect();
     for use_clap in [true, false] {
-        let config = AudioSyncConfig { use_clap, ..Default::default() };
+        let config = AudioSyncConfig {
+            use_clap,
+            ..Default::default()
+        };
         let found = audio_offsets(&tracks, 0, 2.0, &config);
         for (i, f) in found.iter().enumerate() {
             let f = f.expect("every camera has audio");
             let err = f.offset_s - OFFSETS[i];
-            println!("clap window {use_clap}: cam{i} offset {:.7} s, error {:.2} µs, confidence {:.1}", f.offset_s, err * 1e6, f.confidence);
+            println!(
+                "clap window {use_clap}: cam{i} offset {:.7} s, error {:.2} µs, confidence {:.1}",
+                f.offset_s,
+                err * 1e6,
+                f.confidence
+            );
             assert!(err.abs() < 1e-4, "cam{i}: error {err} s");
             assert!(f.confidence > 20.0, "cam{i}: confidence {}", f.confidence);
         }
@@ -78,12 +112,22 @@ fn gcc_phat_offsets_are_sub_sample() {
 fn silent_and_unrelated_tracks_are_not_trusted() {
     let scene = Scene::new(7);
     let mut rng = ChaCha8Rng::seed_from_u64(5);
-    let hiss: Vec<f32> = (0..4 * RATE as usize).map(|_| 0.002 * (rng.random::<f32>() - 0.5)).collect();
-    let silent = AudioTrack { sample_rate: RATE, start_s: 0.0, samples: vec![0.0; 4 * RATE as usize] };
+    let hiss: Vec<f32> = (0..4 * RATE as usize)
+        .map(|_| 0.002 * (rng.random::<f32>() - 0.5))
+        .collect();
+    let silent = AudioTrack {
+        sample_rate: RATE,
+        start_s: 0.0,
+        samples: vec![0.0; 4 * RATE as usize],
+    };
     let tracks = vec![
         Some(record(&scene, 0.0, 0.0, 1)),
         Some(silent),
-        Some(AudioTrack { sample_rate: RATE, start_s: 0.0, samples: hiss }),
+        Some(AudioTrack {
+            sample_rate: RATE,
+            start_s: 0.0,
+            samples: hiss,
+        }),
         None,
     ];
     let found = audio_offsets(&tracks, 0, 2.0, &AudioSyncConfig::default());
@@ -98,7 +142,12 @@ fn silent_and_unrelated_tracks_are_not_trusted() {
 fn acoustic_path_delay_is_measured_and_corrected() {
     let scene = Scene::new(3);
     let clap_position = [0.0, 0.0, 0.0];
-    let positions = [[3.0, 0.0, 0.0], [0.0, 1.0, 0.5], [-2.0, -4.0, 0.0], [1.0, 1.0, 6.0]];
+    let positions = [
+        [3.0, 0.0, 0.0],
+        [0.0, 1.0, 0.5],
+        [-2.0, -4.0, 0.0],
+        [1.0, 1.0, 6.0],
+    ];
     let c = 343.0;
     let dist = |p: &[f64; 3]| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
     let tracks: Vec<_> = OFFSETS
@@ -110,17 +159,32 @@ fn acoustic_path_delay_is_measured_and_corrected() {
     let raw = audio_offsets(&tracks, 0, 2.0, &AudioSyncConfig::default());
     let acoustic = AcousticConfig {
         clap_position,
-        camera_positions: positions.iter().enumerate().map(|(i, p)| (format!("cam{i}"), *p)).collect::<BTreeMap<_, _>>(),
+        camera_positions: positions
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (format!("cam{i}"), *p))
+            .collect::<BTreeMap<_, _>>(),
         speed_of_sound: c,
     };
     let ref_delay = acoustic.delay_s("cam0").unwrap();
     for i in 1..4 {
         let raw = raw[i].unwrap().offset_s;
         let uncorrected = raw - OFFSETS[i];
-        let corrected = raw + acoustic.delay_s(&format!("cam{i}")).unwrap() - ref_delay - OFFSETS[i];
-        println!("cam{i}: path-delay error {:.3} ms uncorrected, {:.2} µs corrected", uncorrected * 1e3, corrected * 1e6);
+        let corrected =
+            raw + acoustic.delay_s(&format!("cam{i}")).unwrap() - ref_delay - OFFSETS[i];
+        println!(
+            "cam{i}: path-delay error {:.3} ms uncorrected, {:.2} µs corrected",
+            uncorrected * 1e3,
+            corrected * 1e6
+        );
         let expected = (dist(&positions[0]) - dist(&positions[i])) / c;
-        assert!((uncorrected - expected).abs() < 1e-4, "the uncorrected error is the path difference");
-        assert!(corrected.abs() < 1e-4, "cam{i}: corrected error {corrected}");
+        assert!(
+            (uncorrected - expected).abs() < 1e-4,
+            "the uncorrected error is the path difference"
+        );
+        assert!(
+            corrected.abs() < 1e-4,
+            "cam{i}: corrected error {corrected}"
+        );
     }
 }

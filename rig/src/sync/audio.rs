@@ -23,7 +23,12 @@ pub struct AudioSyncConfig {
 
 impl Default for AudioSyncConfig {
     fn default() -> Self {
-        AudioSyncConfig { use_clap: true, clap_prominence: 30.0, clap_window_s: [0.5, 1.5], max_excerpt_s: 60.0 }
+        AudioSyncConfig {
+            use_clap: true,
+            clap_prominence: 30.0,
+            clap_window_s: [0.5, 1.5],
+            max_excerpt_s: 60.0,
+        }
     }
 }
 
@@ -49,7 +54,10 @@ impl AcousticConfig {
     /// Travel time of the clap's sound to camera `name`, if its position is known.
     pub fn delay_s(&self, name: &str) -> Option<f64> {
         let p = self.camera_positions.get(name)?;
-        let d = (0..3).map(|i| (p[i] - self.clap_position[i]).powi(2)).sum::<f64>().sqrt();
+        let d = (0..3)
+            .map(|i| (p[i] - self.clap_position[i]).powi(2))
+            .sum::<f64>()
+            .sqrt();
         Some(d / self.speed_of_sound)
     }
 }
@@ -81,7 +89,11 @@ fn resample(track: &AudioTrack, rate: u32) -> AudioTrack {
             a + (b - a) * f
         })
         .collect();
-    AudioTrack { sample_rate: rate, start_s: track.start_s, samples }
+    AudioTrack {
+        sample_rate: rate,
+        start_s: track.start_s,
+        samples,
+    }
 }
 
 /// The samples of `track` covering camera-clock times `[from, to)`, with the time of the
@@ -96,7 +108,8 @@ fn excerpt(track: &AudioTrack, from: f64, to: f64) -> (f64, &[f32]) {
 
 /// Offsets of every track relative to `tracks[reference]` (whose offset is 0).
 ///
-/// `None` for a track that is missing or silent. `max_offset_s` bounds the search.
+/// `None` for a track that is missing or silent (all `None` when the reference is).
+/// `max_offset_s` bounds the search.
 /// Offsets are on the reference clock: `t_reference = t_camera + offset_s`.
 pub fn audio_offsets(
     tracks: &[Option<AudioTrack>],
@@ -104,17 +117,29 @@ pub fn audio_offsets(
     max_offset_s: f64,
     config: &AudioSyncConfig,
 ) -> Vec<Option<AudioOffset>> {
-    let Some(Some(ref_track)) = tracks.get(reference) else { return vec![None; tracks.len()] };
+    let Some(Some(ref_track)) = tracks.get(reference) else {
+        return vec![None; tracks.len()];
+    };
+    if ref_track.samples.iter().all(|&v| v == 0.0) {
+        return vec![None; tracks.len()];
+    }
     let rate = ref_track.sample_rate;
     let fs = f64::from(rate);
     let ref_end = ref_track.start_s + ref_track.samples.len() as f64 / fs;
-    let clap = if config.use_clap { detect_clap(&ref_track.samples, rate, config.clap_prominence) } else { None };
+    let clap = if config.use_clap {
+        detect_clap(&ref_track.samples, rate, config.clap_prominence)
+    } else {
+        None
+    };
     let (ref_from, ref_to) = match clap {
         Some(c) => {
             let t = ref_track.start_s + c.sample as f64 / fs;
             (t - config.clap_window_s[0], t + config.clap_window_s[1])
         }
-        None => (ref_track.start_s, (ref_track.start_s + config.max_excerpt_s).min(ref_end)),
+        None => (
+            ref_track.start_s,
+            (ref_track.start_s + config.max_excerpt_s).min(ref_end),
+        ),
     };
     let (ref_start, ref_samples) = excerpt(ref_track, ref_from, ref_to);
     tracks
@@ -122,18 +147,25 @@ pub fn audio_offsets(
         .enumerate()
         .map(|(i, track)| {
             if i == reference {
-                return Some(AudioOffset { offset_s: 0.0, confidence: f64::INFINITY });
+                return Some(AudioOffset {
+                    offset_s: 0.0,
+                    confidence: f64::INFINITY,
+                });
             }
             let track = resample(track.as_ref()?, rate);
             // t_ref = t_cam + offset, |offset| ≤ max: the camera window is the reference
             // window shifted by up to ±max.
-            let (cam_start, cam_samples) = excerpt(&track, ref_from - max_offset_s, ref_to + max_offset_s);
+            let (cam_start, cam_samples) =
+                excerpt(&track, ref_from - max_offset_s, ref_to + max_offset_s);
             // ref[n] = cam[n − D] ⇒ offset = ref_start − cam_start + D / fs.
             let base = ref_start - cam_start;
             let lo = ((-max_offset_s - base) * fs).floor() as i64;
             let hi = ((max_offset_s - base) * fs).ceil() as i64;
             let d = gcc_phat(ref_samples, cam_samples, lo..=hi)?;
-            Some(AudioOffset { offset_s: base + d.samples / fs, confidence: d.confidence })
+            Some(AudioOffset {
+                offset_s: base + d.samples / fs,
+                confidence: d.confidence,
+            })
         })
         .collect()
 }

@@ -25,7 +25,10 @@ pub fn detect_clap(samples: &[f32], sample_rate: u32, min_prominence: f64) -> Op
     let mut sorted = energies.clone();
     sorted.sort_by(f64::total_cmp);
     let median = sorted[sorted.len() / 2].max(1e-20);
-    let (best, &peak) = energies.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1))?;
+    let (best, &peak) = energies
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1))?;
     let prominence = peak / median;
     if prominence < min_prominence {
         return None;
@@ -35,7 +38,10 @@ pub fn detect_clap(samples: &[f32], sample_rate: u32, min_prominence: f64) -> Op
     while first > 0 && energies[first - 1] > 0.1 * peak {
         first -= 1;
     }
-    Some(Clap { sample: first * win, prominence })
+    Some(Clap {
+        sample: first * win,
+        prominence,
+    })
 }
 
 #[cfg(test)]
@@ -45,7 +51,9 @@ mod tests {
     #[test]
     fn finds_a_burst_in_quiet_noise() {
         let rate = 48_000;
-        let mut s: Vec<f32> = (0..rate).map(|i| 0.001 * ((i as f32) * 0.37).sin()).collect();
+        let mut s: Vec<f32> = (0..rate)
+            .map(|i| 0.001 * ((i as f32) * 0.37).sin())
+            .collect();
         for v in &mut s[30_000..30_500] {
             *v += 0.8;
         }

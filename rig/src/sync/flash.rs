@@ -50,7 +50,11 @@ pub struct FlashEvent {
 /// to bottom row; 0 for a global shutter) and `exposure_s` the exposure time (0 when
 /// unknown). Returns `None` when there is no rise at all or it happens on the first frame
 /// (no dark frame before it).
-pub fn detect_flash(frames: &[FrameBrightness], readout_s: f64, exposure_s: f64) -> Option<FlashEvent> {
+pub fn detect_flash(
+    frames: &[FrameBrightness],
+    readout_s: f64,
+    exposure_s: f64,
+) -> Option<FlashEvent> {
     if frames.len() < 3 {
         return None;
     }
@@ -63,22 +67,37 @@ pub fn detect_flash(frames: &[FrameBrightness], readout_s: f64, exposure_s: f64)
     abs.sort_by(f64::total_cmp);
     let noise = (1.4826 * abs[abs.len() / 2]).max(0.25);
     let before = &means[k_max.saturating_sub(6)..k_max - 1];
-    let base = if before.is_empty() { means[k_max - 1] } else { median(before) };
-    let full = means[k_max..(k_max + 4).min(means.len())].iter().copied().fold(f64::MIN, f64::max);
+    let base = if before.is_empty() {
+        means[k_max - 1]
+    } else {
+        median(before)
+    };
+    let full = means[k_max..(k_max + 4).min(means.len())]
+        .iter()
+        .copied()
+        .fold(f64::MIN, f64::max);
     let contrast = full - base;
     if contrast <= 0.0 {
         return None;
     }
     // A step in the last rows of a rolling-shutter frame lifts that frame only a little.
     let partial = means[k_max - 1] - base > (4.0 * noise).max(0.01 * contrast);
-    let k_on = if partial && k_max >= 2 { k_max - 1 } else { k_max };
+    let k_on = if partial && k_max >= 2 {
+        k_max - 1
+    } else {
+        k_max
+    };
     if k_on == 0 {
         return None;
     }
     let confidence = contrast / noise;
     let t_on = frames[k_on].timestamp;
     let t_prev = frames[k_on - 1].timestamp;
-    let row_fraction = if readout_s > 0.0 { step_row(frames, k_on, contrast) } else { 0.0 };
+    let row_fraction = if readout_s > 0.0 {
+        step_row(frames, k_on, contrast)
+    } else {
+        0.0
+    };
     let lit_fraction = ((means[k_on] - base) / contrast).clamp(0.0, 1.0);
     let time = if row_fraction > 0.0 {
         t_on + row_fraction * readout_s - 0.5 * exposure_s
@@ -91,7 +110,12 @@ pub fn detect_flash(frames: &[FrameBrightness], readout_s: f64, exposure_s: f64)
         let this_start = (t_on - exposure_s).max(prev_end);
         0.5 * (prev_end + this_start)
     };
-    Some(FlashEvent { time, frame: k_on, row_fraction, confidence })
+    Some(FlashEvent {
+        time,
+        frame: k_on,
+        row_fraction,
+        confidence,
+    })
 }
 
 fn median(v: &[f64]) -> f64 {
@@ -145,7 +169,11 @@ fn step_row(frames: &[FrameBrightness], k: usize, contrast: f64) -> f64 {
     // Sub-row: the row just above the step may be partly lit.
     let (row, _) = lifts[best_s.min(lifts.len() - 1)];
     let above = lifts[best_s - 1];
-    let row = if best_s < lifts.len() { row as f64 - above.1 } else { above.0 as f64 + 1.0 - above.1 };
+    let row = if best_s < lifts.len() {
+        row as f64 - above.1
+    } else {
+        above.0 as f64 + 1.0 - above.1
+    };
     row.max(0.0) / h as f64
 }
 
@@ -160,7 +188,13 @@ mod tests {
             .map(|k| {
                 let t = phase + k as f64 / fps;
                 let rows = (0..h)
-                    .map(|r| if t + r as f64 / h as f64 * readout >= flash { 200.0 } else { 20.0 })
+                    .map(|r| {
+                        if t + r as f64 / h as f64 * readout >= flash {
+                            200.0
+                        } else {
+                            20.0
+                        }
+                    })
                     .collect();
                 FrameBrightness { timestamp: t, rows }
             })

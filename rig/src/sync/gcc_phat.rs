@@ -54,7 +54,11 @@ pub fn gcc_phat(reference: &[f32], other: &[f32], lags: RangeInclusive<i64>) -> 
     let floor = max_mag * 1e-12 + f64::MIN_POSITIVE;
     for c in &mut cross {
         let m = c.norm();
-        *c = if m > floor { *c / m } else { Complex::new(0.0, 0.0) };
+        *c = if m > floor {
+            *c / m
+        } else {
+            Complex::new(0.0, 0.0)
+        };
     }
     inverse.process(&mut cross);
     // Lag k ≥ 0 lives at index k, lag −k at n − k.
@@ -74,7 +78,11 @@ pub fn gcc_phat(reference: &[f32], other: &[f32], lags: RangeInclusive<i64>) -> 
     }
     let (ym, y0, yp) = (at(best_lag - 1), best, at(best_lag + 1));
     let denom = ym - 2.0 * y0 + yp;
-    let frac = if denom < 0.0 { (0.5 * (ym - yp) / denom).clamp(-0.5, 0.5) } else { 0.0 };
+    let frac = if denom < 0.0 {
+        (0.5 * (ym - yp) / denom).clamp(-0.5, 0.5)
+    } else {
+        0.0
+    };
     // Sidelobes: everything in the search range except ±guard samples around the peak.
     let guard = 8i64;
     let (mut sum, mut sum2, mut count) = (0.0, 0.0, 0.0);
@@ -89,11 +97,18 @@ pub fn gcc_phat(reference: &[f32], other: &[f32], lags: RangeInclusive<i64>) -> 
     let confidence = if count > 1.0 {
         let mean = sum / count;
         let std = (sum2 / count - mean * mean).max(0.0).sqrt();
-        if std > 0.0 { (best - mean) / std } else { f64::INFINITY }
+        if std > 0.0 {
+            (best - mean) / std
+        } else {
+            f64::INFINITY
+        }
     } else {
         0.0
     };
-    Some(Delay { samples: best_lag as f64 + frac, confidence })
+    Some(Delay {
+        samples: best_lag as f64 + frac,
+        confidence,
+    })
 }
 
 #[cfg(test)]

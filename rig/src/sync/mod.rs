@@ -118,14 +118,22 @@ impl SyncResult {
 
     /// Writes `sync.json` atomically.
     pub fn write_json(&self, path: &Path) -> Result<(), SyncError> {
-        write_json_atomic(path, self).map_err(|source| SyncError::Io { path: path.into(), source })
+        write_json_atomic(path, self).map_err(|source| SyncError::Io {
+            path: path.into(),
+            source,
+        })
     }
 
     /// Reads a `sync.json`.
     pub fn read_json(path: &Path) -> Result<Self, SyncError> {
-        let text =
-            std::fs::read_to_string(path).map_err(|source| SyncError::Io { path: path.into(), source })?;
-        serde_json::from_str(&text).map_err(|e| SyncError::Io { path: path.into(), source: std::io::Error::other(e) })
+        let text = std::fs::read_to_string(path).map_err(|source| SyncError::Io {
+            path: path.into(),
+            source,
+        })?;
+        serde_json::from_str(&text).map_err(|e| SyncError::Io {
+            path: path.into(),
+            source: std::io::Error::other(e),
+        })
     }
 }
 
@@ -158,43 +166,76 @@ pub enum SyncError {
 type Attempt = Vec<Result<(f64, f64), String>>;
 
 /// Synchronises all cameras of `streams` with `config.method`.
-pub fn synchronise(streams: &Streams, config: &SyncConfig, progress: &dyn Progress) -> Result<SyncResult, SyncError> {
+pub fn synchronise(
+    streams: &Streams,
+    config: &SyncConfig,
+    progress: &dyn Progress,
+) -> Result<SyncResult, SyncError> {
     let names: Vec<&str> = streams.cameras.iter().map(|c| c.name.as_str()).collect();
     let all = names.join(", ");
     if names.is_empty() {
-        return Err(SyncError::NoMethod("no cameras in streams.json; rerun ingest".into()));
+        return Err(SyncError::NoMethod(
+            "no cameras in streams.json; rerun ingest".into(),
+        ));
     }
     let reference = match &config.reference {
-        Some(r) => names.iter().position(|n| n == r).ok_or_else(|| SyncError::UnknownReference(r.clone(), all.clone()))?,
+        Some(r) => names
+            .iter()
+            .position(|n| n == r)
+            .ok_or_else(|| SyncError::UnknownReference(r.clone(), all.clone()))?,
         None => 0,
     };
     let mut notes = Vec::new();
     let (method, offsets): (SyncMethod, Vec<(f64, Option<f64>)>) = match config.method {
         SyncMethod::Timestamps => (SyncMethod::Timestamps, vec![(0.0, None); names.len()]),
         SyncMethod::Manual => {
-            if let Some(unknown) = config.manual_offsets.keys().find(|k| !names.contains(&k.as_str())) {
+            if let Some(unknown) = config
+                .manual_offsets
+                .keys()
+                .find(|k| !names.contains(&k.as_str()))
+            {
                 return Err(SyncError::UnknownCamera(unknown.clone(), all));
             }
-            let offsets =
-                names.iter().map(|n| (config.manual_offsets.get(*n).copied().unwrap_or(0.0), None)).collect();
+            let offsets = names
+                .iter()
+                .map(|n| (config.manual_offsets.get(*n).copied().unwrap_or(0.0), None))
+                .collect();
             (SyncMethod::Manual, offsets)
         }
         SyncMethod::Audio => {
             let a = audio_attempt(streams, reference, config, &mut notes, progress)?;
-            (SyncMethod::Audio, accept(&a, &names, reference, "audio", None).map_err(SyncError::NoMethod)?)
+            (
+                SyncMethod::Audio,
+                accept(&a, &names, reference, "audio", None).map_err(SyncError::NoMethod)?,
+            )
         }
         SyncMethod::Flash => {
             let f = flash_attempt(streams, reference, config, progress)?;
-            (SyncMethod::Flash, accept(&f, &names, reference, "flash", None).map_err(SyncError::NoMethod)?)
+            (
+                SyncMethod::Flash,
+                accept(&f, &names, reference, "flash", None).map_err(SyncError::NoMethod)?,
+            )
         }
         SyncMethod::Auto => {
             let a = audio_attempt(streams, reference, config, &mut notes, progress)?;
-            match accept(&a, &names, reference, "audio", Some(config.min_audio_confidence)) {
+            match accept(
+                &a,
+                &names,
+                reference,
+                "audio",
+                Some(config.min_audio_confidence),
+            ) {
                 Ok(o) => (SyncMethod::Audio, o),
                 Err(audio_why) => {
                     notes.push(format!("auto: audio not used ({audio_why}); trying flash"));
                     let f = flash_attempt(streams, reference, config, progress)?;
-                    match accept(&f, &names, reference, "flash", Some(config.min_flash_confidence)) {
+                    match accept(
+                        &f,
+                        &names,
+                        reference,
+                        "flash",
+                        Some(config.min_flash_confidence),
+                    ) {
                         Ok(o) => (SyncMethod::Flash, o),
                         Err(flash_why) => {
                             return Err(SyncError::NoMethod(format!(
@@ -219,7 +260,12 @@ pub fn synchronise(streams: &Streams, config: &SyncConfig, progress: &dyn Progre
             timestamps: c.timestamps.iter().map(|t| t + offset_s).collect(),
         })
         .collect();
-    Ok(SyncResult { method, reference: names[reference].to_string(), cameras, notes })
+    Ok(SyncResult {
+        method,
+        reference: names[reference].to_string(),
+        cameras,
+        notes,
+    })
 }
 
 /// Turns per-camera attempts into offsets, or explains which cameras failed.
@@ -235,10 +281,11 @@ fn accept(
     for (i, r) in attempt.iter().enumerate() {
         match r {
             Ok((offset, conf)) => {
-                if let Some(min) = min_confidence {
-                    if conf.is_finite() && *conf < min {
-                        problems.push(format!("{} peak confidence {conf:.1} < {min}", names[i]));
-                    }
+                if let Some(min) = min_confidence
+                    && conf.is_finite()
+                    && *conf < min
+                {
+                    problems.push(format!("{} peak confidence {conf:.1} < {min}", names[i]));
                 }
                 out.push((*offset, if i == reference { None } else { Some(*conf) }));
             }
@@ -268,7 +315,34 @@ fn audio_attempt(
     }
     progress.finish();
     let offsets = audio_offsets(&tracks, reference, config.max_offset_s, &config.audio);
-    let ref_delay = config.acoustic.as_ref().and_then(|a| a.delay_s(&streams.cameras[reference].name));
+    if let Some(track) = &tracks[reference] {
+        let clap = config
+            .audio
+            .use_clap
+            .then(|| {
+                clap::detect_clap(
+                    &track.samples,
+                    track.sample_rate,
+                    config.audio.clap_prominence,
+                )
+            })
+            .flatten();
+        notes.push(match clap {
+            Some(c) => format!(
+                "audio: correlated around the clap at {:.3} s of {}",
+                track.start_s + c.sample as f64 / f64::from(track.sample_rate),
+                streams.cameras[reference].name
+            ),
+            None => format!(
+                "audio: no clap found; correlated the first {} s of {}",
+                config.audio.max_excerpt_s, streams.cameras[reference].name
+            ),
+        });
+    }
+    let ref_delay = config
+        .acoustic
+        .as_ref()
+        .and_then(|a| a.delay_s(&streams.cameras[reference].name));
     let attempt = streams
         .cameras
         .iter()
@@ -277,17 +351,26 @@ fn audio_attempt(
             let Some(o) = offsets[i] else {
                 return Err(match &tracks[i] {
                     None => "no audio track".to_string(),
-                    Some(_) if i == reference => "reference camera has no audio".to_string(),
+                    Some(_) if i != reference && offsets[reference].is_none() => {
+                        format!(
+                            "reference camera {} has no usable audio",
+                            streams.cameras[reference].name
+                        )
+                    }
                     Some(_) => "silent audio track".to_string(),
                 });
             };
             let mut offset = o.offset_s;
-            if let (Some(acoustic), Some(rd)) = (&config.acoustic, ref_delay) {
-                if let Some(d) = acoustic.delay_s(&c.name) {
-                    offset += d - rd;
-                    if i != reference {
-                        notes.push(format!("{}: acoustic path correction {:+.3} ms", c.name, (d - rd) * 1e3));
-                    }
+            if let (Some(acoustic), Some(rd)) = (&config.acoustic, ref_delay)
+                && let Some(d) = acoustic.delay_s(&c.name)
+            {
+                offset += d - rd;
+                if i != reference {
+                    notes.push(format!(
+                        "{}: acoustic path correction {:+.3} ms",
+                        c.name,
+                        (d - rd) * 1e3
+                    ));
                 }
             }
             Ok((offset, o.confidence))
@@ -300,8 +383,13 @@ fn audio_attempt(
 pub fn brightness_profile(stream: &CameraStream) -> Result<Vec<FrameBrightness>, SyncError> {
     let width = stream.video.width.clamp(1, 64);
     let height = stream.video.height.max(1);
-    let src = |source: SourceError| IngestError::Source { camera: stream.name.clone(), source };
-    let mut source = stream.open(PixelLayout::Gray8, Some((width, height))).map_err(src)?;
+    let src = |source: SourceError| IngestError::Source {
+        camera: stream.name.clone(),
+        source,
+    };
+    let mut source = stream
+        .open(PixelLayout::Gray8, Some((width, height)))
+        .map_err(src)?;
     let mut out = Vec::with_capacity(stream.timestamps.len());
     while let Some(frame) = source.next_frame().map_err(src)? {
         let w = frame.width as usize;
@@ -310,7 +398,10 @@ pub fn brightness_profile(stream: &CameraStream) -> Result<Vec<FrameBrightness>,
             .chunks_exact(w)
             .map(|row| row.iter().map(|&v| f32::from(v)).sum::<f32>() / w as f32)
             .collect();
-        out.push(FrameBrightness { timestamp: frame.timestamp, rows });
+        out.push(FrameBrightness {
+            timestamp: frame.timestamp,
+            rows,
+        });
     }
     Ok(out)
 }
@@ -331,7 +422,13 @@ fn flash_attempt(
     }
     progress.finish();
     let Some(ref_event) = events[reference] else {
-        let why = |i| if i == reference { "no brightness step found" } else { "reference camera saw no flash" };
+        let why = |i| {
+            if i == reference {
+                "no brightness step found"
+            } else {
+                "reference camera saw no flash"
+            }
+        };
         return Ok((0..events.len()).map(|i| Err(why(i).to_string())).collect());
     };
     Ok(events

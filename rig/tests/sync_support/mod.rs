@@ -17,17 +17,31 @@ pub const FLASH_T: f64 = 2.3;
 
 /// True when the `ffmpeg` tool is installed; tests print why they skip otherwise.
 pub fn ffmpeg_available() -> bool {
-    let ok = Command::new("ffmpeg").arg("-version").output().map(|o| o.status.success()).unwrap_or(false);
+    let ok = Command::new("ffmpeg")
+        .arg("-version")
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false);
     if !ok {
-        eprintln!("SKIPPED: the ffmpeg command-line tool is not installed (apt-get install ffmpeg)");
+        eprintln!(
+            "SKIPPED: the ffmpeg command-line tool is not installed (apt-get install ffmpeg)"
+        );
     }
     ok
 }
 
 /// Runs ffmpeg with `args`, panicking with its stderr on failure (test inputs only).
 pub fn ffmpeg(args: &[&str]) {
-    let out = Command::new("ffmpeg").args(["-y", "-hide_banner", "-loglevel", "error"]).args(args).output().unwrap();
-    assert!(out.status.success(), "ffmpeg {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+    let out = Command::new("ffmpeg")
+        .args(["-y", "-hide_banner", "-loglevel", "error"])
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "ffmpeg {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
 
 /// Analytic scene sound: ambient tones plus a band-limited clap at `CLAP_T`.
@@ -41,18 +55,36 @@ impl SceneSound {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut tones = |n: usize, lo: f64, hi: f64, amp: f64| {
             (0..n)
-                .map(|_| (lo + (hi - lo) * rng.random::<f64>(), amp * (0.5 + rng.random::<f64>()), TAU * rng.random::<f64>()))
+                .map(|_| {
+                    (
+                        lo + (hi - lo) * rng.random::<f64>(),
+                        amp * (0.5 + rng.random::<f64>()),
+                        TAU * rng.random::<f64>(),
+                    )
+                })
                 .collect::<Vec<_>>()
         };
-        SceneSound { ambient: tones(20, 80.0, 6000.0, 0.004), clap: tones(40, 300.0, 12_000.0, 0.05) }
+        SceneSound {
+            ambient: tones(20, 80.0, 6000.0, 0.004),
+            clap: tones(40, 300.0, 12_000.0, 0.05),
+        }
     }
 
     pub fn at(&self, t: f64) -> f64 {
-        let mut v: f64 = self.ambient.iter().map(|(f, a, p)| a * (TAU * f * t + p).sin()).sum();
+        let mut v: f64 = self
+            .ambient
+            .iter()
+            .map(|(f, a, p)| a * (TAU * f * t + p).sin())
+            .sum();
         let x = t - CLAP_T;
         if x.abs() < 0.03 {
             let env = (-0.5 * (x / 0.004).powi(2)).exp();
-            v += env * self.clap.iter().map(|(f, a, p)| a * (TAU * f * x + p).sin()).sum::<f64>();
+            v += env
+                * self
+                    .clap
+                    .iter()
+                    .map(|(f, a, p)| a * (TAU * f * x + p).sin())
+                    .sum::<f64>();
         }
         v
     }
@@ -90,7 +122,17 @@ pub struct TestCamera {
 
 impl TestCamera {
     pub fn new(start: f64) -> Self {
-        TestCamera { start, fps: 30.0, frames: 120, size: (96, 72), readout: 0.0, exposure: 0.0, flash: true, mic: Mic::Scene, dropped: vec![] }
+        TestCamera {
+            start,
+            fps: 30.0,
+            frames: 120,
+            size: (96, 72),
+            readout: 0.0,
+            exposure: 0.0,
+            flash: true,
+            mic: Mic::Scene,
+            dropped: vec![],
+        }
     }
 }
 
@@ -108,7 +150,7 @@ pub fn write_camera(dir: &Path, cam: &TestCamera, sound: &SceneSound, seed: u64)
             } else if cam.exposure > 0.0 {
                 let overlap = end.min(FLASH_T + 1.0) - (end - cam.exposure).max(FLASH_T);
                 (overlap / cam.exposure).clamp(0.0, 1.0)
-            } else if end >= FLASH_T && end < FLASH_T + 1.0 {
+            } else if (FLASH_T..FLASH_T + 1.0).contains(&end) {
                 1.0
             } else {
                 0.0
@@ -124,8 +166,12 @@ pub fn write_camera(dir: &Path, cam: &TestCamera, sound: &SceneSound, seed: u64)
     let size = format!("{w}x{h}");
     let fps = format!("{}", cam.fps);
     let out = dir.join("clip.mp4");
-    let mut args: Vec<String> =
-        ["-f", "rawvideo", "-pix_fmt", "gray", "-s", &size, "-r", &fps, "-i"].iter().map(|s| s.to_string()).collect();
+    let mut args: Vec<String> = [
+        "-f", "rawvideo", "-pix_fmt", "gray", "-s", &size, "-r", &fps, "-i",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
     args.push(raw_video.to_string_lossy().into());
     let raw_audio = dir.join("audio.raw");
     if cam.mic != Mic::None {
@@ -157,7 +203,18 @@ pub fn write_camera(dir: &Path, cam: &TestCamera, sound: &SceneSound, seed: u64)
         args.push("-fps_mode".into());
         args.push("vfr".into());
     }
-    for a in ["-c:v", "libx264", "-preset", "ultrafast", "-qp", "10", "-pix_fmt", "yuv420p", "-g", "30"] {
+    for a in [
+        "-c:v",
+        "libx264",
+        "-preset",
+        "ultrafast",
+        "-qp",
+        "10",
+        "-pix_fmt",
+        "yuv420p",
+        "-g",
+        "30",
+    ] {
         args.push(a.into());
     }
     args.push(out.to_string_lossy().into());
@@ -175,7 +232,10 @@ pub fn write_capture(root: &Path, cams: &[TestCamera]) -> Vec<(String, PathBuf)>
         .enumerate()
         .map(|(i, c)| {
             let name = format!("cam{i}");
-            (name.clone(), write_camera(&root.join(&name), c, &sound, 100 + i as u64))
+            (
+                name.clone(),
+                write_camera(&root.join(&name), c, &sound, 100 + i as u64),
+            )
         })
         .collect()
 }

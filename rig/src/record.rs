@@ -1,0 +1,450 @@
+//! Live recording: capture up to four cameras concurrently into the same layout as video
+//! files (`CAPTURE_DIR/raw/camN/capture.mov` + `timestamps.csv`), so ingest treats a live
+//! recording like any other.
+//!
+//! Device-independent parts (format negotiation, the frame clock, the writer) are plain
+//! functions tested with any [`CameraSource`]; the V4L2 device itself is
+//! [`v4l2::V4l2Source`]. Frames carry kernel buffer timestamps (CLOCK_MONOTONIC), made
+//! relative to one session origin shared by all cameras, so `sync.method = "timestamps"`
+//! works for cameras on one machine. This module does not synchronise or decode files.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use ffmpeg_next as ffmpeg;
+use serde::{Deserialize, Serialize};
+
+use crate::source::{CameraSource, Frame, PixelLayout, SourceError, init_ffmpeg};
+use splat4d::progress::Progress;
+
+pub mod v4l2;
+
+/// Errors from live recording.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    /// No camera device is present.
+    #[error(
+        "no V4L2 device found ({0}); plug the cameras in, check `ls /dev/video*` and that you are in the `video` group"
+    )]
+    NoDevice(String),
+    /// Too many devices.
+    #[error("{0} devices given; record at most 4 cameras at once")]
+    TooMany(usize),
+    /// The device offers no usable format.
+    #[error(
+        "{device}: no usable capture format (offered: {offered}); pick another device or resolution"
+    )]
+    NoFormat {
+        /// The device.
+        device: String,
+        /// What it offers.
+        offered: String,
+    },
+    /// A source failed.
+    #[error(transparent)]
+    Source(#[from] SourceError),
+    /// Encoding or writing failed.
+    #[error("writing {path}: {message}")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
+}
+
+/// The `[record]` settings: what to ask the cameras for.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct RecordConfig {
+    /// Wanted width, pixels.
+    pub width: u32,
+    /// Wanted height, pixels.
+    pub height: u32,
+    /// Wanted frames per second.
+    pub fps: f64,
+    /// Stop after this many seconds (otherwise when asked to stop).
+    pub duration_s: Option<f64>,
+    /// Ask the user to fire a flash (or clap) once every camera is running.
+    pub flash_prompt: bool,
+}
+
+impl Default for RecordConfig {
+    fn default() -> Self {
+        RecordConfig {
+            width: 1280,
+            height: 720,
+            fps: 30.0,
+            duration_s: None,
+            flash_prompt: true,
+        }
+    }
+}
+
+/// One capture mode a device offers.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FormatOption {
+    /// FourCC (`MJPG`, `YUYV`, …).
+    pub fourcc: [u8; 4],
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// Frame rates offered at this size.
+    pub fps: Vec<f64>,
+}
+
+/// Pixel formats we can convert, best first (MJPEG keeps USB bandwidth low for 4 cameras).
+pub const SUPPORTED_FOURCC: [[u8; 4]; 3] = [*b"MJPG", *b"YUYV", *b"GREY"];
+
+/// Chooses a capture mode: a supported pixel format, the size closest to the wanted one
+/// (larger preferred on ties), the frame rate closest to the wanted one, MJPEG first.
+pub fn negotiate(offered: &[FormatOption], want: &RecordConfig) -> Option<(FormatOption, f64)> {
+    let size_cost = |o: &FormatOption| {
+        let dw = (f64::from(o.width) - f64::from(want.width)).abs();
+        let dh = (f64::from(o.height) - f64::from(want.height)).abs();
+        let smaller = if o.width < want.width || o.height < want.height {
+            0.5
+        } else {
+            0.0
+        };
+        dw + dh + smaller
+    };
+    let fps_of = |o: &FormatOption| {
+        o.fps
+            .iter()
+            .copied()
+            .min_by(|a, b| (a - want.fps).abs().total_cmp(&(b - want.fps).abs()))
+            .unwrap_or(want.fps)
+    };
+    offered
+        .iter()
+        .filter_map(|o| {
+            SUPPORTED_FOURCC
+                .iter()
+                .position(|f| *f == o.fourcc)
+                .map(|rank| (rank, o))
+        })
+        .min_by(|(ra, a), (rb, b)| {
+            let ka = (size_cost(a), (fps_of(a) - want.fps).abs(), *ra);
+            let kb = (size_cost(b), (fps_of(b) - want.fps).abs(), *rb);
+            ka.partial_cmp(&kb).unwrap_or(std::cmp::Ordering::Equal)
+        })
+        .map(|(_, o)| (o.clone(), fps_of(o)))
+}
+
+/// Turns kernel buffer timestamps into session seconds and counts dropped frames from the
+/// driver's sequence numbers.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameClock {
+    /// Kernel time (seconds) that becomes 0 on the recording's timeline.
+    pub origin_s: f64,
+    last_sequence: Option<u32>,
+    last_time: Option<f64>,
+    /// Frames the driver skipped (sequence gaps).
+    pub dropped: u64,
+}
+
+impl FrameClock {
+    /// A clock whose zero is kernel time `origin_s` (shared by all cameras of a session).
+    pub fn new(origin_s: f64) -> Self {
+        FrameClock {
+            origin_s,
+            last_sequence: None,
+            last_time: None,
+            dropped: 0,
+        }
+    }
+
+    /// Session time of a frame with kernel timestamp `(sec, usec)` and driver `sequence`.
+    /// Returns `None` for a frame that does not advance time (a repeated buffer).
+    pub fn stamp(&mut self, sec: i64, usec: i64, sequence: Option<u32>) -> Option<f64> {
+        let t = sec as f64 + usec as f64 * 1e-6 - self.origin_s;
+        if self.last_time.is_some_and(|last| t <= last) {
+            return None;
+        }
+        if let (Some(prev), Some(seq)) = (self.last_sequence, sequence) {
+            self.dropped += u64::from(seq.wrapping_sub(prev).saturating_sub(1));
+        }
+        self.last_sequence = sequence.or(self.last_sequence);
+        self.last_time = Some(t);
+        Some(t)
+    }
+}
+
+/// Encodes frames with exact timestamps into `capture.mov` (Motion JPEG, microsecond
+/// timestamps) and lists them in `timestamps.csv`; both appear only when complete.
+pub struct CaptureWriter {
+    dir: PathBuf,
+    output: ffmpeg::format::context::Output,
+    encoder: ffmpeg::encoder::Video,
+    scaler: Option<(PixelLayout, ffmpeg::software::scaling::Context)>,
+    stream_time_base: ffmpeg::Rational,
+    size: (u32, u32),
+    csv: String,
+    frames: usize,
+}
+
+const TIME_BASE: ffmpeg::Rational = ffmpeg::Rational(1, 1_000_000);
+
+impl CaptureWriter {
+    /// Starts `dir/capture.mov` for frames of `size`.
+    pub fn create(dir: &Path, size: (u32, u32)) -> Result<Self, RecordError> {
+        init_ffmpeg();
+        let tmp = dir.join("capture.tmp.mov");
+        let err = |e: ffmpeg::Error| RecordError::Write {
+            path: tmp.clone(),
+            message: e.to_string(),
+        };
+        std::fs::create_dir_all(dir).map_err(|e| RecordError::Write {
+            path: dir.into(),
+            message: e.to_string(),
+        })?;
+        let mut output = ffmpeg::format::output_as(&tmp, "mov").map_err(err)?;
+        let codec =
+            ffmpeg::encoder::find(ffmpeg::codec::Id::MJPEG).ok_or_else(|| RecordError::Write {
+                path: tmp.clone(),
+                message: "FFmpeg has no MJPEG encoder".into(),
+            })?;
+        let global = output
+            .format()
+            .flags()
+            .contains(ffmpeg::format::Flags::GLOBAL_HEADER);
+        let mut ost = output.add_stream(codec).map_err(err)?;
+        let mut enc = ffmpeg::codec::context::Context::new_with_codec(codec)
+            .encoder()
+            .video()
+            .map_err(err)?;
+        enc.set_width(size.0);
+        enc.set_height(size.1);
+        enc.set_format(ffmpeg::format::Pixel::YUVJ420P);
+        enc.set_time_base(TIME_BASE);
+        if global {
+            enc.set_flags(ffmpeg::codec::Flags::GLOBAL_HEADER);
+        }
+        let mut opts = ffmpeg::Dictionary::new();
+        opts.set("q:v", "3");
+        let encoder = enc.open_with(opts).map_err(err)?;
+        ost.set_parameters(&encoder);
+        ost.set_time_base(TIME_BASE);
+        let mut header_opts = ffmpeg::Dictionary::new();
+        header_opts.set("video_track_timescale", "1000000");
+        output.write_header_with(header_opts).map_err(err)?;
+        let stream_time_base = output.stream(0).map(|s| s.time_base()).unwrap_or(TIME_BASE);
+        Ok(CaptureWriter {
+            dir: dir.to_path_buf(),
+            output,
+            encoder,
+            scaler: None,
+            stream_time_base,
+            size,
+            csv: String::from("frame,timestamp_s\n"),
+            frames: 0,
+        })
+    }
+
+    fn tmp_path(&self) -> PathBuf {
+        self.dir.join("capture.tmp.mov")
+    }
+
+    /// Appends one frame; `frame.timestamp` (seconds, ≥ 0, increasing) becomes its pts.
+    pub fn write(&mut self, frame: &Frame) -> Result<(), RecordError> {
+        let path = self.tmp_path();
+        let err = |e: ffmpeg::Error| RecordError::Write {
+            path: path.clone(),
+            message: e.to_string(),
+        };
+        let (w, h) = self.size;
+        if (frame.width, frame.height) != (w, h) {
+            return Err(RecordError::Write {
+                path: path.clone(),
+                message: format!(
+                    "frame {}x{} in a {w}x{h} recording",
+                    frame.width, frame.height
+                ),
+            });
+        }
+        let pixel = match frame.layout {
+            PixelLayout::Rgb8 => ffmpeg::format::Pixel::RGB24,
+            PixelLayout::Gray8 => ffmpeg::format::Pixel::GRAY8,
+        };
+        if self.scaler.as_ref().is_none_or(|(l, _)| *l != frame.layout) {
+            let s = ffmpeg::software::scaling::Context::get(
+                pixel,
+                w,
+                h,
+                ffmpeg::format::Pixel::YUVJ420P,
+                w,
+                h,
+                ffmpeg::software::scaling::Flags::BILINEAR,
+            )
+            .map_err(err)?;
+            self.scaler = Some((frame.layout, s));
+        }
+        let mut src = ffmpeg::frame::Video::new(pixel, w, h);
+        let row = w as usize * frame.layout.channels();
+        let stride = src.stride(0);
+        for y in 0..h as usize {
+            src.data_mut(0)[y * stride..y * stride + row]
+                .copy_from_slice(&frame.data[y * row..(y + 1) * row]);
+        }
+        let mut yuv = ffmpeg::frame::Video::empty();
+        if let Some((_, s)) = self.scaler.as_mut() {
+            s.run(&src, &mut yuv).map_err(err)?;
+        }
+        let pts = (frame.timestamp * 1e6).round() as i64;
+        yuv.set_pts(Some(pts));
+        self.encoder.send_frame(&yuv).map_err(err)?;
+        self.drain()?;
+        self.csv
+            .push_str(&format!("{},{:.6}\n", self.frames, frame.timestamp));
+        self.frames += 1;
+        Ok(())
+    }
+
+    fn drain(&mut self) -> Result<(), RecordError> {
+        let path = self.tmp_path();
+        let mut packet = ffmpeg::Packet::empty();
+        while self.encoder.receive_packet(&mut packet).is_ok() {
+            packet.set_stream(0);
+            packet.rescale_ts(TIME_BASE, self.stream_time_base);
+            packet
+                .write_interleaved(&mut self.output)
+                .map_err(|e| RecordError::Write {
+                    path: path.clone(),
+                    message: e.to_string(),
+                })?;
+        }
+        Ok(())
+    }
+
+    /// Flushes, closes and renames the files; returns the video's path.
+    pub fn finish(mut self) -> Result<PathBuf, RecordError> {
+        let path = self.tmp_path();
+        let err = |e: ffmpeg::Error| RecordError::Write {
+            path: path.clone(),
+            message: e.to_string(),
+        };
+        self.encoder.send_eof().map_err(err)?;
+        self.drain()?;
+        self.output.write_trailer().map_err(err)?;
+        let io = |p: &Path, e: std::io::Error| RecordError::Write {
+            path: p.into(),
+            message: e.to_string(),
+        };
+        let csv = self.dir.join("timestamps.csv");
+        let csv_tmp = self.dir.join("timestamps.csv.tmp");
+        std::fs::write(&csv_tmp, &self.csv).map_err(|e| io(&csv_tmp, e))?;
+        std::fs::rename(&csv_tmp, &csv).map_err(|e| io(&csv, e))?;
+        let video = self.dir.join("capture.mov");
+        std::fs::rename(&path, &video).map_err(|e| io(&video, e))?;
+        Ok(video)
+    }
+}
+
+/// What one camera recorded.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RecordedCamera {
+    /// Camera name.
+    pub name: String,
+    /// Its folder (`raw/camN`).
+    pub dir: PathBuf,
+    /// Frames written.
+    pub frames: usize,
+}
+
+/// Records `source` into `dir` until it ends, `stop` is set, or `max_duration_s` of its
+/// own time has passed.
+pub fn record_source(
+    source: &mut dyn CameraSource,
+    dir: &Path,
+    stop: &AtomicBool,
+    max_duration_s: Option<f64>,
+    progress: &dyn Progress,
+) -> Result<RecordedCamera, RecordError> {
+    let mut writer = CaptureWriter::create(dir, source.frame_size())?;
+    let mut first: Option<f64> = None;
+    while !stop.load(Ordering::Relaxed) {
+        let Some(frame) = source.next_frame()? else {
+            break;
+        };
+        let t0 = *first.get_or_insert(frame.timestamp);
+        if max_duration_s.is_some_and(|d| frame.timestamp - t0 > d) {
+            break;
+        }
+        writer.write(&frame)?;
+        progress.advance(1);
+    }
+    let frames = writer.frames;
+    writer.finish()?;
+    Ok(RecordedCamera {
+        name: source.name().to_string(),
+        dir: dir.to_path_buf(),
+        frames,
+    })
+}
+
+/// Records every device concurrently (one thread each) into `capture_dir/raw/camN/`.
+/// Fails cleanly with [`RecordError::NoDevice`] when a device is missing.
+pub fn record(
+    devices: &[PathBuf],
+    capture_dir: &Path,
+    config: &RecordConfig,
+    stop: &AtomicBool,
+    progress: &dyn Progress,
+) -> Result<Vec<RecordedCamera>, RecordError> {
+    if devices.is_empty() {
+        let found = v4l2::list_devices();
+        if found.is_empty() {
+            return Err(RecordError::NoDevice("no /dev/video* present".into()));
+        }
+        return Err(RecordError::NoDevice(format!(
+            "none given; present: {}",
+            found
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        )));
+    }
+    if devices.len() > 4 {
+        return Err(RecordError::TooMany(devices.len()));
+    }
+    let origin = v4l2::monotonic_now();
+    let mut sources = Vec::new();
+    for (i, d) in devices.iter().enumerate() {
+        sources.push(v4l2::V4l2Source::open(
+            &format!("cam{i}"),
+            d,
+            config,
+            origin,
+        )?);
+    }
+    if config.flash_prompt {
+        tracing::info!(
+            "all {} cameras are recording: fire the flash (or clap) now",
+            sources.len()
+        );
+    }
+    progress.start(0, "frames");
+    let results: Vec<Result<RecordedCamera, RecordError>> = std::thread::scope(|scope| {
+        let handles: Vec<_> = sources
+            .into_iter()
+            .enumerate()
+            .map(|(i, mut s)| {
+                let dir = capture_dir.join("raw").join(format!("cam{i}"));
+                scope.spawn(move || record_source(&mut s, &dir, stop, config.duration_s, progress))
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| {
+                h.join().unwrap_or_else(|_| {
+                    Err(RecordError::NoDevice("a recording thread panicked".into()))
+                })
+            })
+            .collect()
+    });
+    progress.finish();
+    results.into_iter().collect()
+}

@@ -1,0 +1,171 @@
+//! The live recorder's device-independent parts: format negotiation, the frame clock, and
+//! the writer, fed by a test camera behind the same `CameraSource` trait, read back by
+//! ingest. Also: without a device, recording fails cleanly.
+
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+
+use rig::ingest::ingest;
+use rig::record::v4l2::yuyv_to_rgb;
+use rig::record::{
+    FormatOption, FrameClock, RecordConfig, RecordError, negotiate, record, record_source,
+};
+use rig::source::{CameraSource, Frame, PixelLayout, SourceError};
+use splat4d::progress::NoProgress;
+
+/// A camera that films a moving bar at ~30 fps with timestamp jitter and one dropped frame.
+struct TestCamera {
+    index: usize,
+    times: Vec<f64>,
+}
+
+impl TestCamera {
+    fn new() -> Self {
+        let mut times: Vec<f64> = (0..45)
+            .map(|k| 12.5 + k as f64 / 30.0 + 0.0007 * ((k * 7919) % 11) as f64 / 11.0)
+            .collect();
+        times.remove(20);
+        TestCamera { index: 0, times }
+    }
+}
+
+impl CameraSource for TestCamera {
+    fn name(&self) -> &str {
+        "cam0"
+    }
+    fn frame_size(&self) -> (u32, u32) {
+        (64, 48)
+    }
+    fn nominal_fps(&self) -> Option<f64> {
+        Some(30.0)
+    }
+    fn next_frame(&mut self) -> Result<Option<Frame>, SourceError> {
+        let Some(&t) = self.times.get(self.index) else {
+            return Ok(None);
+        };
+        let mut data = vec![30u8; 64 * 48 * 3];
+        let bar = self.index % 64;
+        for y in 0..48 {
+            data[(y * 64 + bar) * 3..(y * 64 + bar) * 3 + 3].copy_from_slice(&[250, 250, 250]);
+        }
+        self.index += 1;
+        Ok(Some(Frame {
+            index: self.index - 1,
+            timestamp: t,
+            width: 64,
+            height: 48,
+            layout: PixelLayout::Rgb8,
+            data,
+        }))
+    }
+}
+
+#[test]
+fn negotiation_prefers_mjpeg_at_the_wanted_size_and_rate() {
+    let opt = |f: &[u8; 4], w, h, fps: &[f64]| FormatOption {
+        fourcc: *f,
+        width: w,
+        height: h,
+        fps: fps.to_vec(),
+    };
+    let offered = vec![
+        opt(b"YUYV", 1280, 720, &[10.0]),
+        opt(b"MJPG", 1280, 720, &[30.0, 60.0]),
+        opt(b"MJPG", 640, 480, &[30.0]),
+        opt(b"H264", 1920, 1080, &[30.0]),
+    ];
+    let want = RecordConfig {
+        width: 1280,
+        height: 720,
+        fps: 60.0,
+        ..Default::default()
+    };
+    let (choice, fps) = negotiate(&offered, &want).unwrap();
+    assert_eq!((&choice.fourcc, choice.width, fps), (b"MJPG", 1280, 60.0));
+    let want = RecordConfig {
+        width: 1920,
+        height: 1080,
+        ..Default::default()
+    };
+    let (choice, _) = negotiate(&offered, &want).unwrap();
+    assert_eq!(
+        choice.width, 1280,
+        "H264 is not supported; the closest supported size wins"
+    );
+    assert!(negotiate(&[opt(b"H264", 640, 480, &[30.0])], &want).is_none());
+}
+
+#[test]
+fn the_frame_clock_counts_drops_and_ignores_repeats() {
+    let mut c = FrameClock::new(100.0);
+    assert_eq!(c.stamp(100, 500_000, Some(7)), Some(0.5));
+    assert!((c.stamp(100, 533_333, Some(8)).unwrap() - 0.533333).abs() < 1e-9);
+    assert_eq!(
+        c.stamp(100, 533_333, Some(8)),
+        None,
+        "a repeated buffer is not a new frame"
+    );
+    assert!(c.stamp(100, 633_333, Some(11)).is_some());
+    assert_eq!(c.dropped, 2);
+}
+
+#[test]
+fn yuyv_converts_grey_and_colour() {
+    let rgb = yuyv_to_rgb(&[235, 128, 16, 128], 2, 1);
+    assert_eq!(rgb, vec![255, 255, 255, 0, 0, 0]);
+}
+
+#[test]
+fn recorded_frames_keep_their_exact_timestamps_through_ingest() {
+    let dir = tempfile::tempdir().unwrap();
+    let cam_dir = dir.path().join("raw/cam0");
+    let mut camera = TestCamera::new();
+    let expected = camera.times.clone();
+    let stop = AtomicBool::new(false);
+    let rec = record_source(&mut camera, &cam_dir, &stop, None, &NoProgress).unwrap();
+    assert_eq!(rec.frames, 44);
+    assert!(cam_dir.join("capture.mov").exists() && !cam_dir.join("capture.tmp.mov").exists());
+    let csv = std::fs::read_to_string(cam_dir.join("timestamps.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 45);
+    let streams = ingest(&[("cam0".into(), cam_dir.clone())], &NoProgress).unwrap();
+    let c = &streams.cameras[0];
+    assert_eq!(c.video.frame_count, 44);
+    assert_eq!(c.video.gaps, 1, "the dropped frame shows as a gap");
+    let max_err = c
+        .timestamps
+        .iter()
+        .zip(&expected)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    println!(
+        "recorder timestamp round trip: max error {:.3} µs",
+        max_err * 1e6
+    );
+    assert!(max_err < 2e-6, "{max_err}");
+}
+
+#[test]
+fn recording_without_a_device_fails_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let stop = AtomicBool::new(false);
+    let missing = PathBuf::from("/dev/video-does-not-exist");
+    let err = record(
+        &[missing],
+        dir.path(),
+        &RecordConfig::default(),
+        &stop,
+        &NoProgress,
+    )
+    .unwrap_err();
+    assert!(matches!(err, RecordError::NoDevice(_)), "{err}");
+    assert!(err.to_string().starts_with("no V4L2 device found"), "{err}");
+    let err = record(
+        &[],
+        dir.path(),
+        &RecordConfig::default(),
+        &stop,
+        &NoProgress,
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("no V4L2 device found"), "{err}");
+}
