@@ -56,6 +56,11 @@ pub enum Command {
         #[arg(default_value = "4c4d-demo")]
         out_dir: PathBuf,
     },
+    /// Record up to four V4L2 webcams at once into a new capture directory
+    /// (raw/camN/capture.mov + kernel timestamps per frame). Stop with Ctrl-C or --seconds.
+    ///
+    /// Example: pipeline record --device /dev/video0 --device /dev/video2 --seconds 20 my_capture/
+    Record(RecordArgs),
     /// Render a scene file (TOML) into a new capture directory with simulated cameras:
     /// videos with audio in raw/camN/, stills/, and the ground truth in groundtruth/.
     ///
@@ -86,4 +91,28 @@ pub struct RunArgs {
     /// Rerun the selected stages even if they are up to date.
     #[arg(long)]
     pub force: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct RecordArgs {
+    /// A V4L2 device to record (repeat for each camera, up to 4).
+    #[arg(long = "device", value_name = "DEVICE")]
+    pub devices: Vec<PathBuf>,
+    /// The capture directory to create (must not already hold a capture).
+    pub capture_dir: PathBuf,
+    /// Stop after this many seconds (default: when Ctrl-C is pressed).
+    #[arg(long)]
+    pub seconds: Option<f64>,
+    /// Wanted frame width, pixels.
+    #[arg(long, default_value_t = 1280)]
+    pub width: u32,
+    /// Wanted frame height, pixels.
+    #[arg(long, default_value_t = 720)]
+    pub height: u32,
+    /// Wanted frames per second.
+    #[arg(long, default_value_t = 30.0)]
+    pub fps: f64,
+    /// Do not prompt for a sync flash or clap once all cameras run.
+    #[arg(long)]
+    pub no_flash_prompt: bool,
 }

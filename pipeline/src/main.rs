@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::Parser;
 use indicatif::MultiProgress;
-use pipeline::cli::{Cli, Command, RunArgs};
+use pipeline::cli::{Cli, Command, RecordArgs, RunArgs};
 use pipeline::report::{OutputMode, Reporter};
 use pipeline::runner::{RunSummary, Selection};
 use pipeline::{open_capture, simulate, stages, status};
@@ -56,6 +56,7 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Demo { out_dir } => demo(&out_dir, reporter),
+        Command::Record(args) => record(args, reporter),
         Command::Simulate { scene, capture_dir } => {
             let scene = rig::sim::Scene::from_file(&scene)?;
             simulate::simulate_into(&scene, &capture_dir, reporter)?;
@@ -86,6 +87,35 @@ fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     } else {
         ExitCode::FAILURE
     })
+}
+
+/// Record V4L2 cameras into a new capture directory until Ctrl-C or `--seconds`.
+fn record(args: RecordArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
+    if args.capture_dir.join("raw").exists() {
+        anyhow::bail!(
+            "{} already holds a capture (raw/); choose another folder or delete it first",
+            args.capture_dir.display()
+        );
+    }
+    let config = rig::record::RecordConfig {
+        width: args.width,
+        height: args.height,
+        fps: args.fps,
+        duration_s: args.seconds,
+        flash_prompt: !args.no_flash_prompt,
+    };
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let flag = stop.clone();
+    ctrlc::set_handler(move || flag.store(true, std::sync::atomic::Ordering::Relaxed))
+        .context("cannot install the Ctrl-C handler")?;
+    let progress = reporter.progress("record");
+    let cameras = rig::record::record(&args.devices, &args.capture_dir, &config, &stop, &progress)?;
+    splat4d::Progress::finish(&progress);
+    for cam in &cameras {
+        reporter.say(&format!("{}: {} frames in {}", cam.name, cam.frames, cam.dir.display()));
+    }
+    reporter.say(&format!("recorded; next: pipeline run {}", args.capture_dir.display()));
+    Ok(ExitCode::SUCCESS)
 }
 
 /// Simulate the built-in scene (once) and run every stage on it. Stages that are not

@@ -106,3 +106,38 @@ fn simulated_audio_capture_is_ingested_synchronised_and_aligned() {
     .unwrap();
     assert_eq!(img.width().max(img.height()), 80);
 }
+
+/// Issue 8's acceptance check on a simulated capture. Ignored for now: on `poses.toml`
+/// COLMAP registers all 12 images but converges to a degenerate solution (fx ≠ fy,
+/// focal lengths 409–2000 px for identical cameras; rotation errors 40–110°), most likely
+/// from SIFT matches across the scene's repeating procedural textures. The calib crate's
+/// own rendered rig (calib/tests/solve_synthetic.rs) solves to 0.09–0.20°. Run with
+/// `cargo test -p pipeline --test end_to_end -- --ignored` (about 2 minutes).
+#[test]
+#[ignore = "COLMAP converges to a degenerate solution on poses.toml (see the doc comment)"]
+fn simulated_static_capture_gets_poses_from_colmap() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("capture");
+    let scene = rig::sim::Scene::from_file(&fixture("poses.toml")).unwrap();
+    simulate::simulate_into(&scene, &root, &Reporter::new(OutputMode::Quiet)).unwrap();
+    // A static scene with no clap or flash: the cameras' own timestamps are the timeline.
+    fs::write(root.join("capture.toml"), "[sync]\nmethod = \"timestamps\"\n").unwrap();
+    let summary = run(&root, to("poses"));
+    assert_eq!(summary.ran, ["ingest", "sync", "frames", "poses"], "{summary:?}");
+
+    let solved = calib::poses::PosesFile::read(&root.join("work/poses/cameras.json")).unwrap();
+    let truth: splat4d::CameraSet =
+        serde_json::from_str(&fs::read_to_string(root.join("groundtruth/cameras.json")).unwrap()).unwrap();
+    let video: Vec<_> = truth.cameras.iter().filter(|c| c.name.starts_with("cam")).cloned().collect();
+    assert_eq!(solved.set.cameras.len(), 4);
+    let (_, errors, radius) = calib::align::compare(&solved.set.cameras, &video).unwrap();
+    for e in &errors {
+        eprintln!("{}: rotation {:.3}°, centre {:.3}% of the rig radius", e.name, e.rotation_deg, 100.0 * e.centre / radius);
+        assert!(e.rotation_deg < 0.5, "{}: {}°", e.name, e.rotation_deg);
+        assert!(e.centre < 0.01 * radius, "{}: {} of radius {}", e.name, e.centre, radius);
+    }
+    // The engine sees the frames' size.
+    let index: rig::frames::FramesIndex =
+        serde_json::from_str(&fs::read_to_string(root.join("work/frames/frames.json")).unwrap()).unwrap();
+    assert_eq!(solved.set.cameras[0].intrinsics.width, index.cameras[0].width);
+}
