@@ -24,3 +24,11 @@ pub use model::{ColourDegrees, Gaussians, TimeMapping};
 pub use model_file::{ModelFileError, load_model, save_model};
 pub use progress::{NoProgress, Progress};
 pub use render::{Gradients, ImageGradients, RenderError, RenderOptions, Rendered, render, render_with};
+
+pub mod densify;
+pub mod init;
+pub mod loss;
+pub mod optim;
+pub mod ply;
+pub mod ssim;
+pub mod train;
