@@ -101,6 +101,10 @@ pub enum TrainError {
         match last_checkpoint { Some(p) => format!(" (last good checkpoint: {})", p.display()), None => String::new() }
     )]
     NonFinite { iteration: u64, what: &'static str, last_checkpoint: Option<PathBuf> },
+    #[error("all Gaussians were pruned at iteration {iteration}; lower [train.densify] min_opacity or raise max_world_size / max_screen_radius")]
+    EmptyModel { iteration: u64 },
+    #[error("training was stopped after iteration {iteration}; checkpoint {} was written, rerun with --resume to continue", checkpoint.display())]
+    Interrupted { iteration: u64, checkpoint: PathBuf },
     #[error("resume refused: {0}")]
     Resume(String),
 }
@@ -120,6 +124,11 @@ pub trait TrainHooks {
         Vec::new()
     }
     fn load_state(&mut self, _state: &[u8]) {}
+    /// Polled after every iteration (1-based): `true` stops the run cleanly with a
+    /// checkpoint at that iteration (wire Ctrl-C here); `--resume` continues it.
+    fn stop_requested(&mut self, _iteration: u64) -> bool {
+        false
+    }
 }
 
 /// Hooks that do nothing (plain 4DGS).
@@ -351,6 +360,11 @@ pub fn train(
             if d.every > 0 && done % d.every == 0 {
                 let prune_large = d.opacity_reset_every > 0 && done > d.opacity_reset_every;
                 densify_and_prune(&mut model, &mut adam, &mut stats, d, extent, prune_large, &mut rng);
+                if model.is_empty() {
+                    log.flush().map_err(io(&log_path))?;
+                    progress.finish();
+                    return Err(TrainError::EmptyModel { iteration: done });
+                }
             }
             if d.opacity_reset_every > 0 && done % d.opacity_reset_every == 0 {
                 reset_opacity(&mut model, &mut adam, 0.01);
@@ -385,6 +399,15 @@ pub fn train(
         if (config.checkpoint_every > 0 && done % config.checkpoint_every == 0) || done == config.iterations {
             log.flush().map_err(io(&log_path))?;
             last_checkpoint = Some(save_ckpt(done, &model, &adam, &stats, &*hooks)?);
+        }
+        if done < config.iterations && hooks.stop_requested(done) {
+            log.flush().map_err(io(&log_path))?;
+            let checkpoint = match &last_checkpoint {
+                Some(p) if p.ends_with(format!("{done:06}.bin")) => p.clone(),
+                _ => save_ckpt(done, &model, &adam, &stats, &*hooks)?,
+            };
+            progress.finish();
+            return Err(TrainError::Interrupted { iteration: done, checkpoint });
         }
     }
     log.flush().map_err(io(&log_path))?;
