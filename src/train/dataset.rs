@@ -84,3 +84,36 @@ impl Dataset {
         if r > 1e-3 { r } else { 1.0 }
     }
 }
+
+/// Where one training frame lives on disk.
+#[derive(Clone, Debug)]
+pub struct FrameSource {
+    pub camera: Camera,
+    /// Model time of the frame.
+    pub time: f32,
+    pub path: PathBuf,
+}
+
+impl Dataset {
+    /// Load every frame (in parallel) at the working resolution `width` (height keeps the
+    /// camera's aspect ratio; `None`: the camera's own size), rescaling the intrinsics.
+    pub fn load(frames: &[FrameSource], width: Option<u32>, time_mapping: TimeMapping) -> Result<Self, ImageLoadError> {
+        use rayon::prelude::*;
+        let views = frames
+            .par_iter()
+            .map(|f| {
+                let i = &f.camera.intrinsics;
+                let size = match width {
+                    Some(w) if w > 0 && w != i.width => {
+                        let h = ((i.height as f64 * w as f64 / i.width.max(1) as f64).round() as u32).max(1);
+                        (w, h)
+                    }
+                    _ => (i.width, i.height),
+                };
+                let image = ImageU8::load(&f.path, Some(size))?;
+                Ok(View::at_image_size(f.camera.clone(), f.time, image))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Self { views, time_mapping })
+    }
+}

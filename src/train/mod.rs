@@ -11,7 +11,7 @@ pub mod dataset;
 pub mod log;
 
 pub use crate::init::PointCloud;
-pub use dataset::{Dataset, ImageLoadError, ImageU8, View};
+pub use dataset::{Dataset, FrameSource, ImageLoadError, ImageU8, View};
 
 use crate::densify::{DensifyConfig, DensifyStats, densify_and_prune, reset_opacity};
 use crate::init::{InitError, InitOptions, gaussians_from_points};
