@@ -25,7 +25,15 @@ pub fn colour(x: f64, y: f64, t: f64) -> [f64; 3] {
 }
 
 pub fn cameras(width: u32, height: u32) -> Vec<Camera> {
-    let eyes = [(-0.5, -0.4), (0.5, -0.4), (-0.5, 0.4), (0.5, 0.4)];
+    cameras_at(width, height, &[(-0.5, -0.4), (0.5, -0.4), (-0.5, 0.4), (0.5, 0.4)])
+}
+
+/// Two held-out viewpoints between and beside the training cameras.
+pub fn held_out_cameras(width: u32, height: u32) -> Vec<Camera> {
+    cameras_at(width, height, &[(0.0, 0.0), (0.7, 0.1)])
+}
+
+pub fn cameras_at(width: u32, height: u32, eyes: &[(f64, f64)]) -> Vec<Camera> {
     eyes.iter()
         .enumerate()
         .map(|(i, &(x, y))| Camera {
@@ -64,9 +72,13 @@ pub fn draw(camera: &Camera, t: f64) -> ImageU8 {
 pub const TIMES: [f64; 5] = [0.0, 0.25, 0.5, 0.75, 1.0];
 
 pub fn dataset(width: u32, height: u32) -> Dataset {
+    dataset_of(&cameras(width, height), &TIMES)
+}
+
+pub fn dataset_of(cams: &[Camera], times: &[f64]) -> Dataset {
     let mut views = Vec::new();
-    for &t in &TIMES {
-        for cam in cameras(width, height) {
+    for &t in times {
+        for cam in cams.iter().cloned() {
             views.push(View { image: draw(&cam, t), camera: cam, time: t as f32 });
         }
     }
