@@ -32,23 +32,44 @@ fn adam(c: &mut Criterion) {
         model.push([x, x, x, 0.5], [-3.0; 4], 0.0, [0.5; 3]);
     }
     let mut grads = Gradients::zeros_like(&model, false);
-    grads.colours.iter_mut().enumerate().for_each(|(i, g)| *g = (i % 7) as f32 * 1e-3);
+    grads
+        .colours
+        .iter_mut()
+        .enumerate()
+        .for_each(|(i, g)| *g = (i % 7) as f32 * 1e-3);
     grads.means.iter_mut().for_each(|g| *g = [1e-3; 4]);
     let mut opt = Adam::new(&model);
     let rates = LearningRates::default().at(0, 30_000, 1.0);
-    c.bench_function("adam_step_100k_full_colour", |bench| bench.iter(|| opt.step(&mut model, &grads, &rates)));
+    c.bench_function("adam_step_100k_full_colour", |bench| {
+        bench.iter(|| opt.step(&mut model, &grads, &rates))
+    });
 }
 
 fn iterations(c: &mut Criterion) {
     let data = train_scene::dataset(128, 96);
     let init = train_scene::points(24, 18, &[0.0, 0.5, 1.0]);
     let dir = tempfile::tempdir().unwrap();
-    let mut config = TrainConfig { iterations: 20, checkpoint_every: 0, ..Default::default() };
+    let mut config = TrainConfig {
+        iterations: 20,
+        checkpoint_every: 0,
+        ..Default::default()
+    };
     config.densify.enabled = false;
     let mut group = c.benchmark_group("train");
     group.sample_size(10);
     group.bench_function("20_iterations_batch4_128x96_1296_gaussians", |bench| {
-        bench.iter(|| train(&config, &data, &init, dir.path(), false, &mut NoHooks, &NoProgress).unwrap())
+        bench.iter(|| {
+            train(
+                &config,
+                &data,
+                &init,
+                dir.path(),
+                false,
+                &mut NoHooks,
+                &NoProgress,
+            )
+            .unwrap()
+        })
     });
     group.finish();
 }

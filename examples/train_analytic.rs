@@ -11,8 +11,16 @@ use splat4d::{NoProgress, load_model};
 fn peak_rss_mib() -> f64 {
     std::fs::read_to_string("/proc/self/status")
         .ok()
-        .and_then(|s| s.lines().find(|l| l.starts_with("VmHWM:")).map(|l| l.to_string()))
-        .and_then(|l| l.split_whitespace().nth(1).and_then(|v| v.parse::<f64>().ok()))
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .map(|l| l.to_string())
+        })
+        .and_then(|l| {
+            l.split_whitespace()
+                .nth(1)
+                .and_then(|v| v.parse::<f64>().ok())
+        })
         .map_or(f64::NAN, |kib| kib / 1024.0)
 }
 
@@ -26,14 +34,27 @@ fn main() {
     let held_times: Vec<f64> = (0..4).map(|i| (i as f64 + 0.5) / 4.0).collect();
     let held = train_scene::dataset_of(&train_scene::held_out_cameras(width, height), &held_times);
     let init = train_scene::points(32, 24, &[0.0, 0.5, 1.0]);
-    let mut config = TrainConfig { iterations, checkpoint_every: 0, ..Default::default() };
+    let mut config = TrainConfig {
+        iterations,
+        checkpoint_every: 0,
+        ..Default::default()
+    };
     let scale = iterations as f64 / 30_000.0;
     config.degree_every = (1000.0 * scale).max(1.0) as u64;
     config.densify.from_iteration = (500.0 * scale) as u64;
     config.densify.until_iteration = (15_000.0 * scale) as u64;
     config.densify.opacity_reset_every = 0;
     let dir = tempfile::tempdir().expect("temp dir");
-    let s = train(&config, &train_data, &init, dir.path(), false, &mut NoHooks, &NoProgress).expect("training");
+    let s = train(
+        &config,
+        &train_data,
+        &init,
+        dir.path(),
+        false,
+        &mut NoHooks,
+        &NoProgress,
+    )
+    .expect("training");
     let model = load_model(&s.model_path).expect("model");
     let mean = |v: Vec<f64>| v.iter().sum::<f64>() / v.len() as f64;
     let train_psnr = mean(evaluate_psnr(&model, &train_data, config.background).expect("eval"));

@@ -71,13 +71,25 @@ pub struct DensifyStats {
 
 impl DensifyStats {
     pub fn new(n: usize) -> Self {
-        Self { grad_sum: vec![0.0; n], count: vec![0; n], max_radius: vec![0.0; n] }
+        Self {
+            grad_sum: vec![0.0; n],
+            count: vec![0; n],
+            max_radius: vec![0.0; n],
+        }
     }
 
-    /// Add one view: `mean2d_norm` in 1/pixel units, `radii` from the render, image size.
-    pub fn record(&mut self, mean2d_norm: &[f32], radii: &[f32], width: u32, height: u32) {
+    /// Add one view: `mean2d_norm` in 1/pixel units (multiplied by `gain`), `radii` from
+    /// the render, image size.
+    pub fn record(
+        &mut self,
+        mean2d_norm: &[f32],
+        radii: &[f32],
+        width: u32,
+        height: u32,
+        gain: f32,
+    ) {
         // d/d(ndc) = d/d(pixel) · size/2: use the larger side, as a scalar.
-        let to_ndc = 0.5 * width.max(height) as f32;
+        let to_ndc = 0.5 * width.max(height) as f32 * gain;
         for i in 0..radii.len() {
             if radii[i] > 0.0 {
                 self.grad_sum[i] += mean2d_norm[i] * to_ndc;
@@ -92,7 +104,10 @@ impl DensifyStats {
         let pick = |v: &Vec<f32>| sources.iter().map(|s| s.map_or(0.0, |i| v[i])).collect();
         self.grad_sum = pick(&self.grad_sum);
         self.max_radius = pick(&self.max_radius);
-        self.count = sources.iter().map(|s| s.map_or(0, |i| self.count[i])).collect();
+        self.count = sources
+            .iter()
+            .map(|s| s.map_or(0, |i| self.count[i]))
+            .collect();
     }
 }
 
@@ -115,7 +130,8 @@ pub fn gather_gaussians(model: &Gaussians<f32>, sources: &[usize]) -> Gaussians<
         out.rot_left.push(model.rot_left[i]);
         out.rot_right.push(model.rot_right[i]);
         out.opacity_logits.push(model.opacity_logits[i]);
-        out.colours.extend_from_slice(&model.colours[i * k..(i + 1) * k]);
+        out.colours
+            .extend_from_slice(&model.colours[i * k..(i + 1) * k]);
     }
     out
 }
@@ -131,6 +147,7 @@ fn max_spatial_scale(log_scales: &[f32; 4]) -> f32 {
     log_scales[0].max(log_scales[1]).max(log_scales[2]).exp()
 }
 
+#[allow(clippy::needless_range_loop)] // walks several parallel arrays by index
 /// Clone/split by gradient, then prune; `prune_large` enables the screen/world size test.
 /// Applies the same edit to `adam` and `stats` (which is reset afterwards).
 pub fn densify_and_prune(
@@ -151,7 +168,9 @@ pub fn densify_and_prune(
     let mut removed = vec![false; n];
     let mut room = config.max_gaussians.saturating_sub(n);
     // Clones and splits are appended after the originals.
-    let mut appended: Vec<(usize, Option<([f32; 4], [f32; 4])>)> = Vec::new();
+    // (parent, new mean and log-scales for a split half; None for a plain clone).
+    type Appended = (usize, Option<([f32; 4], [f32; 4])>);
+    let mut appended: Vec<Appended> = Vec::new();
     for i in 0..n {
         let c = stats.count[i];
         if c == 0 || room == 0 {
@@ -169,7 +188,8 @@ pub fn densify_and_prune(
             let (r, _) = rotation(model.rot_left[i], model.rot_right[i]);
             let new_log = model.log_scales[i].map(|s| s - 1.6f32.ln());
             for _ in 0..2 {
-                let z: [f32; 4] = std::array::from_fn(|a| normal(rng) * model.log_scales[i][a].exp());
+                let z: [f32; 4] =
+                    std::array::from_fn(|a| normal(rng) * model.log_scales[i][a].exp());
                 let mut mean = model.means[i];
                 for (a, m) in mean.iter_mut().enumerate() {
                     *m += (0..4).map(|b| r[a][b] * z[b]).sum::<f32>();
@@ -181,11 +201,9 @@ pub fn densify_and_prune(
             room -= 1;
         }
     }
-    for i in 0..n {
-        if !removed[i] {
-            rows.push(i);
-            sources.push(Some(i));
-        }
+    for (i, _) in removed.iter().enumerate().filter(|(_, r)| !**r) {
+        rows.push(i);
+        sources.push(Some(i));
     }
     let first_new = rows.len();
     for (i, _) in &appended {
@@ -206,7 +224,8 @@ pub fn densify_and_prune(
     let world_limit = config.max_world_size as f32 * extent;
     let keep: Vec<usize> = (0..grown.len())
         .filter(|&j| {
-            let transparent = !(grown.opacity_logits[j] >= min_logit);
+            let o = grown.opacity_logits[j];
+            let transparent = o.is_nan() || o < min_logit;
             let large = prune_large
                 && (stats.max_radius[j] as f64 > config.max_screen_radius
                     || max_spatial_scale(&grown.log_scales[j]) > world_limit);
@@ -228,7 +247,12 @@ pub fn reset_opacity(model: &mut Gaussians<f32>, adam: &mut Adam, max_opacity: f
         *o = o.min(cap);
     }
     adam.reset_opacity();
-    debug_assert!(model.opacity_logits.iter().all(|&o| sigmoid(o) <= max_opacity as f32 + 1e-6));
+    debug_assert!(
+        model
+            .opacity_logits
+            .iter()
+            .all(|&o| sigmoid(o) <= max_opacity as f32 + 1e-6)
+    );
 }
 
 #[cfg(test)]
@@ -238,11 +262,37 @@ mod tests {
     use rand_core::SeedableRng;
 
     fn model() -> Gaussians<f32> {
-        let mut g = Gaussians::new(ColourDegrees { spatial: 1, temporal: 0 }, TimeMapping::default());
-        g.push([0.0, 0.0, 0.0, 0.5], [-5.0, -5.0, -5.0, -1.0], 0.0, [0.2, 0.3, 0.4]); // small, hot: clone
-        g.push([1.0, 0.0, 0.0, 0.5], [-1.0, -1.0, -1.0, -1.0], 0.0, [0.5; 3]); // large, hot: split
-        g.push([2.0, 0.0, 0.0, 0.5], [-5.0, -5.0, -5.0, -1.0], -8.0, [0.5; 3]); // transparent: prune
-        g.push([3.0, 0.0, 0.0, 0.5], [-5.0, -5.0, -5.0, -1.0], 1.0, [0.9; 3]); // cold: keep
+        let mut g = Gaussians::new(
+            ColourDegrees {
+                spatial: 1,
+                temporal: 0,
+            },
+            TimeMapping::default(),
+        );
+        g.push(
+            [0.0, 0.0, 0.0, 0.5],
+            [-5.0, -5.0, -5.0, -1.0],
+            0.0,
+            [0.2, 0.3, 0.4],
+        ); // small, hot: clone
+        g.push(
+            [1.0, 0.0, 0.0, 0.5],
+            [-1.0, -1.0, -1.0, -1.0],
+            0.0,
+            [0.5; 3],
+        ); // large, hot: split
+        g.push(
+            [2.0, 0.0, 0.0, 0.5],
+            [-5.0, -5.0, -5.0, -1.0],
+            -8.0,
+            [0.5; 3],
+        ); // transparent: prune
+        g.push(
+            [3.0, 0.0, 0.0, 0.5],
+            [-5.0, -5.0, -5.0, -1.0],
+            1.0,
+            [0.9; 3],
+        ); // cold: keep
         g
     }
 
@@ -260,7 +310,14 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let r = densify_and_prune(&mut g, &mut adam, &mut stats, &cfg, 1.0, false, &mut rng);
         // #2 is transparent and hot: it gets cloned, then both copies are pruned.
-        assert_eq!(r, DensifyReport { cloned: 2, split: 1, pruned: 2 });
+        assert_eq!(
+            r,
+            DensifyReport {
+                cloned: 2,
+                split: 1,
+                pruned: 2
+            }
+        );
         g.check_consistent().unwrap();
         assert_eq!(g.len(), 5); // 0, 3, clone of 0, two halves of 1
         assert_eq!(adam.m.len(), 5);
@@ -269,7 +326,11 @@ mod tests {
         assert_eq!(g.means[2], g.means[0]);
         for j in [3, 4] {
             assert!((g.log_scales[j][0] - (-1.0 - 1.6f32.ln())).abs() < 1e-6);
-            assert_ne!(g.means[j], [1.0, 0.0, 0.0, 0.5], "split samples move in space and time");
+            assert_ne!(
+                g.means[j],
+                [1.0, 0.0, 0.0, 0.5],
+                "split samples move in space and time"
+            );
         }
         assert_eq!(stats, DensifyStats::new(5));
     }

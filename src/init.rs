@@ -22,7 +22,11 @@ pub enum InitError {
     #[error("the point cloud is empty; run the `init` stage (or give COLMAP points) first")]
     Empty,
     #[error("the point cloud has {xyz} positions but {other} {what}; rewrite points.ply")]
-    LengthMismatch { xyz: usize, other: usize, what: &'static str },
+    LengthMismatch {
+        xyz: usize,
+        other: usize,
+        what: &'static str,
+    },
     #[error("point {index} has a non-finite coordinate or time; clean points.ply")]
     NonFinite { index: usize },
 }
@@ -42,7 +46,12 @@ pub struct InitOptions {
 
 impl Default for InitOptions {
     fn default() -> Self {
-        Self { opacity: 0.1, time_scale_fraction: 0.2, capacity: ColourDegrees::FULL, seed: 0 }
+        Self {
+            opacity: 0.1,
+            time_scale_fraction: 0.2,
+            capacity: ColourDegrees::FULL,
+            seed: 0,
+        }
     }
 }
 
@@ -57,12 +66,20 @@ pub fn gaussians_from_points(
         return Err(InitError::Empty);
     }
     if cloud.rgb.len() != n {
-        return Err(InitError::LengthMismatch { xyz: n, other: cloud.rgb.len(), what: "colours" });
+        return Err(InitError::LengthMismatch {
+            xyz: n,
+            other: cloud.rgb.len(),
+            what: "colours",
+        });
     }
     if let Some(t) = &cloud.time
         && t.len() != n
     {
-        return Err(InitError::LengthMismatch { xyz: n, other: t.len(), what: "times" });
+        return Err(InitError::LengthMismatch {
+            xyz: n,
+            other: t.len(),
+            what: "times",
+        });
     }
     for (i, p) in cloud.xyz.iter().enumerate() {
         let t_ok = cloud.time.as_ref().is_none_or(|t| t[i].is_finite());
@@ -71,7 +88,11 @@ pub fn gaussians_from_points(
         }
     }
     let scales = nearest_neighbour_scales(&cloud.xyz);
-    let duration = if time.duration.is_finite() && time.duration > 0.0 { time.duration } else { 1.0 };
+    let duration = if time.duration.is_finite() && time.duration > 0.0 {
+        time.duration
+    } else {
+        1.0
+    };
     let log_t = ((duration * options.time_scale_fraction).max(1e-6)).ln() as f32;
     let logit_o = logit(options.opacity) as f32;
     let mut model = Gaussians::new(options.capacity, time);
@@ -140,8 +161,16 @@ mod tests {
         let s = nearest_neighbour_scales(&xyz);
         // An interior point of a 0.5 grid: its 3 nearest are at 0.5.
         assert!((s[55] - 0.5).abs() < 1e-5, "{}", s[55]);
-        let cloud = PointCloud { rgb: vec![[255, 0, 128]; xyz.len()], xyz, time: None };
-        let tm = TimeMapping { start_seconds: 0.0, units_per_second: 1.0, duration: 2.0 };
+        let cloud = PointCloud {
+            rgb: vec![[255, 0, 128]; xyz.len()],
+            xyz,
+            time: None,
+        };
+        let tm = TimeMapping {
+            start_seconds: 0.0,
+            units_per_second: 1.0,
+            duration: 2.0,
+        };
         let g = gaussians_from_points(&cloud, tm, &InitOptions::default()).unwrap();
         assert_eq!(g.len(), 100);
         assert!(g.means.iter().all(|m| (0.0..=2.0).contains(&m[3])));
@@ -153,10 +182,18 @@ mod tests {
     #[test]
     fn bad_clouds_are_refused() {
         assert!(matches!(
-            gaussians_from_points(&PointCloud::default(), TimeMapping::default(), &InitOptions::default()),
+            gaussians_from_points(
+                &PointCloud::default(),
+                TimeMapping::default(),
+                &InitOptions::default()
+            ),
             Err(InitError::Empty)
         ));
-        let c = PointCloud { xyz: vec![[0.0, f32::NAN, 0.0]], rgb: vec![[0; 3]], time: None };
+        let c = PointCloud {
+            xyz: vec![[0.0, f32::NAN, 0.0]],
+            rgb: vec![[0; 3]],
+            time: None,
+        };
         assert!(matches!(
             gaussians_from_points(&c, TimeMapping::default(), &InitOptions::default()),
             Err(InitError::NonFinite { index: 0 })

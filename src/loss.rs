@@ -55,7 +55,12 @@ pub fn image_loss<F: Real>(
         }
         1.0
     };
-    LossValue { total: (1.0 - lambda_ssim) * l1 + lambda_ssim * (1.0 - s), l1, ssim: s, mse }
+    LossValue {
+        total: (1.0 - lambda_ssim) * l1 + lambda_ssim * (1.0 - s),
+        l1,
+        ssim: s,
+        mse,
+    }
 }
 
 fn sign<F: Real>(x: F) -> F {
@@ -70,7 +75,11 @@ fn sign<F: Real>(x: F) -> F {
 
 /// PSNR in dB of a mean squared error on `[0, 1]` images (∞ for a perfect match).
 pub fn psnr(mse: f64) -> f64 {
-    if mse <= 0.0 { f64::INFINITY } else { -10.0 * mse.log10() }
+    if mse <= 0.0 {
+        f64::INFINITY
+    } else {
+        -10.0 * mse.log10()
+    }
 }
 
 #[cfg(test)]
@@ -82,7 +91,9 @@ mod tests {
         let (w, h) = (12, 10);
         let n = 3 * w * h;
         let a: Vec<f64> = (0..n).map(|i| ((i * 37 % 101) as f64) / 101.0).collect();
-        let b: Vec<f64> = (0..n).map(|i| ((i * 53 % 97) as f64) / 97.0 + 0.003).collect();
+        let b: Vec<f64> = (0..n)
+            .map(|i| ((i * 53 % 97) as f64) / 97.0 + 0.003)
+            .collect();
         let mut g = vec![0.0; n];
         image_loss(&a, &b, w, h, 0.2, Some(&mut g));
         for i in (0..n).step_by(11) {
@@ -93,7 +104,11 @@ mod tests {
             p[i] -= 2.0 * eps;
             let down = image_loss(&p, &b, w, h, 0.2, None).total;
             let fd = (up - down) / (2.0 * eps);
-            assert!((fd - g[i]).abs() < 1e-6 * fd.abs().max(1e-3), "i={i}: fd {fd} vs {}", g[i]);
+            assert!(
+                (fd - g[i]).abs() < 1e-6 * fd.abs().max(1e-3),
+                "i={i}: fd {fd} vs {}",
+                g[i]
+            );
         }
     }
 

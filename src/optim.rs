@@ -49,9 +49,16 @@ impl LearningRates {
     /// The rates of every group at `iteration` (0-based) of a run of `total` iterations
     /// in a scene of radius `extent`.
     pub fn at(&self, iteration: u64, total: u64, extent: f64) -> GroupRates {
-        let steps = if self.position_decay_steps > 0 { self.position_decay_steps } else { total.max(1) };
+        let steps = if self.position_decay_steps > 0 {
+            self.position_decay_steps
+        } else {
+            total.max(1)
+        };
         let f = (iteration as f64 / steps as f64).clamp(0.0, 1.0);
-        let (a, b) = (self.position_init.max(1e-30), self.position_final.max(1e-30));
+        let (a, b) = (
+            self.position_init.max(1e-30),
+            self.position_final.max(1e-30),
+        );
         let position = (a.ln() * (1.0 - f) + b.ln() * f).exp() * extent;
         GroupRates {
             position: position as f32,
@@ -96,9 +103,11 @@ pub struct GroupRates {
 /// Colour degrees active at `iteration` (0-based): the spatial degree grows by one every
 /// `every` iterations up to `capacity.spatial`, then the temporal degree does.
 pub fn colour_degrees_at(iteration: u64, every: u64, capacity: ColourDegrees) -> ColourDegrees {
-    let steps = if every == 0 { u64::MAX } else { iteration / every };
+    let steps = iteration.checked_div(every).unwrap_or(u64::MAX);
     let spatial = steps.min(capacity.spatial as u64) as u32;
-    let temporal = steps.saturating_sub(capacity.spatial as u64).min(capacity.temporal as u64) as u32;
+    let temporal = steps
+        .saturating_sub(capacity.spatial as u64)
+        .min(capacity.temporal as u64) as u32;
     ColourDegrees { spatial, temporal }
 }
 
@@ -138,7 +147,11 @@ impl ParamBuffers {
     /// Rebuild from `sources`: entry `j` of the result is row `sources[j]` of `self`, or
     /// zeros where it is `None` (a new Gaussian's fresh moments).
     pub fn gather(&self, sources: &[Option<usize>]) -> Self {
-        let k = if self.is_empty() { 0 } else { self.colours.len() / self.len() };
+        let k = if self.is_empty() {
+            0
+        } else {
+            self.colours.len() / self.len()
+        };
         let mut out = Self::zeros(0, k);
         for s in sources {
             match *s {
@@ -148,7 +161,8 @@ impl ParamBuffers {
                     out.rot_left.push(self.rot_left[i]);
                     out.rot_right.push(self.rot_right[i]);
                     out.opacity_logits.push(self.opacity_logits[i]);
-                    out.colours.extend_from_slice(&self.colours[i * k..(i + 1) * k]);
+                    out.colours
+                        .extend_from_slice(&self.colours[i * k..(i + 1) * k]);
                 }
                 None => {
                     out.means.push([0.0; 4]);
@@ -177,9 +191,18 @@ impl ParamBuffers {
     }
 
     /// Inverse of [`ParamBuffers::values`] for `n` Gaussians of `colour_len` values each.
-    pub fn from_values(n: usize, colour_len: usize, mut v: impl Iterator<Item = f32>) -> Option<Self> {
+    pub fn from_values(
+        n: usize,
+        colour_len: usize,
+        mut v: impl Iterator<Item = f32>,
+    ) -> Option<Self> {
         let mut out = Self::zeros(n, colour_len);
-        for arr in [&mut out.means, &mut out.log_scales, &mut out.rot_left, &mut out.rot_right] {
+        for arr in [
+            &mut out.means,
+            &mut out.log_scales,
+            &mut out.rot_left,
+            &mut out.rot_right,
+        ] {
             for x in arr.iter_mut().flatten() {
                 *x = v.next()?;
             }
@@ -207,7 +230,15 @@ pub const BETA2: f32 = 0.999;
 pub const EPSILON: f32 = 1e-15;
 
 #[inline]
-fn update(p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32], lr: impl Fn(usize) -> f32, bc1: f32, bc2: f32) {
+fn update(
+    p: &mut [f32],
+    g: &[f32],
+    m: &mut [f32],
+    v: &mut [f32],
+    lr: impl Fn(usize) -> f32,
+    bc1: f32,
+    bc2: f32,
+) {
     for i in 0..p.len() {
         let gi = g[i];
         m[i] = BETA1 * m[i] + (1.0 - BETA1) * gi;
@@ -222,12 +253,20 @@ impl Adam {
     /// Fresh state for `model`.
     pub fn new(model: &Gaussians<f32>) -> Self {
         let k = 3 * model.coeffs_per_channel();
-        Self { step: 0, m: ParamBuffers::zeros(model.len(), k), v: ParamBuffers::zeros(model.len(), k) }
+        Self {
+            step: 0,
+            m: ParamBuffers::zeros(model.len(), k),
+            v: ParamBuffers::zeros(model.len(), k),
+        }
     }
 
     /// One Adam step of every group of `model` with gradients `grads`.
     pub fn step(&mut self, model: &mut Gaussians<f32>, grads: &Gradients<f32>, rates: &GroupRates) {
-        assert_eq!(self.m.len(), model.len(), "Adam state out of step with the model");
+        assert_eq!(
+            self.m.len(),
+            model.len(),
+            "Adam state out of step with the model"
+        );
         self.step += 1;
         let t = self.step as i32;
         let bc1 = 1.0 - BETA1.powi(t);
@@ -247,9 +286,27 @@ impl Adam {
                     bc2,
                 );
                 let groups = [
-                    (&mut model.log_scales, &grads.log_scales, &mut m.log_scales, &mut v.log_scales, r.scale),
-                    (&mut model.rot_left, &grads.rot_left, &mut m.rot_left, &mut v.rot_left, r.rotation),
-                    (&mut model.rot_right, &grads.rot_right, &mut m.rot_right, &mut v.rot_right, r.rotation),
+                    (
+                        &mut model.log_scales,
+                        &grads.log_scales,
+                        &mut m.log_scales,
+                        &mut v.log_scales,
+                        r.scale,
+                    ),
+                    (
+                        &mut model.rot_left,
+                        &grads.rot_left,
+                        &mut m.rot_left,
+                        &mut v.rot_left,
+                        r.rotation,
+                    ),
+                    (
+                        &mut model.rot_right,
+                        &grads.rot_right,
+                        &mut m.rot_right,
+                        &mut v.rot_right,
+                        r.rotation,
+                    ),
                 ];
                 for (p, g, mm, vv, lr) in groups {
                     update(
@@ -286,7 +343,15 @@ impl Adam {
                     .into_par_iter()
                     .with_min_len(1024)
                     .for_each(|(p, g, mm, vv)| {
-                        update(p, g, mm, vv, |i| if i < 3 { r.colour_dc } else { r.colour_rest }, bc1, bc2)
+                        update(
+                            p,
+                            g,
+                            mm,
+                            vv,
+                            |i| if i < 3 { r.colour_dc } else { r.colour_rest },
+                            bc1,
+                            bc2,
+                        )
                     });
             },
         );
@@ -339,8 +404,20 @@ mod tests {
     fn degree_schedule_grows_spatial_then_temporal() {
         let cap = ColourDegrees::FULL;
         assert_eq!(colour_degrees_at(999, 1000, cap), ColourDegrees::DC);
-        assert_eq!(colour_degrees_at(2000, 1000, cap), ColourDegrees { spatial: 2, temporal: 0 });
-        assert_eq!(colour_degrees_at(4000, 1000, cap), ColourDegrees { spatial: 3, temporal: 1 });
+        assert_eq!(
+            colour_degrees_at(2000, 1000, cap),
+            ColourDegrees {
+                spatial: 2,
+                temporal: 0
+            }
+        );
+        assert_eq!(
+            colour_degrees_at(4000, 1000, cap),
+            ColourDegrees {
+                spatial: 3,
+                temporal: 1
+            }
+        );
         assert_eq!(colour_degrees_at(99_000, 1000, cap), cap);
     }
 }

@@ -11,11 +11,22 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 pub enum PlyError {
     #[error("cannot access point cloud {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
-    #[error("{path} is not a supported PLY point cloud: {reason}; write it as binary little-endian with x y z red green blue [t]")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error(
+        "{path} is not a supported PLY point cloud: {reason}; write it as binary little-endian with x y z red green blue [t]"
+    )]
     Format { path: PathBuf, reason: String },
-    #[error("{path} is truncated: {expected} vertex bytes expected, {found} present; rerun the init stage")]
-    Truncated { path: PathBuf, expected: u64, found: u64 },
+    #[error(
+        "{path} is truncated: {expected} vertex bytes expected, {found} present; rerun the init stage"
+    )]
+    Truncated {
+        path: PathBuf,
+        expected: u64,
+        found: u64,
+    },
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -70,10 +81,20 @@ impl Kind {
 
 /// Read `points.ply`.
 pub fn read_points_ply(path: &Path) -> Result<PointCloud, PlyError> {
-    let bytes = std::fs::read(path).map_err(|source| PlyError::Io { path: path.into(), source })?;
+    let bytes = std::fs::read(path).map_err(|source| PlyError::Io {
+        path: path.into(),
+        source,
+    })?;
     parse_points_ply(&bytes).map_err(|e| match e {
-        ParseError::Format(reason) => PlyError::Format { path: path.into(), reason },
-        ParseError::Truncated(expected, found) => PlyError::Truncated { path: path.into(), expected, found },
+        ParseError::Format(reason) => PlyError::Format {
+            path: path.into(),
+            reason,
+        },
+        ParseError::Truncated(expected, found) => PlyError::Truncated {
+            path: path.into(),
+            expected,
+            found,
+        },
     })
 }
 
@@ -98,7 +119,9 @@ fn parse_points_ply(bytes: &[u8]) -> Result<PointCloud, ParseError> {
         let w: Vec<&str> = line.split_whitespace().collect();
         match w.as_slice() {
             ["format", "binary_little_endian", _] => format_ok = true,
-            ["format", f, ..] => return Err(ParseError::Format(format!("format `{f}` is not supported"))),
+            ["format", f, ..] => {
+                return Err(ParseError::Format(format!("format `{f}` is not supported")));
+            }
             ["element", "vertex", n] => {
                 if count.is_some() {
                     return Err(fmt("two vertex elements"));
@@ -108,13 +131,18 @@ fn parse_points_ply(bytes: &[u8]) -> Result<PointCloud, ParseError> {
             }
             ["element", name, n] => {
                 if count.is_none() || n.parse::<u64>().ok() != Some(0) {
-                    return Err(ParseError::Format(format!("element `{name}` before or after the vertices")));
+                    return Err(ParseError::Format(format!(
+                        "element `{name}` before or after the vertices"
+                    )));
                 }
                 in_vertex = false;
             }
-            ["property", "list", ..] if in_vertex => return Err(fmt("list properties on vertices")),
+            ["property", "list", ..] if in_vertex => {
+                return Err(fmt("list properties on vertices"));
+            }
             ["property", ty, name] if in_vertex => {
-                let k = Kind::parse(ty).ok_or_else(|| ParseError::Format(format!("unknown type `{ty}`")))?;
+                let k = Kind::parse(ty)
+                    .ok_or_else(|| ParseError::Format(format!("unknown type `{ty}`")))?;
                 props.push((name.to_string(), k));
             }
             _ => {}
@@ -131,7 +159,9 @@ fn parse_points_ply(bytes: &[u8]) -> Result<PointCloud, ParseError> {
         offsets.push(stride);
         stride += k.size();
     }
-    let need = |name: &str| find_prop(name).ok_or_else(|| ParseError::Format(format!("no `{name}` property")));
+    let need = |name: &str| {
+        find_prop(name).ok_or_else(|| ParseError::Format(format!("no `{name}` property")))
+    };
     let xyz_idx = [need("x")?, need("y")?, need("z")?];
     let rgb_idx = [need("red")?, need("green")?, need("blue")?];
     let t_idx = find_prop("t");
@@ -149,7 +179,9 @@ fn parse_points_ply(bytes: &[u8]) -> Result<PointCloud, ParseError> {
     let get = |row: &[u8], i: usize| props[i].1.read(&row[offsets[i]..]);
     for row in body.chunks_exact(stride.max(1)).take(n) {
         cloud.xyz.push(xyz_idx.map(|i| get(row, i) as f32));
-        cloud.rgb.push(rgb_idx.map(|i| get(row, i).clamp(0.0, 255.0) as u8));
+        cloud
+            .rgb
+            .push(rgb_idx.map(|i| get(row, i).clamp(0.0, 255.0) as u8));
         if let (Some(t), Some(i)) = (cloud.time.as_mut(), t_idx) {
             t.push(get(row, i) as f32);
         }
@@ -164,7 +196,10 @@ fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
 /// Write `cloud` as binary little-endian PLY (`x y z` float, `red green blue` uchar,
 /// `t` float when present), atomically through `<path>.tmp`.
 pub fn write_points_ply(cloud: &PointCloud, path: &Path) -> Result<(), PlyError> {
-    let io = |source| PlyError::Io { path: path.into(), source };
+    let io = |source| PlyError::Io {
+        path: path.into(),
+        source,
+    };
     let mut buf = Vec::new();
     let mut header = format!(
         "ply\nformat binary_little_endian 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n",
@@ -176,7 +211,9 @@ pub fn write_points_ply(cloud: &PointCloud, path: &Path) -> Result<(), PlyError>
     header.push_str("end_header\n");
     buf.extend_from_slice(header.as_bytes());
     for i in 0..cloud.xyz.len() {
-        cloud.xyz[i].iter().for_each(|v| buf.extend_from_slice(&v.to_le_bytes()));
+        cloud.xyz[i]
+            .iter()
+            .for_each(|v| buf.extend_from_slice(&v.to_le_bytes()));
         buf.extend_from_slice(&cloud.rgb.get(i).copied().unwrap_or([0; 3]));
         if let Some(t) = &cloud.time {
             buf.extend_from_slice(&t.get(i).copied().unwrap_or(0.0).to_le_bytes());
@@ -197,7 +234,11 @@ mod tests {
     fn round_trip_with_and_without_time() {
         let dir = tempfile::tempdir().unwrap();
         for time in [None, Some(vec![0.5, 1.5])] {
-            let c = PointCloud { xyz: vec![[1.0, 2.0, 3.0], [-1.0, 0.5, 9.0]], rgb: vec![[1, 2, 3], [250, 0, 7]], time };
+            let c = PointCloud {
+                xyz: vec![[1.0, 2.0, 3.0], [-1.0, 0.5, 9.0]],
+                rgb: vec![[1, 2, 3], [250, 0, 7]],
+                time,
+            };
             let p = dir.path().join("points.ply");
             write_points_ply(&c, &p).unwrap();
             assert_eq!(read_points_ply(&p).unwrap(), c);
@@ -208,11 +249,18 @@ mod tests {
     fn truncated_and_ascii_files_are_errors() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("points.ply");
-        let c = PointCloud { xyz: vec![[1.0, 2.0, 3.0]; 4], rgb: vec![[1, 2, 3]; 4], time: None };
+        let c = PointCloud {
+            xyz: vec![[1.0, 2.0, 3.0]; 4],
+            rgb: vec![[1, 2, 3]; 4],
+            time: None,
+        };
         write_points_ply(&c, &p).unwrap();
         let bytes = std::fs::read(&p).unwrap();
         std::fs::write(&p, &bytes[..bytes.len() - 3]).unwrap();
-        assert!(matches!(read_points_ply(&p), Err(PlyError::Truncated { .. })));
+        assert!(matches!(
+            read_points_ply(&p),
+            Err(PlyError::Truncated { .. })
+        ));
         std::fs::write(&p, b"ply\nformat ascii 1.0\nelement vertex 0\nend_header\n").unwrap();
         assert!(matches!(read_points_ply(&p), Err(PlyError::Format { .. })));
     }

@@ -58,7 +58,13 @@ fn blur<F: Real>(src: &[F], w: usize, h: usize, tmp: &mut Vec<F>, out: &mut Vec<
 
 /// Mean SSIM of `a` against `b` (interleaved RGB, `width × height`) and, when `grad` is
 /// given, `d(mean SSIM)/d(a)` written into it (same layout as `a`).
-pub fn ssim<F: Real>(a: &[F], b: &[F], width: usize, height: usize, mut grad: Option<&mut [F]>) -> F {
+pub fn ssim<F: Real>(
+    a: &[F],
+    b: &[F],
+    width: usize,
+    height: usize,
+    mut grad: Option<&mut [F]>,
+) -> F {
     let n = width * height;
     assert_eq!(a.len(), 3 * n, "ssim: image a has the wrong size");
     assert_eq!(b.len(), 3 * n, "ssim: image b has the wrong size");

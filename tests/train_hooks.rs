@@ -15,7 +15,12 @@ struct Decay {
 }
 
 impl TrainHooks for Decay {
-    fn opacity_factor(&mut self, _it: u64, model: &Gaussians<f32>, _view: &View) -> Option<Vec<f32>> {
+    fn opacity_factor(
+        &mut self,
+        _it: u64,
+        model: &Gaussians<f32>,
+        _view: &View,
+    ) -> Option<Vec<f32>> {
         self.calls += 1;
         Some(vec![0.9; model.len()])
     }
@@ -43,18 +48,45 @@ fn decay_hooks_are_called_and_see_gradients() {
     let data = train_scene::dataset(32, 24);
     let init = train_scene::points(10, 8, &[0.5]);
     let dir = tempfile::tempdir().unwrap();
-    let mut config = TrainConfig { iterations: 6, batch_size: 2, checkpoint_every: 3, ..Default::default() };
+    let mut config = TrainConfig {
+        iterations: 6,
+        batch_size: 2,
+        checkpoint_every: 3,
+        ..Default::default()
+    };
     config.densify.enabled = false;
     let mut hooks = Decay::default();
-    train(&config, &data, &init, dir.path(), false, &mut hooks, &NoProgress).unwrap();
+    train(
+        &config,
+        &data,
+        &init,
+        dir.path(),
+        false,
+        &mut hooks,
+        &NoProgress,
+    )
+    .unwrap();
     assert_eq!(hooks.calls, 12);
     assert_eq!(hooks.grad_calls, 12);
     assert!(hooks.grad_abs > 0.0);
 
     config.iterations = 8;
     let mut again = Decay::default();
-    train(&config, &data, &init, dir.path(), true, &mut again, &NoProgress).unwrap();
-    assert_eq!(again.loaded, Some(12u64.to_le_bytes().to_vec()), "hook state restored from checkpoint 6");
+    train(
+        &config,
+        &data,
+        &init,
+        dir.path(),
+        true,
+        &mut again,
+        &NoProgress,
+    )
+    .unwrap();
+    assert_eq!(
+        again.loaded,
+        Some(12u64.to_le_bytes().to_vec()),
+        "hook state restored from checkpoint 6"
+    );
     assert_eq!(again.calls, 4);
 }
 
@@ -65,14 +97,28 @@ fn frames_load_at_the_working_resolution_with_scaled_intrinsics() {
     let dir = tempfile::tempdir().unwrap();
     let v = &data.views[2];
     let path = dir.path().join("000002.png");
-    image::RgbImage::from_raw(64, 48, v.image.data.clone()).unwrap().save(&path).unwrap();
-    let frames = [FrameSource { camera: v.camera.clone(), time: 0.25, path }];
+    image::RgbImage::from_raw(64, 48, v.image.data.clone())
+        .unwrap()
+        .save(&path)
+        .unwrap();
+    let frames = [FrameSource {
+        camera: v.camera.clone(),
+        time: 0.25,
+        path,
+    }];
     let d = Dataset::load(&frames, Some(32), data.time_mapping).unwrap();
     let w = &d.views[0];
     assert_eq!((w.image.width, w.image.height), (32, 24));
-    assert_eq!((w.camera.intrinsics.width, w.camera.intrinsics.height), (32, 24));
+    assert_eq!(
+        (w.camera.intrinsics.width, w.camera.intrinsics.height),
+        (32, 24)
+    );
     assert!((w.camera.intrinsics.fx - v.camera.intrinsics.fx / 2.0).abs() < 1e-9);
-    let missing = [FrameSource { camera: v.camera.clone(), time: 0.0, path: dir.path().join("nope.png") }];
+    let missing = [FrameSource {
+        camera: v.camera.clone(),
+        time: 0.0,
+        path: dir.path().join("nope.png"),
+    }];
     let e = Dataset::load(&missing, None, data.time_mapping).unwrap_err();
     assert!(e.to_string().contains("nope.png"));
 }

@@ -16,10 +16,15 @@ const VERSION: u32 = 1;
 #[derive(Debug, thiserror::Error)]
 pub enum CheckpointError {
     #[error("cannot access checkpoint {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error(transparent)]
     Model(#[from] ModelFileError),
-    #[error("{path} is not a valid training state ({reason}); delete it to resume from an earlier checkpoint")]
+    #[error(
+        "{path} is not a valid training state ({reason}); delete it to resume from an earlier checkpoint"
+    )]
     Corrupt { path: PathBuf, reason: String },
 }
 
@@ -35,7 +40,10 @@ pub struct Checkpoint {
 
 /// Paths of the checkpoint after `iteration` iterations.
 pub fn paths(dir: &Path, iteration: u64) -> (PathBuf, PathBuf) {
-    (dir.join(format!("{iteration:06}.bin")), dir.join(format!("{iteration:06}.state")))
+    (
+        dir.join(format!("{iteration:06}.bin")),
+        dir.join(format!("{iteration:06}.state")),
+    )
 }
 
 /// Write a checkpoint (state first, model last; both atomically).
@@ -51,14 +59,33 @@ pub fn save(dir: &Path, c: &Checkpoint) -> Result<PathBuf, CheckpointError> {
     let mut buf = Vec::new();
     buf.extend_from_slice(&MAGIC);
     buf.extend_from_slice(&VERSION.to_le_bytes());
-    for v in [c.iteration, c.seed, c.adam.step, n, k, c.hook_state.len() as u64] {
+    for v in [
+        c.iteration,
+        c.seed,
+        c.adam.step,
+        n,
+        k,
+        c.hook_state.len() as u64,
+    ] {
         buf.extend_from_slice(&v.to_le_bytes());
     }
-    for v in c.adam.m.values().chain(c.adam.v.values()).chain(c.stats.grad_sum.iter().copied()) {
+    for v in c
+        .adam
+        .m
+        .values()
+        .chain(c.adam.v.values())
+        .chain(c.stats.grad_sum.iter().copied())
+    {
         buf.extend_from_slice(&v.to_le_bytes());
     }
-    c.stats.count.iter().for_each(|v| buf.extend_from_slice(&v.to_le_bytes()));
-    c.stats.max_radius.iter().for_each(|v| buf.extend_from_slice(&v.to_le_bytes()));
+    c.stats
+        .count
+        .iter()
+        .for_each(|v| buf.extend_from_slice(&v.to_le_bytes()));
+    c.stats
+        .max_radius
+        .iter()
+        .for_each(|v| buf.extend_from_slice(&v.to_le_bytes()));
     buf.extend_from_slice(&c.hook_state);
     let tmp = state_path.with_extension("state.tmp");
     let mut f = std::fs::File::create(&tmp).map_err(io(&tmp))?;
@@ -71,7 +98,9 @@ pub fn save(dir: &Path, c: &Checkpoint) -> Result<PathBuf, CheckpointError> {
 
 /// Iterations of the complete checkpoints in `dir`, ascending.
 pub fn list(dir: &Path) -> Vec<u64> {
-    let Ok(entries) = std::fs::read_dir(dir) else { return Vec::new() };
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Vec::new();
+    };
     let mut its: Vec<u64> = entries
         .filter_map(|e| e.ok())
         .filter_map(|e| {
@@ -98,15 +127,22 @@ pub fn prune(dir: &Path, keep: usize) {
 pub fn load(dir: &Path, iteration: u64) -> Result<Checkpoint, CheckpointError> {
     let (model_path, state_path) = paths(dir, iteration);
     let model = load_model(&model_path)?;
-    let bytes = std::fs::read(&state_path).map_err(|source| CheckpointError::Io { path: state_path.clone(), source })?;
-    let corrupt = |reason: &str| CheckpointError::Corrupt { path: state_path.clone(), reason: reason.into() };
+    let bytes = std::fs::read(&state_path).map_err(|source| CheckpointError::Io {
+        path: state_path.clone(),
+        source,
+    })?;
+    let corrupt = |reason: &str| CheckpointError::Corrupt {
+        path: state_path.clone(),
+        reason: reason.into(),
+    };
     if bytes.len() < 60 || bytes[..8] != MAGIC {
         return Err(corrupt("bad magic"));
     }
     if u32::from_le_bytes(bytes[8..12].try_into().unwrap_or_default()) != VERSION {
         return Err(corrupt("unsupported version"));
     }
-    let word = |i: usize| u64::from_le_bytes(bytes[12 + 8 * i..20 + 8 * i].try_into().unwrap_or_default());
+    let word =
+        |i: usize| u64::from_le_bytes(bytes[12 + 8 * i..20 + 8 * i].try_into().unwrap_or_default());
     let (it, seed, step, n, k, hook_len) = (word(0), word(1), word(2), word(3), word(4), word(5));
     if it != iteration || n != model.len() as u64 || k != 3 * model.coeffs_per_channel() as u64 {
         return Err(corrupt("does not match its model file"));
@@ -115,7 +151,10 @@ pub fn load(dir: &Path, iteration: u64) -> Result<Checkpoint, CheckpointError> {
     let floats = 2 * n * (17 + k) + n;
     let expected = 60 + 4 * floats + 8 * n + hook_len as usize;
     if bytes.len() != expected {
-        return Err(corrupt(&format!("{} bytes, expected {expected}", bytes.len())));
+        return Err(corrupt(&format!(
+            "{} bytes, expected {expected}",
+            bytes.len()
+        )));
     }
     let mut pos = 60;
     let mut next4 = || {
@@ -126,9 +165,12 @@ pub fn load(dir: &Path, iteration: u64) -> Result<Checkpoint, CheckpointError> {
     let mut f32s = std::iter::from_fn(|| Some(f32::from_le_bytes(next4())));
     let m = ParamBuffers::from_values(n, k, &mut f32s).ok_or_else(|| corrupt("short moments"))?;
     let v = ParamBuffers::from_values(n, k, &mut f32s).ok_or_else(|| corrupt("short moments"))?;
-    let grad_sum: Vec<f32> = (&mut f32s).take(n).collect();
-    drop(f32s);
-    let mut stats = DensifyStats { grad_sum, count: Vec::with_capacity(n), max_radius: Vec::with_capacity(n) };
+    let grad_sum: Vec<f32> = f32s.take(n).collect();
+    let mut stats = DensifyStats {
+        grad_sum,
+        count: Vec::with_capacity(n),
+        max_radius: Vec::with_capacity(n),
+    };
     for _ in 0..n {
         stats.count.push(u32::from_le_bytes(next4()));
     }
@@ -136,5 +178,12 @@ pub fn load(dir: &Path, iteration: u64) -> Result<Checkpoint, CheckpointError> {
         stats.max_radius.push(f32::from_le_bytes(next4()));
     }
     let hook_state = bytes[pos..].to_vec();
-    Ok(Checkpoint { iteration, seed, model, adam: Adam { step, m, v }, stats, hook_state })
+    Ok(Checkpoint {
+        iteration,
+        seed,
+        model,
+        adam: Adam { step, m, v },
+        stats,
+        hook_state,
+    })
 }

@@ -17,13 +17,23 @@ pub struct ImageU8 {
 #[derive(Debug, thiserror::Error)]
 pub enum ImageLoadError {
     #[error("cannot read image {path}: {source}; check that the frames stage finished")]
-    Decode { path: PathBuf, source: image::ImageError },
+    Decode {
+        path: PathBuf,
+        source: image::ImageError,
+    },
 }
 
 impl ImageU8 {
     /// From `f32` RGB in `[0, 1]` (rounded, clamped).
     pub fn from_f32(width: u32, height: u32, rgb: &[f32]) -> Self {
-        Self { width, height, data: rgb.iter().map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8).collect() }
+        Self {
+            width,
+            height,
+            data: rgb
+                .iter()
+                .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+                .collect(),
+        }
     }
 
     /// As `f32` RGB in `[0, 1]`, written into `out`.
@@ -34,7 +44,10 @@ impl ImageU8 {
 
     /// Load a PNG/JPEG, resized (Lanczos-free triangle filter) to `size` when given.
     pub fn load(path: &Path, size: Option<(u32, u32)>) -> Result<Self, ImageLoadError> {
-        let err = |source| ImageLoadError::Decode { path: path.to_path_buf(), source };
+        let err = |source| ImageLoadError::Decode {
+            path: path.to_path_buf(),
+            source,
+        };
         let mut img = image::open(path).map_err(err)?.into_rgb8();
         if let Some((w, h)) = size
             && (w, h) != img.dimensions()
@@ -42,7 +55,11 @@ impl ImageU8 {
             img = image::imageops::resize(&img, w, h, image::imageops::FilterType::Triangle);
         }
         let (width, height) = img.dimensions();
-        Ok(Self { width, height, data: img.into_raw() })
+        Ok(Self {
+            width,
+            height,
+            data: img.into_raw(),
+        })
     }
 }
 
@@ -60,7 +77,11 @@ impl View {
     /// A view whose camera intrinsics are rescaled to the image's size (working resolution).
     pub fn at_image_size(mut camera: Camera, time: f32, image: ImageU8) -> Self {
         camera.intrinsics = camera.intrinsics.scaled_to(image.width, image.height);
-        Self { camera, time, image }
+        Self {
+            camera,
+            time,
+            image,
+        }
     }
 }
 
@@ -75,12 +96,20 @@ impl Dataset {
     /// Radius of the camera centres around their mean × 1.1 (3DGS "scene extent"), at
     /// least 1e-3; 1 for a single camera.
     pub fn scene_extent(&self) -> f64 {
-        let centres: Vec<_> = self.views.iter().map(|v| v.camera.world_to_camera.centre()).collect();
+        let centres: Vec<_> = self
+            .views
+            .iter()
+            .map(|v| v.camera.world_to_camera.centre())
+            .collect();
         if centres.is_empty() {
             return 1.0;
         }
         let mean = centres.iter().copied().sum::<glam::DVec3>() / centres.len() as f64;
-        let r = centres.iter().map(|c| (*c - mean).length()).fold(0.0, f64::max) * 1.1;
+        let r = centres
+            .iter()
+            .map(|c| (*c - mean).length())
+            .fold(0.0, f64::max)
+            * 1.1;
         if r > 1e-3 { r } else { 1.0 }
     }
 }
@@ -97,7 +126,11 @@ pub struct FrameSource {
 impl Dataset {
     /// Load every frame (in parallel) at the working resolution `width` (height keeps the
     /// camera's aspect ratio; `None`: the camera's own size), rescaling the intrinsics.
-    pub fn load(frames: &[FrameSource], width: Option<u32>, time_mapping: TimeMapping) -> Result<Self, ImageLoadError> {
+    pub fn load(
+        frames: &[FrameSource],
+        width: Option<u32>,
+        time_mapping: TimeMapping,
+    ) -> Result<Self, ImageLoadError> {
         use rayon::prelude::*;
         let views = frames
             .par_iter()
@@ -105,7 +138,9 @@ impl Dataset {
                 let i = &f.camera.intrinsics;
                 let size = match width {
                     Some(w) if w > 0 && w != i.width => {
-                        let h = ((i.height as f64 * w as f64 / i.width.max(1) as f64).round() as u32).max(1);
+                        let h = ((i.height as f64 * w as f64 / i.width.max(1) as f64).round()
+                            as u32)
+                            .max(1);
                         (w, h)
                     }
                     _ => (i.width, i.height),
@@ -114,6 +149,9 @@ impl Dataset {
                 Ok(View::at_image_size(f.camera.clone(), f.time, image))
             })
             .collect::<Result<Vec<_>, _>>()?;
-        Ok(Self { views, time_mapping })
+        Ok(Self {
+            views,
+            time_mapping,
+        })
     }
 }

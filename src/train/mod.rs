@@ -84,10 +84,21 @@ impl Default for TrainConfig {
 pub enum TrainError {
     #[error("invalid [train] setting: {0}")]
     Config(String),
-    #[error("the dataset has no views; check that the frames and poses stages produced images and cameras")]
+    #[error(
+        "the dataset has no views; check that the frames and poses stages produced images and cameras"
+    )]
     NoViews,
-    #[error("view {index} (camera '{camera}') has a {image_w}×{image_h} image but a {camera_w}×{camera_h} camera; use View::at_image_size")]
-    ImageSize { index: usize, camera: String, image_w: u32, image_h: u32, camera_w: u32, camera_h: u32 },
+    #[error(
+        "view {index} (camera '{camera}') has a {image_w}×{image_h} image but a {camera_w}×{camera_h} camera; use View::at_image_size"
+    )]
+    ImageSize {
+        index: usize,
+        camera: String,
+        image_w: u32,
+        image_h: u32,
+        camera_w: u32,
+        camera_h: u32,
+    },
     #[error(transparent)]
     Init(#[from] InitError),
     #[error("rendering view {index} failed: {source}")]
@@ -95,13 +106,22 @@ pub enum TrainError {
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
     #[error("cannot write {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error(
         "training diverged at iteration {iteration}: {what} became NaN or infinite; no model was written{}. Try lower learning rates in [train.lr] (e.g. halve position_init and opacity) or a smaller batch",
         match last_checkpoint { Some(p) => format!(" (last good checkpoint: {})", p.display()), None => String::new() }
     )]
-    NonFinite { iteration: u64, what: &'static str, last_checkpoint: Option<PathBuf> },
-    #[error("all Gaussians were pruned at iteration {iteration}; lower [train.densify] min_opacity or raise max_world_size / max_screen_radius")]
+    NonFinite {
+        iteration: u64,
+        what: &'static str,
+        last_checkpoint: Option<PathBuf>,
+    },
+    #[error(
+        "all Gaussians were pruned at iteration {iteration}; lower [train.densify] min_opacity or raise max_world_size / max_screen_radius"
+    )]
     EmptyModel { iteration: u64 },
     #[error("training was stopped after iteration {iteration}; checkpoint {} was written, rerun with --resume to continue", checkpoint.display())]
     Interrupted { iteration: u64, checkpoint: PathBuf },
@@ -112,7 +132,12 @@ pub enum TrainError {
 /// What the caller can plug into every step: the 4C4D neural decay seam.
 pub trait TrainHooks {
     /// A per-Gaussian render-opacity factor for this view (length = model size), or None.
-    fn opacity_factor(&mut self, _iteration: u64, _model: &Gaussians<f32>, _view: &View) -> Option<Vec<f32>> {
+    fn opacity_factor(
+        &mut self,
+        _iteration: u64,
+        _model: &Gaussians<f32>,
+        _view: &View,
+    ) -> Option<Vec<f32>> {
         None
     }
     /// dLoss/d(factor) of the view rendered with the factor returned just before.
@@ -171,6 +196,18 @@ fn validate(config: &TrainConfig, dataset: &Dataset) -> Result<(), TrainError> {
         return Err(TrainError::NoViews);
     }
     for (index, v) in dataset.views.iter().enumerate() {
+        if !v.camera.distortion.is_none() {
+            let camera = v.camera.name.clone();
+            return Err(TrainError::Render {
+                index,
+                source: RenderError::DistortedCamera { camera },
+            });
+        }
+        if !v.time.is_finite() {
+            return Err(TrainError::Config(format!(
+                "view {index} has a non-finite time"
+            )));
+        }
         let i = &v.camera.intrinsics;
         if (i.width, i.height) != (v.image.width, v.image.height)
             || v.image.data.len() != 3 * v.image.width as usize * v.image.height as usize
@@ -219,14 +256,23 @@ fn all_finite(model: &Gaussians<f32>) -> bool {
 
 fn add_into(sum: &mut Gradients<f32>, g: &Gradients<f32>) {
     let add4 = |a: &mut Vec<[f32; 4]>, b: &Vec<[f32; 4]>| {
-        a.as_flattened_mut().iter_mut().zip(b.as_flattened()).for_each(|(x, y)| *x += y)
+        a.as_flattened_mut()
+            .iter_mut()
+            .zip(b.as_flattened())
+            .for_each(|(x, y)| *x += y)
     };
     add4(&mut sum.means, &g.means);
     add4(&mut sum.log_scales, &g.log_scales);
     add4(&mut sum.rot_left, &g.rot_left);
     add4(&mut sum.rot_right, &g.rot_right);
-    sum.opacity_logits.iter_mut().zip(&g.opacity_logits).for_each(|(x, y)| *x += y);
-    sum.colours.iter_mut().zip(&g.colours).for_each(|(x, y)| *x += y);
+    sum.opacity_logits
+        .iter_mut()
+        .zip(&g.opacity_logits)
+        .for_each(|(x, y)| *x += y);
+    sum.colours
+        .iter_mut()
+        .zip(&g.colours)
+        .for_each(|(x, y)| *x += y);
 }
 
 /// Train a model on `dataset` from `init`, writing `out_dir/{ckpt/, model.bin, log.csv}`.
@@ -250,7 +296,11 @@ pub fn train(
     let ckpt_dir = out_dir.join("ckpt");
     let extent = dataset.scene_extent() as f32;
 
-    let latest = if resume { checkpoint::list(&ckpt_dir).last().copied() } else { None };
+    let latest = if resume {
+        checkpoint::list(&ckpt_dir).last().copied()
+    } else {
+        None
+    };
     let (mut model, mut adam, mut stats, start) = match latest {
         Some(it) => {
             let c = checkpoint::load(&ckpt_dir, it)?;
@@ -261,7 +311,9 @@ pub fn train(
                 )));
             }
             if c.model.capacity != config.colour_degrees {
-                return Err(TrainError::Resume("the checkpoint's colour degrees differ from the config".into()));
+                return Err(TrainError::Resume(
+                    "the checkpoint's colour degrees differ from the config".into(),
+                ));
             }
             hooks.load_state(&c.hook_state);
             (c.model, c.adam, c.stats, it)
@@ -289,7 +341,11 @@ pub fn train(
     let d = &config.densify;
     let (mut target, mut d_image) = (Vec::new(), Vec::new());
     let (mut final_loss, mut final_psnr) = (f64::NAN, f64::NAN);
-    let save_ckpt = |it: u64, model: &Gaussians<f32>, adam: &Adam, stats: &DensifyStats, hooks: &dyn TrainHooks| {
+    let save_ckpt = |it: u64,
+                     model: &Gaussians<f32>,
+                     adam: &Adam,
+                     stats: &DensifyStats,
+                     hooks: &dyn TrainHooks| {
         let c = Checkpoint {
             iteration: it,
             seed: config.seed,
@@ -314,23 +370,47 @@ pub fn train(
         for &vi in &batch {
             let view = &dataset.views[vi];
             let factor = hooks.opacity_factor(it, &model, view);
-            let options =
-                RenderOptions { background: config.background, opacity_factor: factor.as_deref(), ..Default::default() };
+            let options = RenderOptions {
+                background: config.background,
+                opacity_factor: factor.as_deref(),
+                ..Default::default()
+            };
             let r = render_with(&model, &view.camera, view.time, &options)
                 .map_err(|source| TrainError::Render { index: vi, source })?;
             view.image.to_f32_into(&mut target);
             d_image.clear();
             d_image.resize(target.len(), 0.0);
             let (w, h) = (r.width as usize, r.height as usize);
-            let lv = image_loss(&r.rgb, &target, w, h, config.lambda_ssim, Some(&mut d_image));
+            let lv = image_loss(
+                &r.rgb,
+                &target,
+                w,
+                h,
+                config.lambda_ssim,
+                Some(&mut d_image),
+            );
             d_image.iter_mut().for_each(|g| *g *= scale);
             let g = r
-                .backward(&model, &ImageGradients { rgb: &d_image, alpha: None, depth: None })
+                .backward(
+                    &model,
+                    &ImageGradients {
+                        rgb: &d_image,
+                        alpha: None,
+                        depth: None,
+                    },
+                )
                 .map_err(|source| TrainError::Render { index: vi, source })?;
             if factor.is_some() {
                 hooks.factor_gradient(it, &model, &g.opacity_factor);
             }
-            stats.record(&g.mean2d_norm, &r.radii, r.width, r.height);
+            // The statistic is the gradient of this view's own loss (undo the 1/batch).
+            stats.record(
+                &g.mean2d_norm,
+                &r.radii,
+                r.width,
+                r.height,
+                batch.len() as f32,
+            );
             add_into(&mut grads, &g);
             loss_sum += lv.total;
             l1_sum += lv.l1;
@@ -352,14 +432,26 @@ pub fn train(
         if let Some(what) = what {
             log.flush().map_err(io(&log_path))?;
             progress.finish();
-            return Err(TrainError::NonFinite { iteration: done, what, last_checkpoint });
+            return Err(TrainError::NonFinite {
+                iteration: done,
+                what,
+                last_checkpoint,
+            });
         }
 
         // Density control.
         if d.enabled && done > d.from_iteration && done <= d.until_iteration {
             if d.every > 0 && done % d.every == 0 {
                 let prune_large = d.opacity_reset_every > 0 && done > d.opacity_reset_every;
-                densify_and_prune(&mut model, &mut adam, &mut stats, d, extent, prune_large, &mut rng);
+                densify_and_prune(
+                    &mut model,
+                    &mut adam,
+                    &mut stats,
+                    d,
+                    extent,
+                    prune_large,
+                    &mut rng,
+                );
                 if model.is_empty() {
                     log.flush().map_err(io(&log_path))?;
                     progress.finish();
@@ -384,7 +476,8 @@ pub fn train(
         };
         log.write(&row).map_err(io(&log_path))?;
         progress.advance(1);
-        if config.report_every > 0 && (done % config.report_every == 0 || done == config.iterations) {
+        if config.report_every > 0 && (done % config.report_every == 0 || done == config.iterations)
+        {
             let rate = (done - start) as f64 / started.elapsed().as_secs_f64().max(1e-9);
             let eta = (config.iterations - done) as f64 / rate.max(1e-9);
             progress.message(&format!(
@@ -396,7 +489,9 @@ pub fn train(
                 eta
             ));
         }
-        if (config.checkpoint_every > 0 && done % config.checkpoint_every == 0) || done == config.iterations {
+        if (config.checkpoint_every > 0 && done % config.checkpoint_every == 0)
+            || done == config.iterations
+        {
             log.flush().map_err(io(&log_path))?;
             last_checkpoint = Some(save_ckpt(done, &model, &adam, &stats, &*hooks)?);
         }
@@ -407,7 +502,10 @@ pub fn train(
                 _ => save_ckpt(done, &model, &adam, &stats, &*hooks)?,
             };
             progress.finish();
-            return Err(TrainError::Interrupted { iteration: done, checkpoint });
+            return Err(TrainError::Interrupted {
+                iteration: done,
+                checkpoint,
+            });
         }
     }
     log.flush().map_err(io(&log_path))?;
@@ -426,17 +524,31 @@ pub fn train(
 }
 
 /// PSNR (dB) of `model` rendered at every view of `dataset` against its image.
-pub fn evaluate_psnr(model: &Gaussians<f32>, dataset: &Dataset, background: [f32; 3]) -> Result<Vec<f64>, TrainError> {
+pub fn evaluate_psnr(
+    model: &Gaussians<f32>,
+    dataset: &Dataset,
+    background: [f32; 3],
+) -> Result<Vec<f64>, TrainError> {
     let mut target = Vec::new();
     dataset
         .views
         .iter()
         .enumerate()
         .map(|(index, v)| {
-            let options = RenderOptions { background, ..Default::default() };
-            let r = render_with(model, &v.camera, v.time, &options).map_err(|source| TrainError::Render { index, source })?;
+            let options = RenderOptions {
+                background,
+                ..Default::default()
+            };
+            let r = render_with(model, &v.camera, v.time, &options)
+                .map_err(|source| TrainError::Render { index, source })?;
             v.image.to_f32_into(&mut target);
-            let mse = r.rgb.iter().zip(&target).map(|(a, b)| ((a - b) as f64).powi(2)).sum::<f64>() / target.len() as f64;
+            let mse = r
+                .rgb
+                .iter()
+                .zip(&target)
+                .map(|(a, b)| ((a - b) as f64).powi(2))
+                .sum::<f64>()
+                / target.len() as f64;
             Ok(psnr(mse))
         })
         .collect()

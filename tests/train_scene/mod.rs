@@ -25,7 +25,11 @@ pub fn colour(x: f64, y: f64, t: f64) -> [f64; 3] {
 }
 
 pub fn cameras(width: u32, height: u32) -> Vec<Camera> {
-    cameras_at(width, height, &[(-0.5, -0.4), (0.5, -0.4), (-0.5, 0.4), (0.5, 0.4)])
+    cameras_at(
+        width,
+        height,
+        &[(-0.5, -0.4), (0.5, -0.4), (-0.5, 0.4), (0.5, 0.4)],
+    )
 }
 
 /// Two held-out viewpoints between and beside the training cameras.
@@ -40,7 +44,8 @@ pub fn cameras_at(width: u32, height: u32, eyes: &[(f64, f64)]) -> Vec<Camera> {
             name: format!("cam{i}"),
             intrinsics: Intrinsics::from_hfov(width, height, 50.0),
             distortion: Distortion::None,
-            world_to_camera: WorldToCamera::look_at(DVec3::new(x, y, 3.0), DVec3::ZERO, DVec3::Y).unwrap(),
+            world_to_camera: WorldToCamera::look_at(DVec3::new(x, y, 3.0), DVec3::ZERO, DVec3::Y)
+                .unwrap(),
         })
         .collect()
 }
@@ -55,7 +60,10 @@ pub fn draw(camera: &Camera, t: f64) -> ImageU8 {
             let mut acc = [0.0; 3];
             for sy in 0..3 {
                 for sx in 0..3 {
-                    let p = DVec2::new(px as f64 + (sx as f64 + 0.5) / 3.0, py as f64 + (sy as f64 + 0.5) / 3.0);
+                    let p = DVec2::new(
+                        px as f64 + (sx as f64 + 0.5) / 3.0,
+                        py as f64 + (sy as f64 + 0.5) / 3.0,
+                    );
                     let ray = camera.pixel_ray(p);
                     let s = -eye.z / ray.z;
                     let hit = eye + ray * s;
@@ -79,22 +87,37 @@ pub fn dataset_of(cams: &[Camera], times: &[f64]) -> Dataset {
     let mut views = Vec::new();
     for &t in times {
         for cam in cams.iter().cloned() {
-            views.push(View { image: draw(&cam, t), camera: cam, time: t as f32 });
+            views.push(View {
+                image: draw(&cam, t),
+                camera: cam,
+                time: t as f32,
+            });
         }
     }
-    Dataset { views, time_mapping: TimeMapping { start_seconds: 0.0, units_per_second: 1.0, duration: 1.0 } }
+    Dataset {
+        views,
+        time_mapping: TimeMapping {
+            start_seconds: 0.0,
+            units_per_second: 1.0,
+            duration: 1.0,
+        },
+    }
 }
 
 /// Points on the plane (as a point-map initialisation would give), at a few times.
 pub fn points(nx: usize, ny: usize, times: &[f64]) -> PointCloud {
-    let mut c = PointCloud { time: Some(Vec::new()), ..Default::default() };
+    let mut c = PointCloud {
+        time: Some(Vec::new()),
+        ..Default::default()
+    };
     for &t in times {
         for j in 0..ny {
             for i in 0..nx {
                 let x = -1.7 + 3.4 * (i as f64 + 0.5) / nx as f64;
                 let y = -1.3 + 2.6 * (j as f64 + 0.5) / ny as f64;
                 c.xyz.push([x as f32, y as f32, 0.0]);
-                c.rgb.push(colour(x, y, t).map(|v| (v * 255.0).round() as u8));
+                c.rgb
+                    .push(colour(x, y, t).map(|v| (v * 255.0).round() as u8));
                 c.time.as_mut().unwrap().push(t as f32);
             }
         }
