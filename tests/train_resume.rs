@@ -220,3 +220,40 @@ fn config_section_rejects_unknown_keys_and_fills_defaults() {
     assert_eq!(c.batch_size, TrainConfig::default().batch_size);
     assert!(serde_json::from_str::<TrainConfig>(r#"{"iteratons": 5}"#).is_err());
 }
+
+#[test]
+fn corrupt_checkpoint_state_is_a_clear_error() {
+    let data = train_scene::dataset(32, 24);
+    let init = train_scene::points(6, 5, &[0.0]);
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = config(10);
+    c.densify.enabled = false;
+    train(
+        &c,
+        &data,
+        &init,
+        dir.path(),
+        false,
+        &mut NoHooks,
+        &NoProgress,
+    )
+    .unwrap();
+    let state = dir.path().join("ckpt/000010.state");
+    let bytes = std::fs::read(&state).unwrap();
+    std::fs::write(&state, &bytes[..bytes.len() - 5]).unwrap();
+    c.iterations = 12;
+    let e = train(
+        &c,
+        &data,
+        &init,
+        dir.path(),
+        true,
+        &mut NoHooks,
+        &NoProgress,
+    )
+    .unwrap_err();
+    assert!(
+        e.to_string().contains("000010.state") && e.to_string().contains("delete it"),
+        "{e}"
+    );
+}
