@@ -157,7 +157,7 @@ fn demo_scene_trains_and_reports_held_out_psnr() {
     config.degree_every = ((1000.0 * s) as u64).max(1);
     config.densify.from_iteration = (500.0 * s) as u64;
     config.densify.until_iteration = (15_000.0 * s) as u64;
-    config.densify.every = ((100.0 * s) as u64).max(10);
+    config.densify.every = 100;
     config.densify.opacity_reset_every = 0;
     let dir = tempfile::tempdir().unwrap();
     let summary = train(

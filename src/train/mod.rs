@@ -478,6 +478,7 @@ pub fn train(
         progress.advance(1);
         if config.report_every > 0 && (done % config.report_every == 0 || done == config.iterations)
         {
+            log.flush().map_err(io(&log_path))?;
             let rate = (done - start) as f64 / started.elapsed().as_secs_f64().max(1e-9);
             let eta = (config.iterations - done) as f64 / rate.max(1e-9);
             progress.message(&format!(
