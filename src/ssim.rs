@@ -4,6 +4,7 @@
 //! No IO, no loss weighting here (see `loss`).
 
 use crate::numerics::Real;
+use rayon::prelude::*;
 
 /// Window half-width: the window is `2·RADIUS + 1 = 11` pixels wide.
 pub const RADIUS: usize = 5;
@@ -73,15 +74,13 @@ pub fn ssim<F: Real>(
     }
     let (c1, c2) = (F::c(C1), F::c(C2));
     let two = F::c(2.0);
-    let mut tmp = Vec::new();
-    let mut planes: [Vec<F>; 5] = Default::default();
-    let mut mu: [Vec<F>; 5] = Default::default();
-    let mut total = F::zero();
     let inv_count = F::c(1.0 / (3 * n) as f64);
-    for c in 0..3 {
-        for p in planes.iter_mut() {
-            p.clear();
-        }
+    let want_grad = grad.is_some();
+    // One channel: (Σ S, d(mean SSIM)/d(a) of this channel when wanted).
+    let channel = |c: usize| -> (F, Vec<F>) {
+        let mut tmp = Vec::new();
+        let mut planes: [Vec<F>; 5] = Default::default();
+        let mut mu: [Vec<F>; 5] = Default::default();
         for i in 0..n {
             let (x, y) = (a[3 * i + c], b[3 * i + c]);
             planes[0].push(x);
@@ -94,9 +93,13 @@ pub fn ssim<F: Real>(
             blur(&planes[k], width, height, &mut tmp, &mut mu[k]);
         }
         // Per-pixel partials of S w.r.t. mu_x, E[x²] and E[xy] (times 1/count).
-        let mut d_mx = vec![F::zero(); n];
-        let mut d_exx = vec![F::zero(); n];
-        let mut d_exy = vec![F::zero(); n];
+        let (mut d_mx, mut d_exx, mut d_exy) = (Vec::new(), Vec::new(), Vec::new());
+        if want_grad {
+            d_mx.resize(n, F::zero());
+            d_exx.resize(n, F::zero());
+            d_exy.resize(n, F::zero());
+        }
+        let mut total = F::zero();
         for i in 0..n {
             let (mx, my) = (mu[0][i], mu[1][i]);
             let sxx = mu[2][i] - mx * mx;
@@ -108,7 +111,7 @@ pub fn ssim<F: Real>(
             let b2 = sxx + syy + c2;
             let s = a1 * a2 / (b1 * b2);
             total += s;
-            if grad.is_some() {
+            if want_grad {
                 let ds_dmx = two * my * a2 / (b1 * b2) - s * two * mx / b1;
                 let ds_dsxx = -s / b2;
                 let ds_dsxy = two * a1 / (b1 * b2);
@@ -118,15 +121,26 @@ pub fn ssim<F: Real>(
                 d_exy[i] = ds_dsxy * inv_count;
             }
         }
-        if let Some(g) = grad.as_deref_mut() {
-            let mut bm = Vec::new();
-            let mut bxx = Vec::new();
-            let mut bxy = Vec::new();
+        let mut g = Vec::new();
+        if want_grad {
+            // The blur is self-adjoint: back-propagate through it with the same filter.
+            let (mut bm, mut bxx, mut bxy) = (Vec::new(), Vec::new(), Vec::new());
             blur(&d_mx, width, height, &mut tmp, &mut bm);
             blur(&d_exx, width, height, &mut tmp, &mut bxx);
             blur(&d_exy, width, height, &mut tmp, &mut bxy);
-            for i in 0..n {
-                g[3 * i + c] = bm[i] + two * a[3 * i + c] * bxx[i] + b[3 * i + c] * bxy[i];
+            g = (0..n)
+                .map(|i| bm[i] + two * a[3 * i + c] * bxx[i] + b[3 * i + c] * bxy[i])
+                .collect();
+        }
+        (total, g)
+    };
+    let per_channel: Vec<(F, Vec<F>)> = (0..3).into_par_iter().map(channel).collect();
+    let mut total = F::zero();
+    for (c, (sum, g_c)) in per_channel.into_iter().enumerate() {
+        total += sum;
+        if let Some(g) = grad.as_deref_mut() {
+            for (i, v) in g_c.into_iter().enumerate() {
+                g[3 * i + c] = v;
             }
         }
     }
