@@ -30,3 +30,11 @@ pub use progress::{NoProgress, Progress};
 pub use render::{
     Gradients, ImageGradients, RenderError, RenderOptions, Rendered, render, render_with,
 };
+
+pub mod densify;
+pub mod init;
+pub mod loss;
+pub mod optim;
+pub mod ply;
+pub mod ssim;
+pub mod train;

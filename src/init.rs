@@ -1,0 +1,202 @@
+//! Initial Gaussians from a point cloud (`xyz`, `rgb`, optional time): isotropic spatial
+//! scales from the mean squared distance to the 3 nearest neighbours (a k-d tree), time
+//! uniform over the sequence when the cloud has none, opacity 0.1, DC colour from rgb.
+
+use crate::model::{ColourDegrees, Gaussians, TimeMapping};
+use crate::numerics::logit;
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use std::num::NonZero;
+
+/// Points with colour and optional model time (`work/init/points.ply`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PointCloud {
+    pub xyz: Vec<[f32; 3]>,
+    pub rgb: Vec<[u8; 3]>,
+    /// Model time of each point, when the points come from per-frame point maps.
+    pub time: Option<Vec<f32>>,
+}
+
+/// Why a point cloud cannot seed a model.
+#[derive(Debug, thiserror::Error)]
+pub enum InitError {
+    #[error("the point cloud is empty; run the `init` stage (or give COLMAP points) first")]
+    Empty,
+    #[error("the point cloud has {xyz} positions but {other} {what}; rewrite points.ply")]
+    LengthMismatch {
+        xyz: usize,
+        other: usize,
+        what: &'static str,
+    },
+    #[error("point {index} has a non-finite coordinate or time; clean points.ply")]
+    NonFinite { index: usize },
+}
+
+/// Parameters of the initialisation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InitOptions {
+    /// Initial opacity of every Gaussian.
+    pub opacity: f64,
+    /// Initial temporal standard deviation as a fraction of the sequence duration.
+    pub time_scale_fraction: f64,
+    /// Colour storage of the model.
+    pub capacity: ColourDegrees,
+    /// Seed of the uniform times drawn when the cloud has none.
+    pub seed: u64,
+}
+
+impl Default for InitOptions {
+    fn default() -> Self {
+        Self {
+            opacity: 0.1,
+            time_scale_fraction: 0.2,
+            capacity: ColourDegrees::FULL,
+            seed: 0,
+        }
+    }
+}
+
+/// Build the initial model from `cloud` for a sequence described by `time`.
+pub fn gaussians_from_points(
+    cloud: &PointCloud,
+    time: TimeMapping,
+    options: &InitOptions,
+) -> Result<Gaussians<f32>, InitError> {
+    let n = cloud.xyz.len();
+    if n == 0 {
+        return Err(InitError::Empty);
+    }
+    if cloud.rgb.len() != n {
+        return Err(InitError::LengthMismatch {
+            xyz: n,
+            other: cloud.rgb.len(),
+            what: "colours",
+        });
+    }
+    if let Some(t) = &cloud.time
+        && t.len() != n
+    {
+        return Err(InitError::LengthMismatch {
+            xyz: n,
+            other: t.len(),
+            what: "times",
+        });
+    }
+    for (i, p) in cloud.xyz.iter().enumerate() {
+        let t_ok = cloud.time.as_ref().is_none_or(|t| t[i].is_finite());
+        if !p.iter().all(|v| v.is_finite()) || !t_ok {
+            return Err(InitError::NonFinite { index: i });
+        }
+    }
+    let scales = nearest_neighbour_scales(&cloud.xyz);
+    let duration = if time.duration.is_finite() && time.duration > 0.0 {
+        time.duration
+    } else {
+        1.0
+    };
+    let log_t = ((duration * options.time_scale_fraction).max(1e-6)).ln() as f32;
+    let logit_o = logit(options.opacity) as f32;
+    let mut model = Gaussians::new(options.capacity, time);
+    let mut rng = SplitMix(options.seed ^ 0x5EED_1417);
+    for i in 0..n {
+        let t = match &cloud.time {
+            Some(t) => t[i],
+            None => (rng.uniform() * duration) as f32,
+        };
+        let [x, y, z] = cloud.xyz[i];
+        let s = scales[i].ln();
+        let rgb = cloud.rgb[i].map(|c| c as f32 / 255.0);
+        model.push([x, y, z, t], [s, s, s, log_t], logit_o, rgb);
+    }
+    Ok(model)
+}
+
+/// Root of the mean squared distance to the 3 nearest other points (3DGS), floored at
+/// 1e-7 so coincident points still get a usable scale.
+pub fn nearest_neighbour_scales(xyz: &[[f32; 3]]) -> Vec<f32> {
+    if xyz.len() < 2 {
+        return vec![0.01; xyz.len()];
+    }
+    let tree: ImmutableKdTree<f32, 3> = ImmutableKdTree::new_from_slice(xyz);
+    let k = 4.min(xyz.len());
+    let want = NonZero::new(k).unwrap_or(NonZero::<usize>::MIN);
+    xyz.iter()
+        .map(|p| {
+            let nn = tree.nearest_n::<SquaredEuclidean>(p, want);
+            // The query point itself is among the results (distance 0): skip one zero.
+            let mut dists: Vec<f32> = nn.iter().map(|n| n.distance).collect();
+            dists.sort_by(f32::total_cmp);
+            let others = &dists[1..];
+            let mean = others.iter().sum::<f32>() / others.len() as f32;
+            mean.max(1e-14).sqrt().max(1e-7)
+        })
+        .collect()
+}
+
+/// A tiny deterministic generator for reproducible initial times.
+struct SplitMix(u64);
+
+impl SplitMix {
+    fn uniform(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^= z >> 31;
+        (z >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grid_points_get_their_spacing_as_scale() {
+        let mut xyz = Vec::new();
+        for i in 0..10 {
+            for j in 0..10 {
+                xyz.push([i as f32 * 0.5, j as f32 * 0.5, 0.0]);
+            }
+        }
+        let s = nearest_neighbour_scales(&xyz);
+        // An interior point of a 0.5 grid: its 3 nearest are at 0.5.
+        assert!((s[55] - 0.5).abs() < 1e-5, "{}", s[55]);
+        let cloud = PointCloud {
+            rgb: vec![[255, 0, 128]; xyz.len()],
+            xyz,
+            time: None,
+        };
+        let tm = TimeMapping {
+            start_seconds: 0.0,
+            units_per_second: 1.0,
+            duration: 2.0,
+        };
+        let g = gaussians_from_points(&cloud, tm, &InitOptions::default()).unwrap();
+        assert_eq!(g.len(), 100);
+        assert!(g.means.iter().all(|m| (0.0..=2.0).contains(&m[3])));
+        assert!((crate::numerics::sigmoid(g.opacity_logits[0]) - 0.1).abs() < 1e-6);
+        let dc = g.colour_of(0);
+        assert!((0.5 + crate::model::SH_C0 as f32 * dc[0] - 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn bad_clouds_are_refused() {
+        assert!(matches!(
+            gaussians_from_points(
+                &PointCloud::default(),
+                TimeMapping::default(),
+                &InitOptions::default()
+            ),
+            Err(InitError::Empty)
+        ));
+        let c = PointCloud {
+            xyz: vec![[0.0, f32::NAN, 0.0]],
+            rgb: vec![[0; 3]],
+            time: None,
+        };
+        assert!(matches!(
+            gaussians_from_points(&c, TimeMapping::default(), &InitOptions::default()),
+            Err(InitError::NonFinite { index: 0 })
+        ));
+    }
+}

@@ -1,0 +1,192 @@
+//! Structural similarity (SSIM) with an 11×11 Gaussian window (σ 1.5, data range 1) and
+//! its exact backward pass. Images are interleaved RGB, row-major; every channel is
+//! filtered separably with zero padding ("same" size), as in the 3DGS reference loss.
+//! No IO, no loss weighting here (see `loss`).
+
+use crate::numerics::Real;
+use rayon::prelude::*;
+
+/// Window half-width: the window is `2·RADIUS + 1 = 11` pixels wide.
+pub const RADIUS: usize = 5;
+/// Standard deviation of the Gaussian window in pixels.
+pub const SIGMA: f64 = 1.5;
+/// Stabilisers for data range 1: `(0.01)²` and `(0.03)²`.
+pub const C1: f64 = 0.01 * 0.01;
+pub const C2: f64 = 0.03 * 0.03;
+
+fn window<F: Real>() -> [F; 2 * RADIUS + 1] {
+    let mut w = [0.0f64; 2 * RADIUS + 1];
+    for (k, v) in w.iter_mut().enumerate() {
+        let d = k as f64 - RADIUS as f64;
+        *v = (-d * d / (2.0 * SIGMA * SIGMA)).exp();
+    }
+    let s: f64 = w.iter().sum();
+    w.map(|v| F::c(v / s))
+}
+
+/// Separable, zero-padded Gaussian filter of one plane (`w × h`). The operator is
+/// symmetric, so it is also its own adjoint (used by the backward pass).
+fn blur<F: Real>(src: &[F], w: usize, h: usize, tmp: &mut Vec<F>, out: &mut Vec<F>) {
+    let g = window::<F>();
+    tmp.clear();
+    tmp.resize(w * h, F::zero());
+    out.clear();
+    out.resize(w * h, F::zero());
+    for y in 0..h {
+        let row = &src[y * w..(y + 1) * w];
+        for x in 0..w {
+            let lo = x.saturating_sub(RADIUS);
+            let hi = (x + RADIUS).min(w - 1);
+            let mut acc = F::zero();
+            for (xx, &v) in row.iter().enumerate().take(hi + 1).skip(lo) {
+                acc += g[xx + RADIUS - x] * v;
+            }
+            tmp[y * w + x] = acc;
+        }
+    }
+    for y in 0..h {
+        let lo = y.saturating_sub(RADIUS);
+        let hi = (y + RADIUS).min(h - 1);
+        for x in 0..w {
+            let mut acc = F::zero();
+            for yy in lo..=hi {
+                acc += g[yy + RADIUS - y] * tmp[yy * w + x];
+            }
+            out[y * w + x] = acc;
+        }
+    }
+}
+
+/// Mean SSIM of `a` against `b` (interleaved RGB, `width × height`) and, when `grad` is
+/// given, `d(mean SSIM)/d(a)` written into it (same layout as `a`).
+pub fn ssim<F: Real>(
+    a: &[F],
+    b: &[F],
+    width: usize,
+    height: usize,
+    mut grad: Option<&mut [F]>,
+) -> F {
+    let n = width * height;
+    assert_eq!(a.len(), 3 * n, "ssim: image a has the wrong size");
+    assert_eq!(b.len(), 3 * n, "ssim: image b has the wrong size");
+    if n == 0 {
+        return F::one();
+    }
+    let (c1, c2) = (F::c(C1), F::c(C2));
+    let two = F::c(2.0);
+    let inv_count = F::c(1.0 / (3 * n) as f64);
+    let want_grad = grad.is_some();
+    // One channel: (Σ S, d(mean SSIM)/d(a) of this channel when wanted).
+    let channel = |c: usize| -> (F, Vec<F>) {
+        let mut tmp = Vec::new();
+        let mut planes: [Vec<F>; 5] = Default::default();
+        let mut mu: [Vec<F>; 5] = Default::default();
+        for i in 0..n {
+            let (x, y) = (a[3 * i + c], b[3 * i + c]);
+            planes[0].push(x);
+            planes[1].push(y);
+            planes[2].push(x * x);
+            planes[3].push(y * y);
+            planes[4].push(x * y);
+        }
+        for k in 0..5 {
+            blur(&planes[k], width, height, &mut tmp, &mut mu[k]);
+        }
+        // Per-pixel partials of S w.r.t. mu_x, E[x²] and E[xy] (times 1/count).
+        let (mut d_mx, mut d_exx, mut d_exy) = (Vec::new(), Vec::new(), Vec::new());
+        if want_grad {
+            d_mx.resize(n, F::zero());
+            d_exx.resize(n, F::zero());
+            d_exy.resize(n, F::zero());
+        }
+        let mut total = F::zero();
+        for i in 0..n {
+            let (mx, my) = (mu[0][i], mu[1][i]);
+            let sxx = mu[2][i] - mx * mx;
+            let syy = mu[3][i] - my * my;
+            let sxy = mu[4][i] - mx * my;
+            let a1 = two * mx * my + c1;
+            let a2 = two * sxy + c2;
+            let b1 = mx * mx + my * my + c1;
+            let b2 = sxx + syy + c2;
+            let s = a1 * a2 / (b1 * b2);
+            total += s;
+            if want_grad {
+                let ds_dmx = two * my * a2 / (b1 * b2) - s * two * mx / b1;
+                let ds_dsxx = -s / b2;
+                let ds_dsxy = two * a1 / (b1 * b2);
+                // sxx = E[x²] − mx², sxy = E[xy] − mx·my.
+                d_mx[i] = (ds_dmx - two * mx * ds_dsxx - my * ds_dsxy) * inv_count;
+                d_exx[i] = ds_dsxx * inv_count;
+                d_exy[i] = ds_dsxy * inv_count;
+            }
+        }
+        let mut g = Vec::new();
+        if want_grad {
+            // The blur is self-adjoint: back-propagate through it with the same filter.
+            let (mut bm, mut bxx, mut bxy) = (Vec::new(), Vec::new(), Vec::new());
+            blur(&d_mx, width, height, &mut tmp, &mut bm);
+            blur(&d_exx, width, height, &mut tmp, &mut bxx);
+            blur(&d_exy, width, height, &mut tmp, &mut bxy);
+            g = (0..n)
+                .map(|i| bm[i] + two * a[3 * i + c] * bxx[i] + b[3 * i + c] * bxy[i])
+                .collect();
+        }
+        (total, g)
+    };
+    let per_channel: Vec<(F, Vec<F>)> = (0..3).into_par_iter().map(channel).collect();
+    let mut total = F::zero();
+    for (c, (sum, g_c)) in per_channel.into_iter().enumerate() {
+        total += sum;
+        if let Some(g) = grad.as_deref_mut() {
+            for (i, v) in g_c.into_iter().enumerate() {
+                g[3 * i + c] = v;
+            }
+        }
+    }
+    total * inv_count
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn noise(seed: u64, n: usize) -> Vec<f64> {
+        let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        (0..n)
+            .map(|_| {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                (s >> 11) as f64 / (1u64 << 53) as f64
+            })
+            .collect()
+    }
+
+    #[test]
+    fn identical_images_score_one() {
+        let a = noise(1, 3 * 20 * 13);
+        assert!((ssim(&a, &a, 20, 13, None) - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn gradient_matches_central_differences() {
+        let (w, h) = (14, 9);
+        let a = noise(2, 3 * w * h);
+        let b = noise(3, 3 * w * h);
+        let mut g = vec![0.0; a.len()];
+        ssim(&a, &b, w, h, Some(&mut g));
+        let eps = 1e-6;
+        let mut worst = 0.0f64;
+        for i in (0..a.len()).step_by(7) {
+            let mut p = a.clone();
+            p[i] += eps;
+            let up = ssim(&p, &b, w, h, None);
+            p[i] -= 2.0 * eps;
+            let down = ssim(&p, &b, w, h, None);
+            let fd = (up - down) / (2.0 * eps);
+            worst = worst.max((fd - g[i]).abs() / (fd.abs().max(g[i].abs()).max(1e-6)));
+        }
+        assert!(worst < 1e-5, "relative error {worst}");
+    }
+}

@@ -1,0 +1,556 @@
+//! The trainer: random batches of (camera, frame) views, each at its frame's exact model
+//! time; loss `(1 − λ)·L1 + λ·(1 − SSIM)`; Adam; colour-degree schedule; densification;
+//! checkpoints, `log.csv`, progress; bit-identical resume; a NaN guard. Library only: it
+//! knows nothing of capture directories or stage manifests (the `pipeline` crate does).
+//!
+//! Randomness is drawn from a ChaCha8 stream chosen by `(seed, iteration)`, so a run
+//! resumed from a checkpoint replays exactly the batches and splits of the original.
+
+pub mod checkpoint;
+pub mod dataset;
+pub mod log;
+
+pub use crate::init::PointCloud;
+pub use dataset::{Dataset, FrameSource, ImageLoadError, ImageU8, View};
+
+use crate::densify::{DensifyConfig, DensifyStats, densify_and_prune, reset_opacity};
+use crate::init::{InitError, InitOptions, gaussians_from_points};
+use crate::loss::{image_loss, psnr};
+use crate::model::{ColourDegrees, Gaussians};
+use crate::optim::{Adam, LearningRates, colour_degrees_at};
+use crate::render::{Gradients, ImageGradients, RenderError, RenderOptions, render_with};
+use crate::{Progress, save_model};
+use checkpoint::{Checkpoint, CheckpointError};
+use log::{LogRow, TrainLog};
+use rand_chacha::ChaCha8Rng;
+use rand_core::{Rng, SeedableRng};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Training parameters: the `[train]` section of `capture.toml`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrainConfig {
+    pub iterations: u64,
+    /// Views rendered per optimiser step (their gradients are averaged).
+    pub batch_size: usize,
+    pub seed: u64,
+    /// Weight λ of `(1 − SSIM)` in the loss.
+    pub lambda_ssim: f64,
+    /// Background colour composited behind the Gaussians.
+    pub background: [f32; 3],
+    /// Colour storage (spatial SH degree ≤ 3, temporal degree ≤ 2).
+    pub colour_degrees: ColourDegrees,
+    /// The active colour degree grows every this many iterations (0: DC only).
+    pub degree_every: u64,
+    /// Initial opacity of the Gaussians made from the point cloud.
+    pub init_opacity: f64,
+    /// Initial temporal σ as a fraction of the sequence duration.
+    pub init_time_scale: f64,
+    pub lr: LearningRates,
+    pub densify: DensifyConfig,
+    /// Write a checkpoint every this many iterations (0: only at the end).
+    pub checkpoint_every: u64,
+    /// Checkpoints kept on disk (older ones are deleted).
+    pub keep_checkpoints: usize,
+    /// Update the progress message every this many iterations.
+    pub report_every: u64,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            iterations: 30_000,
+            batch_size: 4,
+            seed: 0,
+            lambda_ssim: 0.2,
+            background: [0.0; 3],
+            colour_degrees: ColourDegrees::FULL,
+            degree_every: 1000,
+            init_opacity: 0.1,
+            init_time_scale: 0.2,
+            lr: LearningRates::default(),
+            densify: DensifyConfig::default(),
+            checkpoint_every: 1000,
+            keep_checkpoints: 3,
+            report_every: 10,
+        }
+    }
+}
+
+/// Why training stopped without a model.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error("invalid [train] setting: {0}")]
+    Config(String),
+    #[error(
+        "the dataset has no views; check that the frames and poses stages produced images and cameras"
+    )]
+    NoViews,
+    #[error(
+        "view {index} (camera '{camera}') has a {image_w}×{image_h} image but a {camera_w}×{camera_h} camera; use View::at_image_size"
+    )]
+    ImageSize {
+        index: usize,
+        camera: String,
+        image_w: u32,
+        image_h: u32,
+        camera_w: u32,
+        camera_h: u32,
+    },
+    #[error(transparent)]
+    Init(#[from] InitError),
+    #[error("rendering view {index} failed: {source}")]
+    Render { index: usize, source: RenderError },
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    #[error("cannot write {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error(
+        "training diverged at iteration {iteration}: {what} became NaN or infinite; no model was written{}. Try lower learning rates in [train.lr] (e.g. halve position_init and opacity) or a smaller batch",
+        match last_checkpoint { Some(p) => format!(" (last good checkpoint: {})", p.display()), None => String::new() }
+    )]
+    NonFinite {
+        iteration: u64,
+        what: &'static str,
+        last_checkpoint: Option<PathBuf>,
+    },
+    #[error(
+        "all Gaussians were pruned at iteration {iteration}; lower [train.densify] min_opacity or raise max_world_size / max_screen_radius"
+    )]
+    EmptyModel { iteration: u64 },
+    #[error("training was stopped after iteration {iteration}; checkpoint {} was written, rerun with --resume to continue", checkpoint.display())]
+    Interrupted { iteration: u64, checkpoint: PathBuf },
+    #[error("resume refused: {0}")]
+    Resume(String),
+}
+
+/// What the caller can plug into every step: the 4C4D neural decay seam.
+pub trait TrainHooks {
+    /// A per-Gaussian render-opacity factor for this view (length = model size), or None.
+    fn opacity_factor(
+        &mut self,
+        _iteration: u64,
+        _model: &Gaussians<f32>,
+        _view: &View,
+    ) -> Option<Vec<f32>> {
+        None
+    }
+    /// dLoss/d(factor) of the view rendered with the factor returned just before.
+    fn factor_gradient(&mut self, _iteration: u64, _model: &Gaussians<f32>, _gradient: &[f32]) {}
+    /// Called after each optimiser step (1-based `iteration`); may edit the model.
+    fn after_step(&mut self, _iteration: u64, _model: &mut Gaussians<f32>) {}
+    /// State saved into checkpoints (for bit-identical resume of stateful hooks).
+    fn save_state(&self) -> Vec<u8> {
+        Vec::new()
+    }
+    fn load_state(&mut self, _state: &[u8]) {}
+    /// Polled after every iteration (1-based): `true` stops the run cleanly with a
+    /// checkpoint at that iteration (wire Ctrl-C here); `--resume` continues it.
+    fn stop_requested(&mut self, _iteration: u64) -> bool {
+        false
+    }
+}
+
+/// Hooks that do nothing (plain 4DGS).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NoHooks;
+impl TrainHooks for NoHooks {}
+
+/// Outcome of a finished run.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrainSummary {
+    pub iterations: u64,
+    /// Iteration the run started from (0, or the resumed checkpoint).
+    pub started_at: u64,
+    /// Mean loss and PSNR of the last iteration's batch.
+    pub final_loss: f64,
+    pub final_psnr: f64,
+    pub gaussians: usize,
+    pub seconds: f64,
+    pub model_path: PathBuf,
+}
+
+fn validate(config: &TrainConfig, dataset: &Dataset) -> Result<(), TrainError> {
+    let bad = |s: &str| Err(TrainError::Config(s.into()));
+    if config.batch_size == 0 {
+        return bad("batch_size must be at least 1");
+    }
+    if !(0.0..=1.0).contains(&config.lambda_ssim) {
+        return bad("lambda_ssim must be in [0, 1]");
+    }
+    if !config.colour_degrees.is_valid() {
+        return bad("colour_degrees: spatial ≤ 3 and temporal ≤ 2");
+    }
+    if !config.lr.is_valid() {
+        return bad("learning rates must be finite and ≥ 0");
+    }
+    if !(config.init_opacity > 0.0 && config.init_opacity < 1.0) {
+        return bad("init_opacity must be in (0, 1)");
+    }
+    if dataset.views.is_empty() {
+        return Err(TrainError::NoViews);
+    }
+    for (index, v) in dataset.views.iter().enumerate() {
+        if !v.camera.distortion.is_none() {
+            let camera = v.camera.name.clone();
+            return Err(TrainError::Render {
+                index,
+                source: RenderError::DistortedCamera { camera },
+            });
+        }
+        if !v.time.is_finite() {
+            return Err(TrainError::Config(format!(
+                "view {index} has a non-finite time"
+            )));
+        }
+        let i = &v.camera.intrinsics;
+        if (i.width, i.height) != (v.image.width, v.image.height)
+            || v.image.data.len() != 3 * v.image.width as usize * v.image.height as usize
+        {
+            return Err(TrainError::ImageSize {
+                index,
+                camera: v.camera.name.clone(),
+                image_w: v.image.width,
+                image_h: v.image.height,
+                camera_w: i.width,
+                camera_h: i.height,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// The RNG of one iteration: stream `iteration` of the run's seed.
+fn iteration_rng(seed: u64, iteration: u64) -> ChaCha8Rng {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(iteration);
+    rng
+}
+
+/// `batch` distinct view indices (all of them, shuffled, when there are fewer).
+fn sample_batch(rng: &mut ChaCha8Rng, views: usize, batch: usize) -> Vec<usize> {
+    let mut idx: Vec<usize> = (0..views).collect();
+    let k = batch.min(views);
+    for i in 0..k {
+        let j = i + (rng.next_u64() % (views - i) as u64) as usize;
+        idx.swap(i, j);
+    }
+    idx.truncate(k);
+    idx
+}
+
+fn all_finite(model: &Gaussians<f32>) -> bool {
+    let v4 = |v: &Vec<[f32; 4]>| v.iter().flatten().all(|x| x.is_finite());
+    v4(&model.means)
+        && v4(&model.log_scales)
+        && v4(&model.rot_left)
+        && v4(&model.rot_right)
+        && model.opacity_logits.iter().all(|x| x.is_finite())
+        && model.colours.iter().all(|x| x.is_finite())
+}
+
+fn add_into(sum: &mut Gradients<f32>, g: &Gradients<f32>) {
+    let add4 = |a: &mut Vec<[f32; 4]>, b: &Vec<[f32; 4]>| {
+        a.as_flattened_mut()
+            .iter_mut()
+            .zip(b.as_flattened())
+            .for_each(|(x, y)| *x += y)
+    };
+    add4(&mut sum.means, &g.means);
+    add4(&mut sum.log_scales, &g.log_scales);
+    add4(&mut sum.rot_left, &g.rot_left);
+    add4(&mut sum.rot_right, &g.rot_right);
+    sum.opacity_logits
+        .iter_mut()
+        .zip(&g.opacity_logits)
+        .for_each(|(x, y)| *x += y);
+    sum.colours
+        .iter_mut()
+        .zip(&g.colours)
+        .for_each(|(x, y)| *x += y);
+}
+
+/// Train a model on `dataset` from `init`, writing `out_dir/{ckpt/, model.bin, log.csv}`.
+/// With `resume`, continue from the newest complete checkpoint in `out_dir/ckpt` (a fresh
+/// start when there is none).
+pub fn train(
+    config: &TrainConfig,
+    dataset: &Dataset,
+    init: &PointCloud,
+    out_dir: &Path,
+    resume: bool,
+    hooks: &mut dyn TrainHooks,
+    progress: &dyn Progress,
+) -> Result<TrainSummary, TrainError> {
+    validate(config, dataset)?;
+    let io = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| TrainError::Io { path, source }
+    };
+    std::fs::create_dir_all(out_dir).map_err(io(out_dir))?;
+    let ckpt_dir = out_dir.join("ckpt");
+    let extent = dataset.scene_extent() as f32;
+
+    let latest = if resume {
+        checkpoint::list(&ckpt_dir).last().copied()
+    } else {
+        None
+    };
+    let (mut model, mut adam, mut stats, start) = match latest {
+        Some(it) => {
+            let c = checkpoint::load(&ckpt_dir, it)?;
+            if c.seed != config.seed {
+                return Err(TrainError::Resume(format!(
+                    "checkpoint {it} was made with seed {}, the config says {}; restore the seed or start afresh",
+                    c.seed, config.seed
+                )));
+            }
+            if c.model.capacity != config.colour_degrees {
+                return Err(TrainError::Resume(
+                    "the checkpoint's colour degrees differ from the config".into(),
+                ));
+            }
+            hooks.load_state(&c.hook_state);
+            (c.model, c.adam, c.stats, it)
+        }
+        None => {
+            let opts = InitOptions {
+                opacity: config.init_opacity,
+                time_scale_fraction: config.init_time_scale,
+                capacity: config.colour_degrees,
+                seed: config.seed,
+            };
+            let model = gaussians_from_points(init, dataset.time_mapping, &opts)?;
+            let adam = Adam::new(&model);
+            let stats = DensifyStats::new(model.len());
+            (model, adam, stats, 0)
+        }
+    };
+    let log_path = out_dir.join("log.csv");
+    let mut log = TrainLog::open(&log_path, latest).map_err(io(&log_path))?;
+    let mut last_checkpoint = latest.map(|it| checkpoint::paths(&ckpt_dir, it).0);
+
+    progress.start(config.iterations, "it");
+    progress.advance(start.min(config.iterations));
+    let started = Instant::now();
+    let d = &config.densify;
+    let (mut target, mut d_image) = (Vec::new(), Vec::new());
+    let (mut final_loss, mut final_psnr) = (f64::NAN, f64::NAN);
+    let save_ckpt = |it: u64,
+                     model: &Gaussians<f32>,
+                     adam: &Adam,
+                     stats: &DensifyStats,
+                     hooks: &dyn TrainHooks| {
+        let c = Checkpoint {
+            iteration: it,
+            seed: config.seed,
+            model: model.clone(),
+            adam: adam.clone(),
+            stats: stats.clone(),
+            hook_state: hooks.save_state(),
+        };
+        let p = checkpoint::save(&ckpt_dir, &c)?;
+        checkpoint::prune(&ckpt_dir, config.keep_checkpoints);
+        Ok::<PathBuf, TrainError>(p)
+    };
+
+    for it in start..config.iterations {
+        // `it` iterations are done; this step is iteration `it + 1`.
+        let mut rng = iteration_rng(config.seed, it);
+        model.active = colour_degrees_at(it, config.degree_every, model.capacity);
+        let batch = sample_batch(&mut rng, dataset.views.len(), config.batch_size);
+        let mut grads = Gradients::zeros_like(&model, false);
+        let (mut loss_sum, mut l1_sum, mut ssim_sum, mut psnr_sum) = (0.0, 0.0, 0.0, 0.0);
+        let scale = 1.0 / batch.len() as f32;
+        for &vi in &batch {
+            let view = &dataset.views[vi];
+            let factor = hooks.opacity_factor(it, &model, view);
+            let options = RenderOptions {
+                background: config.background,
+                opacity_factor: factor.as_deref(),
+                ..Default::default()
+            };
+            let r = render_with(&model, &view.camera, view.time, &options)
+                .map_err(|source| TrainError::Render { index: vi, source })?;
+            view.image.to_f32_into(&mut target);
+            d_image.clear();
+            d_image.resize(target.len(), 0.0);
+            let (w, h) = (r.width as usize, r.height as usize);
+            let lv = image_loss(
+                &r.rgb,
+                &target,
+                w,
+                h,
+                config.lambda_ssim,
+                Some(&mut d_image),
+            );
+            d_image.iter_mut().for_each(|g| *g *= scale);
+            let g = r
+                .backward(
+                    &model,
+                    &ImageGradients {
+                        rgb: &d_image,
+                        alpha: None,
+                        depth: None,
+                    },
+                )
+                .map_err(|source| TrainError::Render { index: vi, source })?;
+            if factor.is_some() {
+                hooks.factor_gradient(it, &model, &g.opacity_factor);
+            }
+            // The statistic is the gradient of this view's own loss (undo the 1/batch).
+            stats.record(
+                &g.mean2d_norm,
+                &r.radii,
+                r.width,
+                r.height,
+                batch.len() as f32,
+            );
+            add_into(&mut grads, &g);
+            loss_sum += lv.total;
+            l1_sum += lv.l1;
+            ssim_sum += lv.ssim;
+            psnr_sum += psnr(lv.mse);
+        }
+        let nb = batch.len() as f64;
+        let rates = config.lr.at(it, config.iterations, extent as f64);
+        adam.step(&mut model, &grads, &rates);
+        hooks.after_step(it + 1, &mut model);
+        let done = it + 1;
+        let what = if !loss_sum.is_finite() {
+            Some("the loss")
+        } else if !all_finite(&model) {
+            Some("a model parameter")
+        } else {
+            None
+        };
+        if let Some(what) = what {
+            log.flush().map_err(io(&log_path))?;
+            progress.finish();
+            return Err(TrainError::NonFinite {
+                iteration: done,
+                what,
+                last_checkpoint,
+            });
+        }
+
+        // Density control.
+        if d.enabled && done > d.from_iteration && done <= d.until_iteration {
+            if d.every > 0 && done % d.every == 0 {
+                let prune_large = d.opacity_reset_every > 0 && done > d.opacity_reset_every;
+                densify_and_prune(
+                    &mut model,
+                    &mut adam,
+                    &mut stats,
+                    d,
+                    extent,
+                    prune_large,
+                    &mut rng,
+                );
+                if model.is_empty() {
+                    log.flush().map_err(io(&log_path))?;
+                    progress.finish();
+                    return Err(TrainError::EmptyModel { iteration: done });
+                }
+            }
+            if d.opacity_reset_every > 0 && done % d.opacity_reset_every == 0 {
+                reset_opacity(&mut model, &mut adam, 0.01);
+            }
+        }
+
+        final_loss = loss_sum / nb;
+        final_psnr = psnr_sum / nb;
+        let row = LogRow {
+            iteration: done,
+            loss: final_loss,
+            l1: l1_sum / nb,
+            ssim: ssim_sum / nb,
+            psnr: final_psnr,
+            gaussians: model.len(),
+            elapsed_s: started.elapsed().as_secs_f64(),
+        };
+        log.write(&row).map_err(io(&log_path))?;
+        progress.advance(1);
+        if config.report_every > 0 && (done % config.report_every == 0 || done == config.iterations)
+        {
+            log.flush().map_err(io(&log_path))?;
+            let rate = (done - start) as f64 / started.elapsed().as_secs_f64().max(1e-9);
+            let eta = (config.iterations - done) as f64 / rate.max(1e-9);
+            progress.message(&format!(
+                "loss {:.4} psnr {:.2} dB {} gaussians {:.2} it/s eta {:.0}s",
+                final_loss,
+                final_psnr,
+                model.len(),
+                rate,
+                eta
+            ));
+        }
+        if (config.checkpoint_every > 0 && done % config.checkpoint_every == 0)
+            || done == config.iterations
+        {
+            log.flush().map_err(io(&log_path))?;
+            last_checkpoint = Some(save_ckpt(done, &model, &adam, &stats, &*hooks)?);
+        }
+        if done < config.iterations && hooks.stop_requested(done) {
+            log.flush().map_err(io(&log_path))?;
+            let checkpoint = match &last_checkpoint {
+                Some(p) if p.ends_with(format!("{done:06}.bin")) => p.clone(),
+                _ => save_ckpt(done, &model, &adam, &stats, &*hooks)?,
+            };
+            progress.finish();
+            return Err(TrainError::Interrupted {
+                iteration: done,
+                checkpoint,
+            });
+        }
+    }
+    log.flush().map_err(io(&log_path))?;
+    let model_path = out_dir.join("model.bin");
+    save_model(&model, &model_path).map_err(CheckpointError::from)?;
+    progress.finish();
+    Ok(TrainSummary {
+        iterations: config.iterations,
+        started_at: start,
+        final_loss,
+        final_psnr,
+        gaussians: model.len(),
+        seconds: started.elapsed().as_secs_f64(),
+        model_path,
+    })
+}
+
+/// PSNR (dB) of `model` rendered at every view of `dataset` against its image.
+pub fn evaluate_psnr(
+    model: &Gaussians<f32>,
+    dataset: &Dataset,
+    background: [f32; 3],
+) -> Result<Vec<f64>, TrainError> {
+    let mut target = Vec::new();
+    dataset
+        .views
+        .iter()
+        .enumerate()
+        .map(|(index, v)| {
+            let options = RenderOptions {
+                background,
+                ..Default::default()
+            };
+            let r = render_with(model, &v.camera, v.time, &options)
+                .map_err(|source| TrainError::Render { index, source })?;
+            v.image.to_f32_into(&mut target);
+            let mse = r
+                .rgb
+                .iter()
+                .zip(&target)
+                .map(|(a, b)| ((a - b) as f64).powi(2))
+                .sum::<f64>()
+                / target.len() as f64;
+            Ok(psnr(mse))
+        })
+        .collect()
+}
