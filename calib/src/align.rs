@@ -53,17 +53,7 @@ pub fn umeyama(src: &[DVec3], dst: &[DVec3]) -> Option<Similarity> {
         return None;
     }
     let scale = trace_ds / var_s;
-    let rotation = DMat3::from_cols_array(&[
-        r[(0, 0)],
-        r[(1, 0)],
-        r[(2, 0)],
-        r[(0, 1)],
-        r[(1, 1)],
-        r[(2, 1)],
-        r[(0, 2)],
-        r[(1, 2)],
-        r[(2, 2)],
-    ]);
+    let rotation = to_dmat3(&r);
     let translation = mu_d - scale * (rotation * mu_s);
     Some(Similarity {
         scale,
@@ -174,4 +164,19 @@ mod tests {
             assert!(e.rotation_deg < 1e-5 && e.centre < 1e-9, "{e:?}");
         }
     }
+}
+
+/// A nalgebra 3×3 matrix (used for SVDs) as a glam matrix.
+pub(crate) fn to_dmat3(m: &nalgebra::Matrix3<f64>) -> DMat3 {
+    DMat3::from_cols_array(&[
+        m[(0, 0)],
+        m[(1, 0)],
+        m[(2, 0)],
+        m[(0, 1)],
+        m[(1, 1)],
+        m[(2, 1)],
+        m[(0, 2)],
+        m[(1, 2)],
+        m[(2, 2)],
+    ])
 }

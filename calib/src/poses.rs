@@ -547,17 +547,7 @@ pub fn orthonormalise(r: DMat3) -> DMat3 {
         u2.column_mut(2).neg_mut();
         q = u2 * vt;
     }
-    DMat3::from_cols_array(&[
-        q[(0, 0)],
-        q[(1, 0)],
-        q[(2, 0)],
-        q[(0, 1)],
-        q[(1, 1)],
-        q[(2, 1)],
-        q[(0, 2)],
-        q[(1, 2)],
-        q[(2, 2)],
-    ])
+    crate::align::to_dmat3(&q)
 }
 
 fn check_inputs(inputs: &PosesInputs) -> Result<(), PosesError> {

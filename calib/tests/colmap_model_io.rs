@@ -247,7 +247,7 @@ fn colmap_reads_what_we_write_in_both_formats() {
 /// Regenerates `fixtures/colmap/tiny/` with the real COLMAP:
 /// `REGENERATE_COLMAP_FIXTURE=1 cargo test -p calib --test colmap_model_io -- --ignored`.
 #[test]
-#[ignore]
+#[ignore = "maintenance: rewrites fixtures/colmap/tiny/ with the real COLMAP (set REGENERATE_COLMAP_FIXTURE=1)"]
 fn regenerate_fixture() {
     if std::env::var_os("REGENERATE_COLMAP_FIXTURE").is_none() || !common::colmap_available() {
         return;

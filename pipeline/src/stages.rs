@@ -78,10 +78,7 @@ fn frames(ctx: &StageContext) -> anyhow::Result<()> {
 fn poses(ctx: &StageContext) -> anyhow::Result<()> {
     let config = &ctx.config.poses;
     let frames_dir = ctx.stage_dir("frames");
-    let index: FramesIndex = serde_json::from_str(
-        &std::fs::read_to_string(frames_dir.join("frames.json")).context("cannot read frames.json")?,
-    )
-    .context("frames.json is not valid; rerun the frames stage")?;
+    let index = FramesIndex::read_json(&frames_dir.join("frames.json"))?;
     if let Some(calibration) = &ctx.capture.calibration {
         tracing::info!("importing the calibration {} instead of solving poses", calibration.display());
         let set = calib::import::import_calibration(calibration)

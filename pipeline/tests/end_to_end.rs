@@ -65,9 +65,7 @@ fn simulated_audio_capture_is_ingested_synchronised_and_aligned() {
     }
 
     // Frames: every camera has an image per aligned frame, at the capture's size.
-    let index: rig::frames::FramesIndex =
-        serde_json::from_str(&fs::read_to_string(root.join("work/frames/frames.json")).unwrap())
-            .unwrap();
+    let index = rig::frames::FramesIndex::read_json(&root.join("work/frames/frames.json")).unwrap();
     assert!(index.frames.len() >= 10, "{} frames", index.frames.len());
     for frame in &index.frames {
         for view in &frame.views {
@@ -137,7 +135,6 @@ fn simulated_static_capture_gets_poses_from_colmap() {
         assert!(e.centre < 0.01 * radius, "{}: {} of radius {}", e.name, e.centre, radius);
     }
     // The engine sees the frames' size.
-    let index: rig::frames::FramesIndex =
-        serde_json::from_str(&fs::read_to_string(root.join("work/frames/frames.json")).unwrap()).unwrap();
+    let index = rig::frames::FramesIndex::read_json(&root.join("work/frames/frames.json")).unwrap();
     assert_eq!(solved.set.cameras[0].intrinsics.width, index.cameras[0].width);
 }

@@ -120,6 +120,14 @@ pub enum FramesError {
         /// The error.
         source: std::io::Error,
     },
+    /// A `frames.json` could not be parsed.
+    #[error("{path}: not a valid frames index ({source}); rerun the frames stage")]
+    Json {
+        /// The path.
+        path: PathBuf,
+        /// The error.
+        source: serde_json::Error,
+    },
     /// PNG encoding failed.
     #[error("{path}: {source}")]
     Image {
@@ -131,6 +139,18 @@ pub enum FramesError {
 }
 
 impl FramesIndex {
+    /// Reads a `frames.json`.
+    pub fn read_json(path: &Path) -> Result<Self, FramesError> {
+        let text = std::fs::read_to_string(path).map_err(|source| FramesError::Io {
+            path: path.into(),
+            source,
+        })?;
+        serde_json::from_str(&text).map_err(|source| FramesError::Json {
+            path: path.into(),
+            source,
+        })
+    }
+
     /// Writes `frames.json` atomically.
     pub fn write_json(&self, path: &Path) -> Result<(), FramesError> {
         write_json_atomic(path, self).map_err(|source| FramesError::Io {
