@@ -22,7 +22,7 @@ pub struct CaptureConfig {
     pub frames: rig::frames::FramesConfig,
     pub poses: calib::poses::PosesConfig,
     pub init: StageSettings,
-    pub train: StageSettings,
+    pub train: splat4d::train::TrainConfig,
     pub render: StageSettings,
     pub eval: StageSettings,
     pub export: StageSettings,
@@ -133,7 +133,10 @@ mod tests {
         assert_eq!(c.section("capture")["cameras"], 3);
         assert_eq!(c.section("sync")["method"], "auto");
         assert_eq!(c.section("frames")["long_side"], 960);
-        assert_eq!(c.section("train"), serde_json::json!({}));
+        assert_eq!(c.section("train")["iterations"], 30_000);
+        assert_eq!(c.section("export"), serde_json::json!({}));
+        let c = CaptureConfig::parse("[train]\niterations = 5\n", Path::new("c.toml")).unwrap();
+        assert_eq!(c.train.iterations, 5);
         assert!(CaptureConfig::parse("[capture]\ncameras = 0\n", Path::new("c.toml")).is_err());
     }
 }

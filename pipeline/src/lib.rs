@@ -17,6 +17,7 @@ pub mod simulate;
 pub mod stage;
 pub mod stages;
 pub mod status;
+pub mod training;
 
 use std::path::Path;
 

@@ -37,6 +37,10 @@ fn main() -> ExitCode {
 }
 
 fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
+    if matches!(command, Command::Run(_) | Command::Demo { .. }) {
+        ctrlc::set_handler(pipeline::training::on_interrupt)
+            .context("cannot install the Ctrl-C handler")?;
+    }
     match command {
         Command::Run(args) => run(args, reporter),
         Command::Status { capture_dir } => {
@@ -112,9 +116,17 @@ fn record(args: RecordArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     let cameras = rig::record::record(&args.devices, &args.capture_dir, &config, &stop, &progress)?;
     splat4d::Progress::finish(&progress);
     for cam in &cameras {
-        reporter.say(&format!("{}: {} frames in {}", cam.name, cam.frames, cam.dir.display()));
+        reporter.say(&format!(
+            "{}: {} frames in {}",
+            cam.name,
+            cam.frames,
+            cam.dir.display()
+        ));
     }
-    reporter.say(&format!("recorded; next: pipeline run {}", args.capture_dir.display()));
+    reporter.say(&format!(
+        "recorded; next: pipeline run {}",
+        args.capture_dir.display()
+    ));
     Ok(ExitCode::SUCCESS)
 }
 
@@ -132,6 +144,9 @@ fn demo(out_dir: &std::path::Path, reporter: &Reporter) -> anyhow::Result<ExitCo
             out_dir.display()
         ));
         simulate::simulate_into(&simulate::demo_scene()?, out_dir, reporter)?;
+        let settings = out_dir.join(pipeline::config::CONFIG_FILE);
+        pipeline::atomic::write_atomic(&settings, simulate::DEMO_SETTINGS.as_bytes())
+            .with_context(|| format!("cannot write {}", settings.display()))?;
     }
     let (capture, config) = open_capture(out_dir)?;
     let summary = stages::pipeline().run(&capture, &config, &Selection::default(), reporter)?;

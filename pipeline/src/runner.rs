@@ -383,7 +383,9 @@ impl Pipeline {
                 stage: stage.name,
                 reasons: &reasons,
             });
-            match execute(stage, run, capture, config, params, inputs, reporter) {
+            match execute(
+                stage, run, capture, config, params, inputs, sel.force, reporter,
+            ) {
                 Ok(manifest) => {
                     reporter.event(&Event::StageFinished {
                         stage: stage.name,
@@ -415,15 +417,25 @@ fn execute(
     config: &CaptureConfig,
     params: serde_json::Value,
     inputs: BTreeMap<String, InputRecord>,
+    force: bool,
     reporter: &Reporter,
 ) -> anyhow::Result<Manifest> {
     let work = capture.work_dir();
     let partial = work.join(format!(".{}.partial", stage.name));
-    if !stage.resumable && partial.exists() {
+    // A resumable stage continues from its partial folder only when that folder was
+    // started with the same parameters and inputs (and without --force).
+    let key = resume_key(&params, &inputs);
+    let key_file = partial.join(RESUME_KEY_FILE);
+    let resume = stage.resumable && !force && fs::read_to_string(&key_file).is_ok_and(|k| k == key);
+    if !resume && partial.exists() {
         fs::remove_dir_all(&partial)
             .with_context(|| format!("cannot clear {}", partial.display()))?;
     }
     fs::create_dir_all(&partial).with_context(|| format!("cannot create {}", partial.display()))?;
+    if stage.resumable {
+        crate::atomic::write_atomic(&key_file, key.as_bytes())
+            .with_context(|| format!("cannot write {}", key_file.display()))?;
+    }
     let started = Utc::now();
     let record = RunRecord {
         state: RunState::Running,
@@ -445,6 +457,7 @@ fn execute(
         capture,
         config,
         out_dir: partial.clone(),
+        resume,
         progress: &progress,
         tool_versions: Mutex::new(tools),
     };
@@ -465,6 +478,10 @@ fn execute(
     splat4d::Progress::finish(&progress);
     let duration_s = clock.elapsed().as_secs_f64();
     let finished = outcome.and_then(|()| {
+        if stage.resumable {
+            fs::remove_file(&key_file)
+                .with_context(|| format!("cannot remove {}", key_file.display()))?;
+        }
         for required in &stage.outputs {
             if !partial.join(required).exists() {
                 bail!("the stage finished without writing {required}");
@@ -508,6 +525,16 @@ fn execute(
             Err(e)
         }
     }
+}
+
+/// File in a resumable stage's partial folder naming the run it belongs to.
+const RESUME_KEY_FILE: &str = ".resume-key";
+
+/// Identity of a stage run: its parameters and the hashes of its inputs.
+fn resume_key(params: &serde_json::Value, inputs: &BTreeMap<String, InputRecord>) -> String {
+    let hashes: Vec<(&String, &String)> = inputs.iter().map(|(k, v)| (k, &v.hash)).collect();
+    let bytes = serde_json::to_vec(&(params, hashes)).unwrap_or_default();
+    hash_bytes(&bytes)
 }
 
 /// Replace `work/<stage>/` with the finished partial folder.

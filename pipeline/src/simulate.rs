@@ -11,6 +11,9 @@ use crate::report::Reporter;
 /// The scene of `pipeline demo`, built into the binary.
 pub const DEMO_SCENE: &str = include_str!("../../fixtures/demo.toml");
 
+/// The `capture.toml` of `pipeline demo` (short training for a CPU).
+pub const DEMO_SETTINGS: &str = include_str!("../../fixtures/demo-capture.toml");
+
 /// Simulate `scene` into `capture_dir`. The capture is written to a hidden folder inside
 /// `capture_dir` and moved into place when complete; an existing capture (a `raw/`
 /// folder) is never touched.

@@ -95,6 +95,9 @@ pub struct StageContext<'a> {
     pub config: &'a CaptureConfig,
     /// Where to write outputs. It becomes `work/<stage>/` only if the stage succeeds.
     pub out_dir: PathBuf,
+    /// A resumable stage finds its own earlier, interrupted work in `out_dir` (same
+    /// parameters and inputs): continue it.
+    pub resume: bool,
     pub progress: &'a dyn Progress,
     pub(crate) tool_versions: Mutex<BTreeMap<String, String>>,
 }

@@ -80,7 +80,10 @@ fn poses(ctx: &StageContext) -> anyhow::Result<()> {
     let frames_dir = ctx.stage_dir("frames");
     let index = FramesIndex::read_json(&frames_dir.join("frames.json"))?;
     if let Some(calibration) = &ctx.capture.calibration {
-        tracing::info!("importing the calibration {} instead of solving poses", calibration.display());
+        tracing::info!(
+            "importing the calibration {} instead of solving poses",
+            calibration.display()
+        );
         let set = calib::import::import_calibration(calibration)
             .with_context(|| format!("cannot import {}", calibration.display()))?;
         // The calibration is for the recorded size; the engine sees the working size.
@@ -88,7 +91,10 @@ fn poses(ctx: &StageContext) -> anyhow::Result<()> {
         calib::poses::write_imported(&set, calibration, &ctx.out_dir, working_size, config.radius)?;
         return Ok(());
     }
-    let first = index.frames.first().context("the frames stage wrote no frames")?;
+    let first = index
+        .frames
+        .first()
+        .context("the frames stage wrote no frames")?;
     let video_frames = index
         .cameras
         .iter()
@@ -153,7 +159,9 @@ pub fn pipeline() -> Pipeline {
             .outputs(&["points.ply"]),
             StageDef::new("train", "train the 4C4D Gaussian model")
                 .after(&["frames", "poses", "init"])
-                .resumable(),
+                .outputs(&["model.bin", "log.csv"])
+                .resumable()
+                .run(crate::training::run),
             StageDef::new("render", "render videos along camera paths").after(&["poses", "train"]),
             StageDef::new(
                 "eval",

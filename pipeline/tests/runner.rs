@@ -457,3 +457,91 @@ fn a_stage_that_forgets_an_output_fails() {
     assert!(s.failed.unwrap().1.contains("without writing result.json"));
     assert!(!tmp.path().join("work/lazy").exists());
 }
+
+/// A resumable stage that counts in `progress.txt`, failing once it has counted to 2 unless
+/// `done` is set; it records whether the runner told it to resume.
+fn resumable_pipeline(done: Arc<AtomicBool>, resumed: Arc<AtomicUsize>) -> Pipeline {
+    Pipeline {
+        stages: vec![
+            StageDef::new("t", "resumable")
+                .params(|c| serde_json::json!({"cameras": c.capture.cameras}))
+                .outputs(&["model.txt"])
+                .resumable()
+                .run(move |ctx| {
+                    let path = ctx.output("progress.txt");
+                    let count: u32 = fs::read_to_string(&path)
+                        .ok()
+                        .and_then(|s| s.parse().ok())
+                        .unwrap_or(0);
+                    if ctx.resume {
+                        resumed.fetch_add(1, Ordering::SeqCst);
+                    }
+                    fs::write(&path, (count + 1).to_string())?;
+                    if !done.load(Ordering::SeqCst) {
+                        anyhow::bail!("interrupted at {}", count + 1);
+                    }
+                    fs::write(ctx.output("model.txt"), format!("after {}", count + 1))?;
+                    Ok(())
+                }),
+        ],
+    }
+}
+
+#[test]
+fn a_resumable_stage_continues_only_the_same_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    make_capture(tmp.path(), 4, 0);
+    let (done, resumed) = (
+        Arc::new(AtomicBool::new(false)),
+        Arc::new(AtomicUsize::new(0)),
+    );
+    let p = resumable_pipeline(done.clone(), resumed.clone());
+    let partial = tmp.path().join("work/.t.partial/progress.txt");
+
+    // Two interrupted attempts with the same settings: the second continues the first.
+    assert!(run(&p, tmp.path(), Selection::default()).failed.is_some());
+    assert!(run(&p, tmp.path(), Selection::default()).failed.is_some());
+    assert_eq!(fs::read_to_string(&partial).unwrap(), "2");
+    assert_eq!(resumed.load(Ordering::SeqCst), 1);
+
+    // Changed settings: the old partial work is discarded.
+    fs::write(tmp.path().join("capture.toml"), "[capture]\ncameras = 4\n").unwrap();
+    let config = CaptureConfig::load(tmp.path()).unwrap();
+    assert_eq!(config.capture.cameras, 4, "same value: same parameters");
+    assert!(run(&p, tmp.path(), Selection::default()).failed.is_some());
+    assert_eq!(fs::read_to_string(&partial).unwrap(), "3");
+    make_capture_with_cameras(tmp.path(), 3);
+    assert!(run(&p, tmp.path(), Selection::default()).failed.is_some());
+    assert_eq!(
+        fs::read_to_string(&partial).unwrap(),
+        "1",
+        "new parameters start over"
+    );
+
+    // --force starts over too; a finished run leaves no resume marker behind.
+    done.store(true, Ordering::SeqCst);
+    let force = Selection {
+        force: true,
+        ..Default::default()
+    };
+    let before = resumed.load(Ordering::SeqCst);
+    assert!(run(&p, tmp.path(), force).failed.is_none());
+    assert_eq!(resumed.load(Ordering::SeqCst), before);
+    let out = tmp.path().join("work/t");
+    assert_eq!(
+        fs::read_to_string(out.join("model.txt")).unwrap(),
+        "after 1"
+    );
+    assert!(!out.join(".resume-key").exists());
+    assert!(!tmp.path().join("work/.t.partial").exists());
+}
+
+/// Keep the capture's folders but declare `cameras` of them in capture.toml.
+fn make_capture_with_cameras(root: &Path, cameras: usize) {
+    fs::remove_dir_all(root.join("raw/cam3")).unwrap();
+    fs::write(
+        root.join("capture.toml"),
+        format!("[capture]\ncameras = {cameras}\n"),
+    )
+    .unwrap();
+}
