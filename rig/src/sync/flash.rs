@@ -6,8 +6,9 @@
 //! Camera model: row `r` of a frame stamped `t` collects light during the `exposure`
 //! seconds that end at `t + r / rows · readout` (readout 0: global shutter; exposure 0:
 //! instantaneous). Then:
-//! - rolling shutter: the row where the step lies in the first lit frame times the flash to
-//!   a fraction of a millisecond (half-lit row = flash at that row's exposure midpoint);
+//! - rolling shutter: where the lit rows begin in the first lit frame times the flash to a
+//!   fraction of a millisecond, for a lasting step (a lamp switched on) or a pulse shorter
+//!   than a frame (a flash) alike — see [`step_row`];
 //! - a partly lit frame (the flash came during the exposure): lit fraction `f` puts the
 //!   flash at `t − f · exposure`;
 //! - otherwise the flash lies between the previous frame's last row and this frame's
@@ -94,13 +95,13 @@ pub fn detect_flash(
     let t_on = frames[k_on].timestamp;
     let t_prev = frames[k_on - 1].timestamp;
     let row_fraction = if readout_s > 0.0 {
-        step_row(frames, k_on, contrast)
+        step_row(frames, k_on)
     } else {
         0.0
     };
     let lit_fraction = ((means[k_on] - base) / contrast).clamp(0.0, 1.0);
     let time = if row_fraction > 0.0 {
-        t_on + row_fraction * readout_s - 0.5 * exposure_s
+        t_on + row_fraction * readout_s
     } else if exposure_s > 0.0 && lit_fraction < 0.97 {
         // The flash came during the first row's exposure.
         t_on - lit_fraction * exposure_s
@@ -124,57 +125,61 @@ fn median(v: &[f64]) -> f64 {
     s[s.len() / 2]
 }
 
-/// Fraction of the height above the brightness step in frame `k` (rolling shutter).
+/// Where the flash's leading edge lies in frame `k` (rolling shutter), as a fraction of the
+/// height (0 = top); 0 when the frame is lit from its first row.
 ///
-/// Each row's lift is normalised by the lift it gets once fully lit; the step is placed
-/// where a 0→1 step fits the normalised lifts best (rows the flash barely reaches are
-/// ignored). Returns 0 when the whole frame is lit.
-fn step_row(frames: &[FrameBrightness], k: usize, contrast: f64) -> f64 {
+/// The flash lights each surface in proportion to its brightness, so each row's lift over
+/// the dark frame `k − 1` is taken relative to that row's dark level. Going down the frame,
+/// rows are exposed later, so the relative lift ramps up from 0 where a row's exposure
+/// first overlaps the flash, over `min(exposure, flash duration)` worth of rows, to its
+/// peak. The peak is read from frames `k` and `k + 1` (a step stays lit; a pulse shorter
+/// than a frame lights only a band of rows), the half-peak crossing is found with
+/// sub-row interpolation, and the ramp's width (from its 10 % and 90 % crossings) moves it
+/// back to where the ramp starts: the row whose exposure ends as the flash begins.
+fn step_row(frames: &[FrameBrightness], k: usize) -> f64 {
     let dark = &frames[k - 1].rows;
-    let now = &frames[k].rows;
-    let lit_frame = (k + 1..(k + 4).min(frames.len()))
-        .max_by(|&a, &b| frames[a].mean().total_cmp(&frames[b].mean()))
-        .unwrap_or(k);
-    let lit = &frames[lit_frame].rows;
-    let h = now.len().min(dark.len()).min(lit.len());
-    if h == 0 {
-        return 0.0;
-    }
-    let mut lifts: Vec<(usize, f64)> = Vec::with_capacity(h);
-    for r in 0..h {
-        let den = f64::from(lit[r]) - f64::from(dark[r]);
-        if den > 0.25 * contrast {
-            let n = (f64::from(now[r]) - f64::from(dark[r])) / den;
-            lifts.push((r, n.clamp(0.0, 1.0)));
-        }
-    }
-    if lifts.is_empty() {
-        return 0.0;
-    }
-    // Best step position s (index into lifts): maximise Σ_{j ≥ s} (2 n_j − 1).
-    let mut suffix = 0.0;
-    let (mut best, mut best_s) = (f64::MIN, lifts.len());
-    for s in (0..=lifts.len()).rev() {
-        if s < lifts.len() {
-            suffix += 2.0 * lifts[s].1 - 1.0;
-        }
-        if suffix >= best {
-            best = suffix;
-            best_s = s;
-        }
-    }
-    if best_s == 0 {
-        return 0.0;
-    }
-    // Sub-row: the row just above the step may be partly lit.
-    let (row, _) = lifts[best_s.min(lifts.len() - 1)];
-    let above = lifts[best_s - 1];
-    let row = if best_s < lifts.len() {
-        row as f64 - above.1
-    } else {
-        above.0 as f64 + 1.0 - above.1
+    let lifts = |rows: &[f32]| -> Vec<(usize, f64)> {
+        (0..rows.len().min(dark.len()))
+            .filter(|&r| dark[r] >= 8.0)
+            .map(|r| (r, f64::from(rows[r] - dark[r]) / f64::from(dark[r])))
+            .collect()
     };
-    row.max(0.0) / h as f64
+    let now = lifts(&frames[k].rows);
+    if now.len() < 3 {
+        return 0.0;
+    }
+    // Peak: the largest 3-row median (one noisy row cannot set it).
+    let median3 = |v: &[(usize, f64)]| {
+        v.windows(3)
+            .map(|w| median(&[w[0].1, w[1].1, w[2].1]))
+            .fold(f64::MIN, f64::max)
+    };
+    let mut peak = median3(&now);
+    if let Some(next) = frames.get(k + 1) {
+        peak = peak.max(median3(&lifts(&next.rows)));
+    }
+    if peak <= 0.0 {
+        return 0.0;
+    }
+    // First crossing of `level · peak` going down, in (fractional) row units.
+    let crossing = |level: f64| -> Option<f64> {
+        let target = level * peak;
+        let i = now.iter().position(|&(_, v)| v >= target)?;
+        if i == 0 {
+            return Some(now[0].0 as f64);
+        }
+        let ((r0, v0), (r1, v1)) = (now[i - 1], now[i]);
+        let f = ((target - v0) / (v1 - v0)).clamp(0.0, 1.0);
+        Some(r0 as f64 + f * (r1 - r0) as f64)
+    };
+    let (Some(x10), Some(x50), Some(x90)) = (crossing(0.1), crossing(0.5), crossing(0.9)) else {
+        return 0.0;
+    };
+    if x10 <= now[0].0 as f64 {
+        return 0.0;
+    }
+    let ramp = ((x90 - x10) / 0.8).max(0.0);
+    (x50 - 0.5 * ramp).max(0.0) / frames[k].rows.len() as f64
 }
 
 #[cfg(test)]
@@ -207,6 +212,55 @@ mod tests {
             let f = rolling(30.0, 0.0, 0.030, flash, 540);
             let e = detect_flash(&f, 0.030, 0.0).unwrap();
             assert!((e.time - flash).abs() < 1e-3, "flash {flash}: {e:?}");
+        }
+    }
+
+    /// A rolling-shutter camera filming a textured scene lit by a flash pulse: row r of
+    /// frame k integrates over `[t_k + r/h·readout − exposure, t_k + r/h·readout]`, and
+    /// its brightness is the row's albedo × (1 + 1.5 × lit fraction of the exposure).
+    fn pulse(
+        phase: f64,
+        readout: f64,
+        exposure: f64,
+        flash: f64,
+        duration: f64,
+    ) -> Vec<FrameBrightness> {
+        let h = 120;
+        (0..30)
+            .map(|k| {
+                let t = phase + k as f64 / 30.0;
+                let rows = (0..h)
+                    .map(|r| {
+                        let end = t + r as f64 / h as f64 * readout;
+                        let overlap =
+                            (end.min(flash + duration) - (end - exposure).max(flash)).max(0.0);
+                        let albedo = 60.0 + 50.0 * ((r * 7919) % 13) as f64 / 13.0;
+                        (albedo * (1.0 + 1.5 * overlap / exposure)) as f32
+                    })
+                    .collect();
+                FrameBrightness { timestamp: t, rows }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn rolling_shutter_times_a_flash_pulse_on_a_textured_scene() {
+        for &duration in &[0.001, 0.004, 0.010, 1.0] {
+            for &flash in &[0.3012, 0.3171, 0.3290] {
+                let f = pulse(0.0, 0.0266, 0.004, flash, duration);
+                let e = detect_flash(&f, 0.0266, 0.004).unwrap();
+                // When the flash starts between two frames' readouts, no row shows its
+                // leading edge and only the exposure bounds it.
+                let tolerance = if e.row_fraction > 0.0 {
+                    3e-4
+                } else {
+                    0.004 + duration.min(0.004)
+                };
+                assert!(
+                    (e.time - flash).abs() < tolerance,
+                    "pulse {duration} s at {flash}: {e:?}"
+                );
+            }
         }
     }
 
