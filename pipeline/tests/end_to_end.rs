@@ -105,6 +105,64 @@ fn simulated_audio_capture_is_ingested_synchronised_and_aligned() {
     assert_eq!(img.width().max(img.height()), 80);
 }
 
+/// No audio anywhere → `auto` falls back to the flash; the rolling shutter (declared in
+/// capture.toml) times it below a frame; a camera with dropped frames still gets one image
+/// per aligned frame, the nearest it has, with the residual recorded.
+#[test]
+fn simulated_flash_capture_with_dropped_frames_is_synchronised() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("capture");
+    let text = fs::read_to_string(fixture("sync-flash.toml"))
+        .unwrap()
+        .replacen("offset = 0.2\n", "offset = 0.2\ndropped = [3, 4, 20]\n", 1);
+    assert!(text.contains("dropped"));
+    let scene = rig::sim::Scene::from_toml_str(&text, "sync-flash.toml + dropped frames").unwrap();
+    simulate::simulate_into(&scene, &root, &Reporter::new(OutputMode::Quiet)).unwrap();
+    fs::write(
+        root.join("capture.toml"),
+        "[sync]\nreadout_s = 0.0266\nexposure_s = 0.004\n",
+    )
+    .unwrap();
+    let summary = run(&root, to("frames"));
+    assert_eq!(summary.ran, ["ingest", "sync", "frames"], "{summary:?}");
+
+    let truth: rig::sim::OffsetsFile =
+        serde_json::from_str(&fs::read_to_string(root.join("groundtruth/offsets.json")).unwrap())
+            .unwrap();
+    assert_eq!(truth.cameras[2].dropped_frames, [3, 4, 20]);
+    let sync = rig::sync::SyncResult::read_json(&root.join("work/sync/sync.json")).unwrap();
+    assert_eq!(sync.method, rig::sync::SyncMethod::Flash);
+    let start0 = truth.cameras[0].start_time_s;
+    for (cam, found) in truth.cameras.iter().zip(&sync.cameras) {
+        let error = found.offset_s - (cam.start_time_s - start0);
+        println!("flash sync {}: error {:.3} ms", cam.name, error * 1e3);
+        // A frame is 33 ms; H.264 and 120 rows leave about a millisecond.
+        assert!(error.abs() < 0.003, "{}: error {error} s", cam.name);
+    }
+
+    let index = rig::frames::FramesIndex::read_json(&root.join("work/frames/frames.json")).unwrap();
+    let period = 1.0 / index.fps;
+    let mut stand_ins = 0;
+    for frame in &index.frames {
+        let view = &frame.views[2];
+        assert!(root.join("work/frames").join(&view.file).is_file());
+        // The camera frame shown (its file time is frame / fps) is one the file has.
+        let camera_frame = ((view.timestamp_s - sync.cameras[2].offset_s) * 30.0).round() as u32;
+        assert!(
+            !truth.cameras[2].dropped_frames.contains(&camera_frame),
+            "{view:?}"
+        );
+        assert!(view.residual_s.abs() <= period + 1e-9, "{view:?}");
+        if view.residual_s.abs() > 0.5 * period + 1e-9 {
+            stand_ins += 1;
+        }
+    }
+    assert!(
+        stand_ins >= 1,
+        "a dropped frame must be replaced by a neighbour"
+    );
+}
+
 /// Issue 8's acceptance check on a simulated capture. Ignored for now: on `poses.toml`
 /// COLMAP registers all 12 images but converges to a degenerate solution (fx ≠ fy,
 /// focal lengths 409–2000 px for identical cameras; rotation errors 40–110°), most likely
@@ -119,22 +177,50 @@ fn simulated_static_capture_gets_poses_from_colmap() {
     let scene = rig::sim::Scene::from_file(&fixture("poses.toml")).unwrap();
     simulate::simulate_into(&scene, &root, &Reporter::new(OutputMode::Quiet)).unwrap();
     // A static scene with no clap or flash: the cameras' own timestamps are the timeline.
-    fs::write(root.join("capture.toml"), "[sync]\nmethod = \"timestamps\"\n").unwrap();
+    fs::write(
+        root.join("capture.toml"),
+        "[sync]\nmethod = \"timestamps\"\n",
+    )
+    .unwrap();
     let summary = run(&root, to("poses"));
-    assert_eq!(summary.ran, ["ingest", "sync", "frames", "poses"], "{summary:?}");
+    assert_eq!(
+        summary.ran,
+        ["ingest", "sync", "frames", "poses"],
+        "{summary:?}"
+    );
 
     let solved = calib::poses::PosesFile::read(&root.join("work/poses/cameras.json")).unwrap();
     let truth: splat4d::CameraSet =
-        serde_json::from_str(&fs::read_to_string(root.join("groundtruth/cameras.json")).unwrap()).unwrap();
-    let video: Vec<_> = truth.cameras.iter().filter(|c| c.name.starts_with("cam")).cloned().collect();
+        serde_json::from_str(&fs::read_to_string(root.join("groundtruth/cameras.json")).unwrap())
+            .unwrap();
+    let video: Vec<_> = truth
+        .cameras
+        .iter()
+        .filter(|c| c.name.starts_with("cam"))
+        .cloned()
+        .collect();
     assert_eq!(solved.set.cameras.len(), 4);
     let (_, errors, radius) = calib::align::compare(&solved.set.cameras, &video).unwrap();
     for e in &errors {
-        eprintln!("{}: rotation {:.3}°, centre {:.3}% of the rig radius", e.name, e.rotation_deg, 100.0 * e.centre / radius);
+        eprintln!(
+            "{}: rotation {:.3}°, centre {:.3}% of the rig radius",
+            e.name,
+            e.rotation_deg,
+            100.0 * e.centre / radius
+        );
         assert!(e.rotation_deg < 0.5, "{}: {}°", e.name, e.rotation_deg);
-        assert!(e.centre < 0.01 * radius, "{}: {} of radius {}", e.name, e.centre, radius);
+        assert!(
+            e.centre < 0.01 * radius,
+            "{}: {} of radius {}",
+            e.name,
+            e.centre,
+            radius
+        );
     }
     // The engine sees the frames' size.
     let index = rig::frames::FramesIndex::read_json(&root.join("work/frames/frames.json")).unwrap();
-    assert_eq!(solved.set.cameras[0].intrinsics.width, index.cameras[0].width);
+    assert_eq!(
+        solved.set.cameras[0].intrinsics.width,
+        index.cameras[0].width
+    );
 }
