@@ -250,26 +250,28 @@ pub fn export_all(
             .sum::<glam::DVec3>()
             / model.len().max(1) as f64;
         let space = viewer::ViewerSpace::from_cameras(cameras, fallback);
+        let first = cameras.cameras.first();
+        let camera_position = first
+            .map(|c| space.point(c.world_to_camera.centre()))
+            .unwrap_or(glam::DVec3::new(0.0, -1.0, -4.0));
+        let baked: Vec<Frame3d> = viewer_times
+            .iter()
+            .map(|&(_, t)| bake_frame(model, t, opts.min_opacity))
+            .collect();
+        let rows = baked.iter().map(|f| f.splats.len()).max().unwrap_or(0);
         let mut frames = Vec::new();
-        for (k, &(_, t)) in viewer_times.iter().enumerate() {
-            let frame = bake_frame(model, t, opts.min_opacity);
+        for (k, frame) in baked.iter().enumerate() {
             let file = format!("frames/{k:04}.splat");
-            write_atomic(
-                &dir.join(&file),
-                &viewer::encode_splat(&frame, &space, view),
-            )?;
+            let bytes = viewer::encode_splat(frame, &space, view, camera_position, rows);
+            write_atomic(&dir.join(&file), &bytes)?;
             frames.push(viewer::ViewerFrame {
                 file,
-                t,
-                seconds: model.time.seconds(t),
+                t: frame.t,
+                seconds: model.time.seconds(frame.t),
                 splats: frame.splats.len(),
             });
             progress.advance(1);
         }
-        let first = cameras.cameras.first();
-        let camera_position = first
-            .map(|c| space.point(c.world_to_camera.centre()).to_array())
-            .unwrap_or([0.0, -1.0, -4.0]);
         let fov_y_deg = first
             .map(|c| {
                 2.0 * (0.5 * c.intrinsics.height as f64 / c.intrinsics.fy)
@@ -279,7 +281,7 @@ pub fn export_all(
             .unwrap_or(50.0);
         let scene = viewer::ViewerScene {
             frames,
-            camera_position,
+            camera_position: camera_position.to_array(),
             fov_y_deg,
             fps: opts.viewer_fps,
         };

@@ -88,10 +88,31 @@ impl ViewerSpace {
 }
 
 /// Encode a baked frame as `.splat` rows in viewer space, colour seen from `view_from`.
-pub fn encode_splat(frame: &Frame3d, space: &ViewerSpace, view_from: Option<[f64; 3]>) -> Vec<u8> {
-    let mut out = Vec::with_capacity(frame.splats.len() * 32);
+///
+/// Rows are sorted front to back as seen from `sort_from` (viewer space), the order
+/// gsplat draws before its sort worker first answers; the frame is padded with
+/// transparent splats to `pad_to` rows, because gsplat's sort worker keeps the buffers
+/// of the first frame it saw and cannot take a larger one later.
+pub fn encode_splat(
+    frame: &Frame3d,
+    space: &ViewerSpace,
+    view_from: Option<[f64; 3]>,
+    sort_from: DVec3,
+    pad_to: usize,
+) -> Vec<u8> {
+    let mut out = Vec::with_capacity(frame.splats.len().max(pad_to) * 32);
     let c0 = crate::model::SH_C0;
-    for s in &frame.splats {
+    let mut order: Vec<(f64, usize)> = frame
+        .splats
+        .iter()
+        .enumerate()
+        .map(|(i, s)| {
+            let p = space.point(DVec3::from_array(s.position.map(|v| v as f64)));
+            (p.distance_squared(sort_from), i)
+        })
+        .collect();
+    order.sort_by(|a, b| a.0.total_cmp(&b.0));
+    for s in order.iter().map(|&(_, i)| &frame.splats[i]) {
         let p = space.point(DVec3::from_array(s.position.map(|v| v as f64)));
         let rgb = match view_from {
             Some(eye) => splat_colour(s, frame, eye),
@@ -117,6 +138,16 @@ pub fn encode_splat(frame: &Frame3d, space: &ViewerSpace, view_from: Option<[f64
         for v in [q.w, q.x, q.y, q.z] {
             out.push((v * 128.0 + 128.0).round().clamp(0.0, 255.0) as u8);
         }
+    }
+    // Transparent, tiny padding rows at the origin.
+    let mut pad = [0u8; 32];
+    for k in 0..3 {
+        pad[12 + 4 * k..16 + 4 * k].copy_from_slice(&1e-6f32.to_le_bytes());
+    }
+    pad[28] = 255;
+    pad[29..32].fill(128);
+    while out.len() < pad_to * 32 {
+        out.extend_from_slice(&pad);
     }
     out
 }
