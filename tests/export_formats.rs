@@ -2,6 +2,8 @@
 //! re-imports bit-exactly, `.splatv` decodes to what was written and moves like the
 //! model, and `export_all` writes the documented tree.
 
+#![allow(clippy::needless_range_loop)]
+
 mod common;
 
 use common::{SceneSpec, camera, random_scene};

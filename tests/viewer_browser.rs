@@ -264,7 +264,7 @@ fn viewer_shows_the_scene_and_changes_with_time() {
     for (frame, (_, png)) in [0, 4, 4].iter().zip(&pairs) {
         let img = image::open(png).expect("screenshot PNG").to_rgb8();
         if let Some(keep) = std::env::var_os("SPLAT4D_KEEP_SHOTS") {
-            let _ = std::fs::copy(&png, Path::new(&keep).join(png.file_name().unwrap()));
+            let _ = std::fs::copy(png, Path::new(&keep).join(png.file_name().unwrap()));
         }
         let c = census(&img);
         eprintln!("frame {frame}: {c:?} (lit, red, blue pixels)");

@@ -61,13 +61,15 @@ pub fn folded_sh(model: &Gaussians<f32>, i: usize, t: f64) -> [[f32; 3]; SH_COEF
     let coeffs = model.colour_of(i);
     let dt = model.means[i][3] as f64 - t;
     let period = colour_period(model);
+    let nt = active.temporal_count();
+    let psi: [f64; 3] =
+        std::array::from_fn(|j| (2.0 * std::f64::consts::PI * j as f64 * dt / period).cos());
     let mut out = [[0f32; 3]; SH_COEFFS];
     for s in 0..ns {
         let mut acc = [0f64; 3];
-        for j in 0..active.temporal_count() {
-            let psi = (2.0 * std::f64::consts::PI * j as f64 * dt / period).cos();
+        for j in 0..nt {
             for c in 0..3 {
-                acc[c] += coeffs[(j * ns_cap + s) * 3 + c] as f64 * psi;
+                acc[c] += coeffs[(j * ns_cap + s) * 3 + c] as f64 * psi[j];
             }
         }
         out[s] = acc.map(|v| v as f32);

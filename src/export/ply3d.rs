@@ -79,7 +79,7 @@ pub fn read_frame_ply(path: &Path) -> Result<Vec<Splat3d>, ExportError> {
         .map_while(|k| table.column(&format!("f_rest_{k}")))
         .collect();
     let per = rest.len() / 3;
-    if per > REST || rest.len() % 3 != 0 {
+    if per > REST || !rest.len().is_multiple_of(3) {
         return Err(bad(format!("{} f_rest properties", rest.len())));
     }
     let w = table.names.len();

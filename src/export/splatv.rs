@@ -119,7 +119,10 @@ pub fn splats_from_model(
     model: &Gaussians<f32>,
     colour_view: Option<[f64; 3]>,
 ) -> Vec<SplatvSplat> {
+    use rayon::prelude::*;
     (0..model.len())
+        .into_par_iter()
+        .with_min_len(512)
         .filter_map(|i| {
             let alpha = sigmoid(model.opacity_logits[i] as f64);
             let a8 = (alpha * 255.0).round().clamp(0.0, 255.0) as u8;
