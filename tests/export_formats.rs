@@ -277,6 +277,58 @@ fn export_all_writes_the_documented_tree() {
     assert!(err.to_string().contains("scripts/setup.sh"), "{err}");
 }
 
+#[test]
+fn viewer_export_copies_the_bundle_and_writes_equal_size_frames() {
+    let m = model(9, 40);
+    let cams = CameraSet::new(vec![camera(64, 48)]);
+    let dir = tempfile::tempdir().unwrap();
+    let bundle = dir.path().join("bundle");
+    std::fs::create_dir_all(bundle.join("assets")).unwrap();
+    std::fs::write(bundle.join("index.html"), "<html></html>").unwrap();
+    std::fs::write(bundle.join("assets/a.js"), "x").unwrap();
+    let out = dir.path().join("export");
+    let opts = ExportOptions {
+        frames: false,
+        model4d: false,
+        splatv: false,
+        viewer_bundle: Some(bundle),
+        viewer_max_frames: 3,
+        ..Default::default()
+    };
+    let times = splat4d::export::even_times(&m, 7);
+    let report = export_all(&m, &cams, &times, &out, &opts, &NoProgress).unwrap();
+    let v = out.join("viewer");
+    assert_eq!(report.viewer_index, Some(v.join("index.html")));
+    assert!(v.join("assets/a.js").is_file());
+    let scene: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(v.join("scene.json")).unwrap()).unwrap();
+    let frames = scene["frames"].as_array().unwrap();
+    assert_eq!(frames.len(), 3);
+    let ts: Vec<f64> = frames.iter().map(|f| f["t"].as_f64().unwrap()).collect();
+    assert_eq!(ts, vec![times[0], times[3], times[6]]);
+    let counts: Vec<u64> = frames
+        .iter()
+        .map(|f| f["splats"].as_u64().unwrap())
+        .collect();
+    let max = *counts.iter().max().unwrap() as usize;
+    assert!(max > 0);
+    for f in frames {
+        let bytes = std::fs::read(v.join(f["file"].as_str().unwrap())).unwrap();
+        // Padded to one size (gsplat's sort worker keeps its first buffer size).
+        assert_eq!(bytes.len(), 32 * max);
+    }
+    let cam = scene["camera_position"].as_array().unwrap();
+    let r: f64 = cam
+        .iter()
+        .map(|c| c.as_f64().unwrap().powi(2))
+        .sum::<f64>()
+        .sqrt();
+    assert!(
+        (r - 4.0).abs() < 0.5,
+        "camera distance to the scene centre {r}"
+    );
+}
+
 fn walk(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
     let mut out = Vec::new();
     for e in std::fs::read_dir(dir).unwrap().flatten() {
