@@ -13,13 +13,38 @@ PACKAGES=(
   libopencv-dev colmap
   # wgpu on machines without a GPU (lavapipe)
   mesa-vulkan-drivers libvulkan1
+  # browser viewer test (tests/viewer_browser.rs): headless Chromium, WebGL on SwiftShader
+  chromium
 )
+# The viewer's web project (viewer/) needs Node.js and npm; use any already on PATH.
+if ! command -v npm >/dev/null; then
+  PACKAGES+=(nodejs npm)
+fi
 
 missing=()
 for p in "${PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
+build_viewer() {
+  # The browser viewer bundle (viewer/dist), vendored into every export: gsplat and the
+  # build tools from the npm registry (versions pinned by viewer/package-lock.json).
+  local root viewer
+  root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+  viewer="$root/viewer"
+  if [ ! -f "$viewer/node_modules/.package-lock.json" ] ||
+     [ "$viewer/package-lock.json" -nt "$viewer/node_modules/.package-lock.json" ]; then
+    echo "setup: installing the viewer's npm packages (npm ci --prefix viewer)"
+    npm ci --prefix "$viewer" --no-audit --no-fund --loglevel=error >/dev/null
+  fi
+  if [ ! -f "$viewer/dist/index.html" ] ||
+     [ -n "$(find "$viewer/src" "$viewer/index.html" "$viewer/build.mjs" "$viewer/package-lock.json" -newer "$viewer/dist/index.html" 2>/dev/null)" ]; then
+    echo "setup: building the viewer bundle (viewer/dist)"
+    npm run --prefix "$viewer" --silent build >/dev/null
+  fi
+}
+
 if [ ${#missing[@]} -eq 0 ]; then
+  build_viewer
   exit 0
 fi
 SUDO=""
@@ -34,4 +59,5 @@ echo "setup: installing ${#missing[@]} Debian packages: ${missing[*]}"
 export DEBIAN_FRONTEND=noninteractive
 $SUDO apt-get update -qq
 $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+build_viewer
 echo "setup: done"

@@ -32,6 +32,7 @@ pub use render::{
 };
 
 pub mod densify;
+pub mod export;
 pub mod init;
 pub mod loss;
 pub mod optim;

@@ -1,0 +1,295 @@
+//! Exports of a trained 4D model for people and other tools (docs/export.md):
+//! per-timestep 3DGS PLY frames (SuperSplat, Brush), the native 4D model as PLY, a
+//! `.splatv` for web playback and a self-contained browser viewer. [`export_all`] writes
+//! them all; the submodules hold one format each. Every file is written to a temporary
+//! name and renamed when complete.
+
+pub mod bake;
+pub mod ply3d;
+pub mod ply4d;
+pub mod ply_table;
+pub mod splatv;
+pub mod viewer;
+
+use crate::model::Gaussians;
+use crate::{CameraSet, Progress};
+use serde::Serialize;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+pub use bake::{Frame3d, Splat3d, bake_frame};
+pub use ply3d::{read_frame_ply, write_frame_ply};
+pub use ply4d::{read_model_ply, write_model_ply};
+pub use splatv::write_splatv;
+pub use viewer::find_viewer_bundle;
+
+/// Why an export failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    #[error("cannot write or read {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path} is not a file this exporter reads: {reason}")]
+    Format { path: PathBuf, reason: String },
+    #[error("the model is inconsistent: {0}; re-train or re-load it")]
+    InconsistentModel(String),
+    #[error("no export times given; pass at least one model time")]
+    NoTimes,
+    #[error(
+        "the browser viewer bundle is missing (looked for index.html in {looked_in} and beside the executable); run `scripts/setup.sh` to build it (npm ci + build in viewer/), set SPLAT4D_VIEWER_DIST to a built viewer/dist, or export without the viewer"
+    )]
+    ViewerBundleMissing { looked_in: PathBuf },
+}
+
+/// Write `bytes` to `path` through `<path>.tmp` and a rename; creates parent folders.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ExportError> {
+    let io = |source| ExportError::Io {
+        path: path.into(),
+        source,
+    };
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(io)?;
+    }
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = PathBuf::from(tmp);
+    let mut f = std::fs::File::create(&tmp).map_err(io)?;
+    f.write_all(bytes).map_err(io)?;
+    f.sync_all().map_err(io)?;
+    drop(f);
+    std::fs::rename(&tmp, path).map_err(io)
+}
+
+/// Settings of [`export_all`].
+#[derive(Clone, Debug)]
+pub struct ExportOptions {
+    /// Per-timestep Gaussians whose `opacity · ω(t)` is below this are dropped (1/255: the
+    /// renderer skips such splats entirely).
+    pub min_opacity: f64,
+    /// Write `frames/NNNN.ply`.
+    pub frames: bool,
+    /// Write `model4d.ply`.
+    pub model4d: bool,
+    /// Write `scene.splatv`.
+    pub splatv: bool,
+    /// Write `viewer/` (needs the built bundle, see [`viewer::find_viewer_bundle`]).
+    pub viewer: bool,
+    /// The built viewer bundle; `None` = find it (see [`viewer::find_viewer_bundle`]).
+    pub viewer_bundle: Option<PathBuf>,
+    /// At most this many viewer frames (evenly chosen among the export times).
+    pub viewer_max_frames: usize,
+    /// Playback rate of the viewer in frames per second.
+    pub viewer_fps: f64,
+}
+
+impl Default for ExportOptions {
+    fn default() -> Self {
+        Self {
+            min_opacity: 1.0 / 255.0,
+            frames: true,
+            model4d: true,
+            splatv: true,
+            viewer: true,
+            viewer_bundle: None,
+            viewer_max_frames: 120,
+            viewer_fps: 15.0,
+        }
+    }
+}
+
+/// One written 3DGS frame.
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameReport {
+    pub path: PathBuf,
+    /// Model time.
+    pub t: f64,
+    /// Gaussians written / dropped at this time.
+    pub kept: usize,
+    pub dropped: usize,
+}
+
+/// What [`export_all`] wrote.
+#[derive(Clone, Debug, Serialize)]
+pub struct ExportReport {
+    pub gaussians: usize,
+    pub frames: Vec<FrameReport>,
+    pub model4d: Option<PathBuf>,
+    pub splatv: Option<PathBuf>,
+    /// Splats in the `.splatv` (fully transparent ones are left out).
+    pub splatv_splats: usize,
+    /// `viewer/index.html`.
+    pub viewer_index: Option<PathBuf>,
+    pub seconds: f64,
+}
+
+/// `count` model times evenly spanning `[0, duration]` (the frame times of an export).
+pub fn even_times(model: &Gaussians<f32>, count: usize) -> Vec<f64> {
+    let d = bake::colour_period(model);
+    match count {
+        0 => Vec::new(),
+        1 => vec![0.5 * d],
+        n => (0..n).map(|k| d * k as f64 / (n - 1) as f64).collect(),
+    }
+}
+
+/// Mean camera centre: the viewpoint used to bake view-dependent colour into the
+/// single-colour formats (`.splatv`, viewer frames).
+fn colour_viewpoint(cameras: &CameraSet) -> Option<[f64; 3]> {
+    let n = cameras.cameras.len();
+    (n > 0).then(|| {
+        let s: glam::DVec3 = cameras
+            .cameras
+            .iter()
+            .map(|c| c.world_to_camera.centre())
+            .sum();
+        (s / n as f64).to_array()
+    })
+}
+
+/// Write every export of `model` into `out_dir`: `frames/NNNN.ply` (one 3DGS PLY per model
+/// time in `times`), `model4d.ply`, `scene.splatv` and `viewer/` (index.html, the gsplat
+/// bundle, `frames/NNNN.splat`, `scene.json`), as selected in `opts`. `cameras` give the
+/// viewer's start view, the `.splatv` camera list and the viewpoint for baked colours.
+pub fn export_all(
+    model: &Gaussians<f32>,
+    cameras: &CameraSet,
+    times: &[f64],
+    out_dir: &Path,
+    opts: &ExportOptions,
+    progress: &dyn Progress,
+) -> Result<ExportReport, ExportError> {
+    let start = std::time::Instant::now();
+    model
+        .check_consistent()
+        .map_err(ExportError::InconsistentModel)?;
+    if times.is_empty() && (opts.frames || opts.viewer) {
+        return Err(ExportError::NoTimes);
+    }
+    // Fail early, before any long work, when the viewer cannot be built.
+    let bundle = match (opts.viewer, &opts.viewer_bundle) {
+        (false, _) => None,
+        (true, Some(b)) if b.join("index.html").is_file() => Some(b.clone()),
+        (true, Some(b)) => {
+            return Err(ExportError::ViewerBundleMissing {
+                looked_in: b.clone(),
+            });
+        }
+        (true, None) => Some(viewer::find_viewer_bundle()?),
+    };
+    let viewer_times: Vec<(usize, f64)> = if opts.viewer {
+        let n = times.len().min(opts.viewer_max_frames.max(1));
+        (0..n)
+            .map(|k| {
+                let i = if n == 1 {
+                    0
+                } else {
+                    k * (times.len() - 1) / (n - 1)
+                };
+                (i, times[i])
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let frames_total = if opts.frames { times.len() } else { 0 };
+    let total = frames_total + viewer_times.len() + opts.model4d as usize + opts.splatv as usize;
+    progress.start(total as u64, "files");
+    let view = colour_viewpoint(cameras);
+    let mut report = ExportReport {
+        gaussians: model.len(),
+        frames: Vec::new(),
+        model4d: None,
+        splatv: None,
+        splatv_splats: 0,
+        viewer_index: None,
+        seconds: 0.0,
+    };
+
+    if opts.model4d {
+        let p = out_dir.join("model4d.ply");
+        write_model_ply(model, &p)?;
+        report.model4d = Some(p);
+        progress.advance(1);
+    }
+    if opts.splatv {
+        let p = out_dir.join("scene.splatv");
+        let cams: Vec<_> = cameras
+            .cameras
+            .iter()
+            .enumerate()
+            .map(|(i, c)| splatv::SplatvCamera::from_camera(i, c))
+            .collect();
+        report.splatv_splats = write_splatv(model, &cams, view, &p)?;
+        report.splatv = Some(p);
+        progress.advance(1);
+    }
+    if opts.frames {
+        for (k, &t) in times.iter().enumerate() {
+            let frame = bake_frame(model, t, opts.min_opacity);
+            let p = out_dir.join("frames").join(format!("{k:04}.ply"));
+            write_frame_ply(&frame, &p)?;
+            progress.message(&format!("t = {t:.3}: {} Gaussians", frame.splats.len()));
+            report.frames.push(FrameReport {
+                path: p,
+                t,
+                kept: frame.splats.len(),
+                dropped: frame.dropped,
+            });
+            progress.advance(1);
+        }
+    }
+    if let Some(bundle) = bundle {
+        let dir = out_dir.join("viewer");
+        viewer::copy_bundle(&bundle, &dir)?;
+        let fallback = model
+            .means
+            .iter()
+            .map(|m| glam::DVec3::new(m[0] as f64, m[1] as f64, m[2] as f64))
+            .sum::<glam::DVec3>()
+            / model.len().max(1) as f64;
+        let space = viewer::ViewerSpace::from_cameras(cameras, fallback);
+        let first = cameras.cameras.first();
+        let camera_position = first
+            .map(|c| space.point(c.world_to_camera.centre()))
+            .unwrap_or(glam::DVec3::new(0.0, -1.0, -4.0));
+        let baked: Vec<Frame3d> = viewer_times
+            .iter()
+            .map(|&(_, t)| bake_frame(model, t, opts.min_opacity))
+            .collect();
+        let rows = baked.iter().map(|f| f.splats.len()).max().unwrap_or(0);
+        let mut frames = Vec::new();
+        for (k, frame) in baked.iter().enumerate() {
+            let file = format!("frames/{k:04}.splat");
+            let bytes = viewer::encode_splat(frame, &space, view, camera_position, rows);
+            write_atomic(&dir.join(&file), &bytes)?;
+            frames.push(viewer::ViewerFrame {
+                file,
+                t: frame.t,
+                seconds: model.time.seconds(frame.t),
+                splats: frame.splats.len(),
+            });
+            progress.advance(1);
+        }
+        let fov_y_deg = first
+            .map(|c| {
+                2.0 * (0.5 * c.intrinsics.height as f64 / c.intrinsics.fy)
+                    .atan()
+                    .to_degrees()
+            })
+            .unwrap_or(50.0);
+        let scene = viewer::ViewerScene {
+            frames,
+            camera_position: camera_position.to_array(),
+            fov_y_deg,
+            fps: opts.viewer_fps,
+        };
+        let json = serde_json::to_vec_pretty(&scene).unwrap_or_default();
+        write_atomic(&dir.join("scene.json"), &json)?;
+        report.viewer_index = Some(dir.join("index.html"));
+    }
+    report.seconds = start.elapsed().as_secs_f64();
+    progress.finish();
+    Ok(report)
+}

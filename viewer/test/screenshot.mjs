@@ -1,0 +1,57 @@
+// Drive headless Chromium (Debian's /usr/bin/chromium, no browser download) with
+// playwright-core: open each URL, wait until the viewer reports the requested frame as
+// rendered (window.viewerState.ready), and save a screenshot of the page.
+// Usage: node test/screenshot.mjs CHROMIUM PROFILE_DIR URL OUT.png [URL OUT.png ...]
+import { chromium } from "playwright-core";
+
+const [executablePath, profile, ...pairs] = process.argv.slice(2);
+if (!executablePath || !profile || pairs.length < 2 || pairs.length % 2) {
+  console.error("usage: screenshot.mjs CHROMIUM PROFILE_DIR URL OUT.png [URL OUT.png ...]");
+  process.exit(2);
+}
+const context = await chromium.launchPersistentContext(profile, {
+  executablePath,
+  headless: true,
+  viewport: { width: 640, height: 480 },
+  args: [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--enable-unsafe-swiftshader",
+    "--use-angle=swiftshader",
+  ],
+});
+let failed = false;
+try {
+  const page = context.pages()[0] ?? (await context.newPage());
+  page.on("console", (m) => console.log(`[page ${m.type()}] ${m.text()}`));
+  page.on("pageerror", (e) => console.log(`[page error] ${e.message}`));
+  const renderer = await page.evaluate(() => {
+    const gl = document.createElement("canvas").getContext("webgl2");
+    if (!gl) return "no WebGL2";
+    const ext = gl.getExtension("WEBGL_debug_renderer_info");
+    return ext ? gl.getParameter(ext.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER);
+  });
+  console.log(`WebGL renderer: ${renderer}`);
+  for (let i = 0; i < pairs.length; i += 2) {
+    const [url, out] = [pairs[i], pairs[i + 1]];
+    await page.goto(url);
+    await page.waitForFunction(() => window.viewerState && window.viewerState.ready, null, {
+      timeout: 120000,
+      polling: 200,
+    });
+    await page.screenshot({ path: out });
+    const state = await page.evaluate(() => JSON.stringify(window.viewerState));
+    console.log(`${url} -> ${out} ${state}`);
+  }
+} catch (e) {
+  console.error(`screenshot failed: ${e.message}`);
+  failed = true;
+} finally {
+  await context.close();
+}
+process.exit(failed ? 1 : 0);
