@@ -25,7 +25,7 @@ pub struct CaptureConfig {
     pub train: splat4d::train::TrainConfig,
     pub render: StageSettings,
     pub eval: StageSettings,
-    pub export: StageSettings,
+    pub export: splat4d::export::ExportOptions,
 }
 
 /// `[capture]`: the rig itself.

@@ -8,6 +8,7 @@
 pub mod atomic;
 pub mod cli;
 pub mod config;
+pub mod exporting;
 pub mod layout;
 pub mod lock;
 pub mod manifest;

@@ -169,7 +169,10 @@ pub fn pipeline() -> Pipeline {
             )
             .after(&["frames", "poses", "train"])
             .inputs(|c| vec![c.root.join("groundtruth")]),
-            StageDef::new("export", "PLY / .splatv exports and a browser viewer").after(&["train"]),
+            StageDef::new("export", "PLY / .splatv exports and a browser viewer")
+                .after(&["frames", "poses", "train"])
+                .outputs(&["export.json"])
+                .run(crate::exporting::run),
         ],
     }
 }

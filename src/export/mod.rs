@@ -13,7 +13,7 @@ pub mod viewer;
 
 use crate::model::Gaussians;
 use crate::{CameraSet, Progress};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -62,9 +62,13 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ExportError> {
     std::fs::rename(&tmp, path).map_err(io)
 }
 
-/// Settings of [`export_all`].
-#[derive(Clone, Debug)]
+/// Settings of [`export_all`]: the `[export]` section of `capture.toml`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct ExportOptions {
+    /// Number of evenly spaced time steps to export (`None`: one per aligned frame of the
+    /// capture); see [`ExportOptions::times`].
+    pub steps: Option<usize>,
     /// Per-timestep Gaussians whose `opacity · ω(t)` is below this are dropped (1/255: the
     /// renderer skips such splats entirely).
     pub min_opacity: f64,
@@ -77,6 +81,7 @@ pub struct ExportOptions {
     /// Write `viewer/` (needs the built bundle, see [`viewer::find_viewer_bundle`]).
     pub viewer: bool,
     /// The built viewer bundle; `None` = find it (see [`viewer::find_viewer_bundle`]).
+    #[serde(skip)]
     pub viewer_bundle: Option<PathBuf>,
     /// At most this many viewer frames (evenly chosen among the export times).
     pub viewer_max_frames: usize,
@@ -87,6 +92,7 @@ pub struct ExportOptions {
 impl Default for ExportOptions {
     fn default() -> Self {
         Self {
+            steps: None,
             min_opacity: 1.0 / 255.0,
             frames: true,
             model4d: true,
@@ -122,6 +128,13 @@ pub struct ExportReport {
     /// `viewer/index.html`.
     pub viewer_index: Option<PathBuf>,
     pub seconds: f64,
+}
+
+impl ExportOptions {
+    /// The model times to export: `steps` (or `default_steps`) evenly spanning the model.
+    pub fn times(&self, model: &Gaussians<f32>, default_steps: usize) -> Vec<f64> {
+        even_times(model, self.steps.unwrap_or(default_steps))
+    }
 }
 
 /// `count` model times evenly spanning `[0, duration]` (the frame times of an export).

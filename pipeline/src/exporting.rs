@@ -1,0 +1,46 @@
+//! The `export` stage: the trained model as per-timestep 3DGS PLY frames, the native 4D
+//! PLY, a `.splatv` and the browser viewer (`splat4d::export`, docs/export.md).
+
+use anyhow::Context;
+use calib::poses::PosesFile;
+use rig::frames::FramesIndex;
+
+use crate::stage::StageContext;
+
+/// The `export` stage.
+pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
+    let model_path = ctx.stage_dir("train").join("model.bin");
+    let model = splat4d::load_model(&model_path)
+        .with_context(|| format!("cannot load the trained model {}", model_path.display()))?;
+    let poses = PosesFile::read(&ctx.stage_dir("poses").join("cameras.json"))?;
+    let index = FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
+    let options = &ctx.config.export;
+    let times = options.times(&model, index.frames.len());
+    let report = splat4d::export::export_all(
+        &model,
+        &poses.set,
+        &times,
+        &ctx.out_dir,
+        options,
+        ctx.progress,
+    )?;
+    tracing::info!(
+        "exported {} time steps of {} Gaussians in {:.1} s{}",
+        report.frames.len(),
+        report.gaussians,
+        report.seconds,
+        match &report.viewer_index {
+            Some(_) => format!(
+                "; open {} in a browser",
+                ctx.stage_dir("export").join("viewer/index.html").display()
+            ),
+            None => String::new(),
+        }
+    );
+    crate::atomic::write_atomic(
+        &ctx.output("export.json"),
+        &serde_json::to_vec_pretty(&report)?,
+    )
+    .context("cannot write export.json")?;
+    Ok(())
+}
