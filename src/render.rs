@@ -10,7 +10,7 @@ use crate::blend::{
 use crate::model::Gaussians;
 use crate::numerics::{Real, sigmoid};
 use crate::project::{PinholeCamera, project, project_backward};
-use crate::sh::{ColourInput, colour, colour_backward};
+use crate::sh::{ColourInput, colour_and_mask, colour_backward_masked};
 use crate::slice::{slice, slice_backward};
 use crate::tiles::{TILE, TileBins, bin_tiles, pixel_rect};
 use crate::{Camera, blend::ALPHA_MIN};
@@ -97,6 +97,8 @@ struct Context<F: Real> {
     /// Model index of each visible splat.
     ids: Vec<u32>,
     splats: Vec<Splat<F>>,
+    /// Per visible splat: its positive (unclamped) colour channels, for the backward.
+    colour_mask: Vec<u8>,
     bins: TileBins,
     final_t: Vec<F>,
     n_contrib: Vec<u32>,
@@ -253,7 +255,7 @@ pub fn render_with<F: Real>(
     let period = period_of(model);
 
     // Per-Gaussian stages.
-    let pre: Vec<Option<(Splat<F>, [F; 2])>> = (0..n)
+    let pre: Vec<Option<(Splat<F>, [F; 2], u8)>> = (0..n)
         .into_par_iter()
         .with_min_len(1024)
         .map(|i| {
@@ -271,22 +273,24 @@ pub fn render_with<F: Real>(
             }
             let (pr, _) = project(&cam, sl.mean, &sl.factor)?;
             let input = colour_input(model, i, &cam, t, period);
-            let rgb = colour(&input);
+            let (rgb, mask) = colour_and_mask(&input);
             let splat = Splat::new(pr.mean, pr.conic, opacity, rgb, pr.depth);
-            Some((splat, pr.extent))
+            Some((splat, pr.extent, mask))
         })
         .collect();
     let mut ids = Vec::new();
     let mut splats = Vec::new();
     let mut rects = Vec::new();
+    let mut colour_mask = Vec::new();
     let mut radii = vec![F::zero(); n];
     for (i, p) in pre.into_iter().enumerate() {
-        let Some((s, ext)) = p else { continue };
+        let Some((s, ext, mask)) = p else { continue };
         let Some(r) = pixel_rect(s.rect, width, height) else {
             continue;
         };
         ids.push(i as u32);
         splats.push(s);
+        colour_mask.push(mask);
         rects.push(Some(r));
         radii[i] = ext[0].max(ext[1]);
     }
@@ -345,6 +349,7 @@ pub fn render_with<F: Real>(
             factor: options.opacity_factor.map(|f| f.to_vec()),
             ids,
             splats,
+            colour_mask,
             bins,
             final_t,
             n_contrib,
@@ -556,7 +561,12 @@ impl<F: Real> Rendered<F> {
                     *g_f = sg.opacity * sig * sl.omega;
                     let d_omega = sg.opacity * sig * factor;
                     let input = colour_input(model, i, cam, t, period);
-                    let d_mean_colour = colour_backward(&input, sg.colour, g_col);
+                    let d_mean_colour = colour_backward_masked(
+                        &input,
+                        ctx.colour_mask[k as usize],
+                        sg.colour,
+                        g_col,
+                    );
                     let (d_mean3, d_b) =
                         project_backward(cam, &pr_aux, &sl.factor, sg.mean, sg.conic, sg.depth);
                     let sg4 = slice_backward(&sl, &sl_aux, d_omega, d_mean3, &d_b);
