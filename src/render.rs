@@ -130,9 +130,10 @@ pub struct Gradients<F: Real = f32> {
 }
 
 impl<F: Real> Gradients<F> {
-    /// Resize to `model` and set every entry to zero (in parallel); the opacity-factor
-    /// gradient gets one entry per Gaussian.
-    fn reset(&mut self, model: &Gaussians<F>) {
+    /// Resize to `model` (the opacity-factor gradient gets one entry per Gaussian). Old
+    /// values stay: the per-Gaussian backward overwrites every entry, so the large colour
+    /// array is written once per step instead of zeroed and then written.
+    fn resize_to(&mut self, model: &Gaussians<F>) {
         let n = model.len();
         let z4 = [F::zero(); 4];
         for v in [
@@ -142,7 +143,6 @@ impl<F: Real> Gradients<F> {
             &mut self.rot_right,
         ] {
             v.resize(n, z4);
-            v.par_iter_mut().for_each(|x| *x = z4);
         }
         for v in [
             &mut self.opacity_logits,
@@ -150,12 +150,8 @@ impl<F: Real> Gradients<F> {
             &mut self.mean2d_norm,
         ] {
             v.resize(n, F::zero());
-            v.par_iter_mut().for_each(|x| *x = F::zero());
         }
         self.colours.resize(model.colours.len(), F::zero());
-        self.colours
-            .par_chunks_mut(4096)
-            .for_each(|c| c.fill(F::zero()));
     }
 
     /// All-zero gradients for `model`.
@@ -519,7 +515,7 @@ impl<F: Real> Rendered<F> {
         }
 
         // Per-Gaussian backward.
-        out.reset(model);
+        out.resize_to(model);
         let kc = 3 * model.coeffs_per_channel();
         let cam = &ctx.camera;
         let (t, period) = (ctx.t, ctx.period);
@@ -538,6 +534,10 @@ impl<F: Real> Rendered<F> {
             .with_min_len(256)
             .for_each(
                 |(i, (g_mean, g_scale, g_ql, g_qr, g_o, g_col, g_f, g_norm))| {
+                    let z4 = [F::zero(); 4];
+                    (*g_mean, *g_scale, *g_ql, *g_qr) = (z4, z4, z4, z4);
+                    (*g_o, *g_f, *g_norm) = (F::zero(), F::zero(), F::zero());
+                    g_col.fill(F::zero());
                     let k = visible_of[i];
                     if k == u32::MAX {
                         return;
