@@ -2,6 +2,11 @@
 //! a quick, load-robust companion to the criterion benchmark (on a shared machine the CPU
 //! time per iteration is the steadier number). Run:
 //! `cargo bench -p splat4d --bench phases`.
+//!
+//! `PHASES_COUNT=1` instead renders `PHASES_ITERS` forward+backward frames and nothing
+//! else (no warm-up, no timing): the instruction-count mode, e.g.
+//! `RAYON_NUM_THREADS=1 PHASES_COUNT=1 PHASES_ITERS=1 valgrind --tool=callgrind <bench>`;
+//! subtract the scene set-up (`common::scene`, inclusive) to get instructions per frame.
 
 mod common;
 
@@ -32,6 +37,20 @@ fn main() {
     let d_rgb: Vec<f32> = (0..3 * 512 * 384)
         .map(|i| ((i % 7) as f32 - 3.0) * 1e-3)
         .collect();
+    if std::env::var("PHASES_COUNT").is_ok_and(|v| v == "1") {
+        let mut grads = Gradients::zeros_like(&model, false);
+        for _ in 0..iters {
+            let r = render_with(&model, &cam, 0.5, &opts).unwrap();
+            let up = ImageGradients {
+                rgb: &d_rgb,
+                alpha: None,
+                depth: None,
+            };
+            r.backward_into(&model, &up, &mut grads).unwrap();
+            std::hint::black_box(&grads);
+        }
+        return;
+    }
     let r = render_with(&model, &cam, 0.5, &opts).unwrap();
     let evals = r.blend_evaluations();
     let _ = r

@@ -198,7 +198,8 @@ pub struct TileOut<F> {
     pub final_t: Vec<F>,
     /// Number of list entries visited up to and including the last contributing one.
     pub n_contrib: Vec<u32>,
-    /// Splat-pixel evaluations done in this tile (a work statistic).
+    /// Splat-pixel evaluations done in this tile (a work statistic: pixels of a splat's
+    /// support that were tested; the SIMD kernel counts only still-blending pixels).
     pub evaluations: u64,
 }
 
@@ -212,7 +213,10 @@ pub fn blend_tile_forward<F: Real>(
     out: &mut TileOut<F>,
 ) {
     #[cfg(target_arch = "x86_64")]
-    if std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>() && has_avx2_fma() {
+    if std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>()
+        && fits_tile(rect)
+        && has_avx2_fma()
+    {
         // SAFETY: F is f32, so these are the same types; the CPU has AVX2 and FMA.
         unsafe {
             let splats = &*(splats as *const [Splat<F>] as *const [Splat<f32>]);
@@ -222,7 +226,7 @@ pub fn blend_tile_forward<F: Real>(
                 background[1].f64() as f32,
                 background[2].f64() as f32,
             ];
-            return forward_avx2(rect, splats, background, out);
+            return avx2::forward(rect, splats, background, out);
         }
     }
     blend_tile_forward_impl(rect, splats, background, out)
@@ -234,31 +238,9 @@ fn has_avx2_fma() -> bool {
     std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")
 }
 
-/// The forward blend compiled for AVX2 (same arithmetic, wider vectors).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn forward_avx2(
-    rect: PixelRect,
-    splats: &[Splat<f32>],
-    background: [f32; 3],
-    out: &mut TileOut<f32>,
-) {
-    blend_tile_forward_impl(rect, splats, background, out)
-}
-
-/// The backward blend compiled for AVX2 (same arithmetic, wider vectors).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn backward_avx2(
-    rect: PixelRect,
-    splats: &[Splat<f32>],
-    background: [f32; 3],
-    final_t: &[f32],
-    n_contrib: &[u32],
-    up: &TileUpstream<f32>,
-    grads: &mut [SplatGrad<f32>],
-) {
-    blend_tile_backward_impl(rect, splats, background, final_t, n_contrib, up, grads)
+/// Whether `rect` fits one 16×16 tile (the explicit SIMD kernels' state size).
+fn fits_tile(rect: PixelRect) -> bool {
+    rect.x1 - rect.x0 <= crate::tiles::TILE && rect.y1 - rect.y0 <= crate::tiles::TILE
 }
 
 #[inline(always)]
@@ -374,7 +356,10 @@ pub fn blend_tile_backward<F: Real>(
     grads: &mut [SplatGrad<F>],
 ) {
     #[cfg(target_arch = "x86_64")]
-    if std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>() && has_avx2_fma() {
+    if std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>()
+        && fits_tile(rect)
+        && has_avx2_fma()
+    {
         // SAFETY: F is f32, so these are the same types; the CPU has AVX2 and FMA.
         unsafe {
             let splats = &*(splats as *const [Splat<F>] as *const [Splat<f32>]);
@@ -386,7 +371,7 @@ pub fn blend_tile_backward<F: Real>(
                 background[1].f64() as f32,
                 background[2].f64() as f32,
             ];
-            return backward_avx2(rect, splats, background, final_t, n_contrib, up, grads);
+            return avx2::backward(rect, splats, background, final_t, n_contrib, up, grads);
         }
     }
     blend_tile_backward_impl(rect, splats, background, final_t, n_contrib, up, grads)
@@ -505,6 +490,437 @@ fn blend_tile_backward_impl<F: Real>(
     }
 }
 
+/// Explicit AVX2+FMA blend kernels for `f32`: a 16-pixel tile row is two 8-lane vectors,
+/// every splat processes the (aligned) vectors its row span touches, fully masked.
+/// Chosen at run time by [`blend_tile_forward`] / [`blend_tile_backward`]; the portable
+/// generic loops remain the fallback (and the `f64` path).
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use super::*;
+    use std::arch::x86_64::*;
+
+    /// Per-tile state stride: one tile row = two vectors of 8 pixels.
+    const ROW_VECS: usize = (crate::tiles::TILE as usize) / 8;
+    const VECS: usize = ROW_VECS * crate::tiles::TILE as usize;
+
+    /// `exp` of 8 lanes, the same Cody–Waite + degree-6 polynomial as
+    /// [`crate::numerics::exp_f32`], with FMA.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    fn exp8(x: __m256) -> __m256 {
+        let x = _mm256_min_ps(
+            _mm256_max_ps(x, _mm256_set1_ps(-87.0)),
+            _mm256_set1_ps(88.0),
+        );
+        let round = _mm256_set1_ps(12_582_912.0);
+        let n = _mm256_sub_ps(
+            _mm256_fmadd_ps(x, _mm256_set1_ps(std::f32::consts::LOG2_E), round),
+            round,
+        );
+        let r = _mm256_fnmadd_ps(n, _mm256_set1_ps(0.693_145_75), x);
+        let r = _mm256_fnmadd_ps(n, _mm256_set1_ps(1.428_606_8e-6), r);
+        let mut p = _mm256_set1_ps(1.0 / 720.0);
+        for c in [1.0 / 120.0, 1.0 / 24.0, 1.0 / 6.0, 0.5, 1.0, 1.0] {
+            p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(c));
+        }
+        let bits = _mm256_castps_si256(_mm256_add_ps(n, _mm256_set1_ps(8_388_608.0 + 127.0)));
+        let scale = _mm256_castsi256_ps(_mm256_slli_epi32(bits, 23));
+        _mm256_mul_ps(p, scale)
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    fn hsum(v: __m256) -> f32 {
+        let s = _mm_add_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps(v, 1));
+        let s = _mm_add_ps(s, _mm_movehl_ps(s, s));
+        let s = _mm_add_ss(s, _mm_shuffle_ps(s, s, 1));
+        _mm_cvtss_f32(s)
+    }
+
+    /// Per-splat constants broadcast once.
+    struct SplatVec {
+        mx: __m256,
+        my: f32,
+        half_a: __m256,
+        b: f32,
+        c: f32,
+        opacity: __m256,
+        min_power: __m256,
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    fn splat_vec(s: &Splat<f32>) -> SplatVec {
+        SplatVec {
+            mx: _mm256_set1_ps(s.mean[0]),
+            my: s.mean[1],
+            half_a: _mm256_set1_ps(0.5 * s.conic[0]),
+            b: s.conic[1],
+            c: s.conic[2],
+            opacity: _mm256_set1_ps(s.opacity),
+            min_power: _mm256_set1_ps(
+                s.min_power
+                    .max(-0.5 * (EXTENT_SIGMAS * EXTENT_SIGMAS) as f32),
+            ),
+        }
+    }
+
+    /// `(dx, power)` of one 8-pixel vector of one splat row, with
+    /// `power = −½(a dx² + c dy²) − b dx dy = p0 − (½a dx + b dy) dx`.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    fn power8(sv: &SplatVec, fx0: __m256, p0: __m256, q: __m256) -> (__m256, __m256) {
+        let dx = _mm256_sub_ps(fx0, sv.mx);
+        let u = _mm256_fmadd_ps(sv.half_a, dx, q);
+        (dx, _mm256_fnmadd_ps(u, dx, p0))
+    }
+
+    /// Lanes of `mask` inside the splat's support (`min_power ≤ power ≤ 0`); tested
+    /// before the `exp`, so vectors outside the ellipse cost only this.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    fn support8(sv: &SplatVec, power: __m256, mask: __m256) -> __m256 {
+        _mm256_and_ps(
+            mask,
+            _mm256_and_ps(
+                _mm256_cmp_ps(power, _mm256_setzero_ps(), _CMP_LE_OQ),
+                _mm256_cmp_ps(power, sv.min_power, _CMP_GE_OQ),
+            ),
+        )
+    }
+
+    /// `(g = exp(power), opacity·g, keep)` where `keep` is `inside` and `α ≥ 1/255`.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    fn alpha8(sv: &SplatVec, power: __m256, inside: __m256) -> (__m256, __m256, __m256) {
+        let g = exp8(power);
+        let og = _mm256_mul_ps(sv.opacity, g);
+        let a = _mm256_min_ps(og, _mm256_set1_ps(ALPHA_MAX as f32));
+        let keep = _mm256_and_ps(
+            inside,
+            _mm256_cmp_ps(a, _mm256_set1_ps(ALPHA_MIN as f32), _CMP_GE_OQ),
+        );
+        (g, og, keep)
+    }
+
+    const LANE_IDX: [f32; 8] = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0];
+
+    /// The columns `[x0, x1)` of a splat's clipped box in one tile: the vectors
+    /// `v0..v1` of a row it touches, their pixel-centre x and their in-box lane masks.
+    /// (No per-row ellipse span: with two vectors per row, testing every lane of the box
+    /// against the support is cheaper than a square root and division per row.)
+    struct ColumnMasks {
+        v0: usize,
+        v1: usize,
+        fx: [__m256; ROW_VECS],
+        mask: [__m256; ROW_VECS],
+    }
+
+    impl ColumnMasks {
+        #[inline]
+        #[target_feature(enable = "avx2,fma")]
+        fn new(rect: PixelRect, x0: u32, x1: u32, lane: __m256) -> Self {
+            let (lo, hi) = (x0 - rect.x0, x1 - rect.x0);
+            let (lo_v, hi_v) = (_mm256_set1_ps(lo as f32), _mm256_set1_ps(hi as f32));
+            let mut fx = [_mm256_setzero_ps(); ROW_VECS];
+            let mut mask = [_mm256_setzero_ps(); ROW_VECS];
+            for v in 0..ROW_VECS {
+                let lane_v = _mm256_add_ps(lane, _mm256_set1_ps((v * 8) as f32));
+                fx[v] = _mm256_add_ps(lane_v, _mm256_set1_ps(rect.x0 as f32 + 0.5));
+                mask[v] = _mm256_and_ps(
+                    _mm256_cmp_ps(lane_v, lo_v, _CMP_GE_OQ),
+                    _mm256_cmp_ps(lane_v, hi_v, _CMP_LT_OQ),
+                );
+            }
+            Self {
+                v0: (lo / 8) as usize,
+                v1: (hi as usize).div_ceil(8),
+                fx,
+                mask,
+            }
+        }
+    }
+
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) fn forward(
+        rect: PixelRect,
+        splats: &[Splat<f32>],
+        background: [f32; 3],
+        out: &mut TileOut<f32>,
+    ) {
+        debug_assert!(rect.x1 - rect.x0 <= crate::tiles::TILE);
+        let zero = _mm256_setzero_ps();
+        let one = _mm256_set1_ps(1.0);
+        let mut trans = [one; VECS];
+        let mut cr = [zero; VECS];
+        let mut cg = [zero; VECS];
+        let mut cb = [zero; VECS];
+        let mut dep = [zero; VECS];
+        let mut last = [_mm256_setzero_si256(); VECS];
+        let mut done = [zero; VECS];
+        let n = rect.len();
+        let mut alive = n as i64;
+        let mut evaluations = 0u64;
+        let t_min = _mm256_set1_ps(TRANSMITTANCE_MIN as f32);
+        // SAFETY: an 8-float array read.
+        let lane = unsafe { _mm256_loadu_ps(LANE_IDX.as_ptr()) };
+        for (k, s) in splats.iter().enumerate() {
+            if alive <= 0 {
+                break;
+            }
+            let Some((x0, x1, y0, y1)) = s.clip(rect) else {
+                continue;
+            };
+            let sv = splat_vec(s);
+            let kk = _mm256_set1_epi32(k as i32 + 1);
+            let (colr, colg, colb, cdep) = (
+                _mm256_set1_ps(s.colour[0]),
+                _mm256_set1_ps(s.colour[1]),
+                _mm256_set1_ps(s.colour[2]),
+                _mm256_set1_ps(s.depth),
+            );
+            let cols = ColumnMasks::new(rect, x0, x1, lane);
+            for py in y0..y1 {
+                let fy = py as f32 + 0.5;
+                let dy = fy - sv.my;
+                let p0 = _mm256_set1_ps(-0.5 * sv.c * dy * dy);
+                let q = _mm256_set1_ps(sv.b * dy);
+                let row = (py - rect.y0) as usize * ROW_VECS;
+                for v in cols.v0..cols.v1 {
+                    let i = row + v;
+                    let (_, power) = power8(&sv, cols.fx[v], p0, q);
+                    let inside = support8(&sv, power, _mm256_andnot_ps(done[i], cols.mask[v]));
+                    let bits = _mm256_movemask_ps(inside);
+                    if bits == 0 {
+                        continue;
+                    }
+                    evaluations += bits.count_ones() as u64;
+                    let (_, og, live) = alpha8(&sv, power, inside);
+                    if _mm256_movemask_ps(live) == 0 {
+                        continue;
+                    }
+                    let a = _mm256_min_ps(og, _mm256_set1_ps(ALPHA_MAX as f32));
+                    let t = trans[i];
+                    let next_t = _mm256_mul_ps(t, _mm256_sub_ps(one, a));
+                    let stop = _mm256_and_ps(live, _mm256_cmp_ps(next_t, t_min, _CMP_LT_OQ));
+                    let contrib = _mm256_andnot_ps(stop, live);
+                    let wgt = _mm256_and_ps(contrib, _mm256_mul_ps(a, t));
+                    cr[i] = _mm256_fmadd_ps(colr, wgt, cr[i]);
+                    cg[i] = _mm256_fmadd_ps(colg, wgt, cg[i]);
+                    cb[i] = _mm256_fmadd_ps(colb, wgt, cb[i]);
+                    dep[i] = _mm256_fmadd_ps(cdep, wgt, dep[i]);
+                    trans[i] = _mm256_blendv_ps(t, next_t, contrib);
+                    last[i] = _mm256_blendv_epi8(last[i], kk, _mm256_castps_si256(contrib));
+                    done[i] = _mm256_or_ps(done[i], stop);
+                    alive -= _mm256_movemask_ps(stop).count_ones() as i64;
+                }
+            }
+        }
+        let w = (rect.x1 - rect.x0) as usize;
+        let h = (rect.y1 - rect.y0) as usize;
+        let flat = |v: &[__m256; VECS]| -> [f32; 8 * VECS] {
+            // SAFETY: same size, plain floats.
+            unsafe { std::mem::transmute_copy(v) }
+        };
+        let (t, r, g, b, d) = (flat(&trans), flat(&cr), flat(&cg), flat(&cb), flat(&dep));
+        // SAFETY: same size, plain integers.
+        let l: [u32; 8 * VECS] = unsafe { std::mem::transmute_copy(&last) };
+        out.rgb.clear();
+        out.alpha.clear();
+        out.depth.clear();
+        out.final_t.clear();
+        out.n_contrib.clear();
+        let stride = 8 * ROW_VECS;
+        for y in 0..h {
+            for x in 0..w {
+                let p = y * stride + x;
+                out.rgb.extend_from_slice(&[
+                    r[p] + t[p] * background[0],
+                    g[p] + t[p] * background[1],
+                    b[p] + t[p] * background[2],
+                ]);
+                out.alpha.push(1.0 - t[p]);
+                out.depth.push(d[p]);
+                out.final_t.push(t[p]);
+                out.n_contrib.push(l[p]);
+            }
+        }
+        out.evaluations = evaluations;
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) fn backward(
+        rect: PixelRect,
+        splats: &[Splat<f32>],
+        background: [f32; 3],
+        final_t: &[f32],
+        n_contrib: &[u32],
+        up: &TileUpstream<f32>,
+        grads: &mut [SplatGrad<f32>],
+    ) {
+        let w = (rect.x1 - rect.x0) as usize;
+        let h = (rect.y1 - rect.y0) as usize;
+        let stride = 8 * ROW_VECS;
+        let zero = _mm256_setzero_ps();
+        let one = _mm256_set1_ps(1.0);
+        // Per-pixel inputs, padded to the full 16×16 tile (padding never passes the masks).
+        let mut ft = [0f32; 8 * VECS];
+        let mut up_r = [0f32; 8 * VECS];
+        let mut up_g = [0f32; 8 * VECS];
+        let mut up_b = [0f32; 8 * VECS];
+        let mut up_d = [0f32; 8 * VECS];
+        let mut ft_term = [0f32; 8 * VECS];
+        let mut nc = [0f32; 8 * VECS];
+        let mut k_max = 0usize;
+        for y in 0..h {
+            for x in 0..w {
+                let (p, q) = (y * w + x, y * stride + x);
+                let (r, g, b) = (up.rgb[3 * p], up.rgb[3 * p + 1], up.rgb[3 * p + 2]);
+                let bg_dot = background[0] * r + background[1] * g + background[2] * b;
+                ft[q] = final_t[p];
+                up_r[q] = r;
+                up_g[q] = g;
+                up_b[q] = b;
+                up_d[q] = up.depth[p];
+                ft_term[q] = final_t[p] * (up.alpha[p] - bg_dot);
+                nc[q] = n_contrib[p] as f32;
+                k_max = k_max.max(n_contrib[p] as usize);
+            }
+        }
+        let vecs = |a: &[f32; 8 * VECS]| -> [__m256; VECS] {
+            // SAFETY: same size, plain floats.
+            unsafe { std::mem::transmute_copy(a) }
+        };
+        let (dcr, dcg, dcb, ddv, ftt, ncv) = (
+            vecs(&up_r),
+            vecs(&up_g),
+            vecs(&up_b),
+            vecs(&up_d),
+            vecs(&ft_term),
+            vecs(&nc),
+        );
+        let mut trans = vecs(&ft);
+        let mut acc_r = [zero; VECS];
+        let mut acc_g = [zero; VECS];
+        let mut acc_b = [zero; VECS];
+        let mut acc_d = [zero; VECS];
+        let mut last_a = [zero; VECS];
+        let mut last_r = [zero; VECS];
+        let mut last_g = [zero; VECS];
+        let mut last_b = [zero; VECS];
+        let mut last_d = [zero; VECS];
+        let amax = _mm256_set1_ps(ALPHA_MAX as f32);
+        // SAFETY: an 8-float array read.
+        let lane = unsafe { _mm256_loadu_ps(LANE_IDX.as_ptr()) };
+        for k in (0..k_max.min(splats.len())).rev() {
+            let s = &splats[k];
+            let Some((x0, x1, y0, y1)) = s.clip(rect) else {
+                continue;
+            };
+            let sv = splat_vec(s);
+            let kf = _mm256_set1_ps(k as f32);
+            let (colr, colg, colb, cdep) = (
+                _mm256_set1_ps(s.colour[0]),
+                _mm256_set1_ps(s.colour[1]),
+                _mm256_set1_ps(s.colour[2]),
+                _mm256_set1_ps(s.depth),
+            );
+            let (mut g_r, mut g_g, mut g_b, mut g_d, mut g_o) = (zero, zero, zero, zero, zero);
+            let (mut s_x, mut s_y, mut s_xx, mut s_xy, mut s_yy) = (zero, zero, zero, zero, zero);
+            let cols = ColumnMasks::new(rect, x0, x1, lane);
+            for py in y0..y1 {
+                let fy = py as f32 + 0.5;
+                let dy_s = fy - sv.my;
+                let dy = _mm256_set1_ps(dy_s);
+                let p0 = _mm256_set1_ps(-0.5 * sv.c * dy_s * dy_s);
+                let q = _mm256_set1_ps(sv.b * dy_s);
+                let row = (py - rect.y0) as usize * ROW_VECS;
+                for v in cols.v0..cols.v1 {
+                    let i = row + v;
+                    let (dx, power) = power8(&sv, cols.fx[v], p0, q);
+                    let pre = _mm256_and_ps(cols.mask[v], _mm256_cmp_ps(kf, ncv[i], _CMP_LT_OQ));
+                    let inside = support8(&sv, power, pre);
+                    if _mm256_movemask_ps(inside) == 0 {
+                        continue;
+                    }
+                    let (g, og, m) = alpha8(&sv, power, inside);
+                    if _mm256_movemask_ps(m) == 0 {
+                        continue;
+                    }
+                    let alpha = _mm256_and_ps(m, _mm256_min_ps(og, amax));
+                    // Masked-off lanes have α = 0, so inv = 1 and T is unchanged.
+                    let inv = _mm256_div_ps(one, _mm256_sub_ps(one, alpha));
+                    let t = _mm256_mul_ps(trans[i], inv);
+                    trans[i] = t;
+                    let wgt = _mm256_mul_ps(alpha, t);
+                    g_r = _mm256_fmadd_ps(wgt, dcr[i], g_r);
+                    g_g = _mm256_fmadd_ps(wgt, dcg[i], g_g);
+                    g_b = _mm256_fmadd_ps(wgt, dcb[i], g_b);
+                    g_d = _mm256_fmadd_ps(wgt, ddv[i], g_d);
+                    // acc = la·lc + (1 − la)·acc, for the contributing lanes.
+                    let la = last_a[i];
+                    let ar = _mm256_blendv_ps(
+                        acc_r[i],
+                        _mm256_fmadd_ps(la, _mm256_sub_ps(last_r[i], acc_r[i]), acc_r[i]),
+                        m,
+                    );
+                    let ag = _mm256_blendv_ps(
+                        acc_g[i],
+                        _mm256_fmadd_ps(la, _mm256_sub_ps(last_g[i], acc_g[i]), acc_g[i]),
+                        m,
+                    );
+                    let ab = _mm256_blendv_ps(
+                        acc_b[i],
+                        _mm256_fmadd_ps(la, _mm256_sub_ps(last_b[i], acc_b[i]), acc_b[i]),
+                        m,
+                    );
+                    let ad = _mm256_blendv_ps(
+                        acc_d[i],
+                        _mm256_fmadd_ps(la, _mm256_sub_ps(last_d[i], acc_d[i]), acc_d[i]),
+                        m,
+                    );
+                    acc_r[i] = ar;
+                    acc_g[i] = ag;
+                    acc_b[i] = ab;
+                    acc_d[i] = ad;
+                    last_a[i] = _mm256_blendv_ps(la, alpha, m);
+                    last_r[i] = _mm256_blendv_ps(last_r[i], colr, m);
+                    last_g[i] = _mm256_blendv_ps(last_g[i], colg, m);
+                    last_b[i] = _mm256_blendv_ps(last_b[i], colb, m);
+                    last_d[i] = _mm256_blendv_ps(last_d[i], cdep, m);
+                    let mut dot = _mm256_mul_ps(_mm256_sub_ps(colr, ar), dcr[i]);
+                    dot = _mm256_fmadd_ps(_mm256_sub_ps(colg, ag), dcg[i], dot);
+                    dot = _mm256_fmadd_ps(_mm256_sub_ps(colb, ab), dcb[i], dot);
+                    dot = _mm256_fmadd_ps(_mm256_sub_ps(cdep, ad), ddv[i], dot);
+                    let d_alpha = _mm256_fmadd_ps(dot, t, _mm256_mul_ps(ftt[i], inv));
+                    // Clamped lanes (opacity·g > α_max) pass no gradient to opacity/power.
+                    let free = _mm256_and_ps(m, _mm256_cmp_ps(og, amax, _CMP_LE_OQ));
+                    let da = _mm256_and_ps(free, d_alpha);
+                    g_o = _mm256_fmadd_ps(g, da, g_o);
+                    let dp = _mm256_mul_ps(og, da);
+                    let dxdp = _mm256_mul_ps(dx, dp);
+                    let dydp = _mm256_mul_ps(dy, dp);
+                    s_x = _mm256_add_ps(s_x, dxdp);
+                    s_y = _mm256_add_ps(s_y, dydp);
+                    s_xx = _mm256_fmadd_ps(dxdp, dx, s_xx);
+                    s_xy = _mm256_fmadd_ps(dxdp, dy, s_xy);
+                    s_yy = _mm256_fmadd_ps(dydp, dy, s_yy);
+                }
+            }
+            let (sx, sy) = (hsum(s_x), hsum(s_y));
+            let [a, b, c] = s.conic;
+            grads[k].add(&SplatGrad {
+                mean: [a * sx + b * sy, c * sy + b * sx],
+                conic: [-0.5 * hsum(s_xx), -hsum(s_xy), -0.5 * hsum(s_yy)],
+                opacity: hsum(g_o),
+                colour: [hsum(g_r), hsum(g_g), hsum(g_b)],
+                depth: hsum(g_d),
+            });
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -530,9 +946,15 @@ mod tests {
             .collect()
     }
 
-    /// The dispatched (possibly AVX2) build and the portable build agree bit for bit.
+    fn close(a: &[f32], b: &[f32], tol: f32) -> bool {
+        let scale = a.iter().fold(0f32, |m, x| m.max(x.abs())).max(1e-6);
+        a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= tol * scale)
+    }
+
+    /// The dispatched (possibly AVX2+FMA) kernels and the portable loops agree to f32
+    /// rounding (FMA and a different summation order change the last bits).
     #[test]
-    fn dispatched_and_portable_blends_agree_exactly() {
+    fn dispatched_and_portable_blends_agree() {
         let rect = PixelRect {
             x0: 0,
             y0: 0,
@@ -544,7 +966,8 @@ mod tests {
         let (mut a, mut b) = (TileOut::default(), TileOut::default());
         blend_tile_forward(rect, &s, bg, &mut a);
         blend_tile_forward_impl(rect, &s, bg, &mut b);
-        assert_eq!(a.rgb, b.rgb);
+        assert!(close(&a.rgb, &b.rgb, 1e-5), "{:?} vs {:?}", a.rgb, b.rgb);
+        assert!(close(&a.depth, &b.depth, 1e-5));
         assert_eq!(a.n_contrib, b.n_contrib);
         assert!(a.evaluations > 0);
         let w: Vec<f32> = (0..3 * 256)
@@ -559,11 +982,17 @@ mod tests {
         let mut gb = vec![SplatGrad::default(); s.len()];
         blend_tile_backward(rect, &s, bg, &a.final_t, &a.n_contrib, &up, &mut ga);
         blend_tile_backward_impl(rect, &s, bg, &a.final_t, &a.n_contrib, &up, &mut gb);
-        for (x, y) in ga.iter().zip(&gb) {
-            assert_eq!(
-                (x.mean, x.conic, x.opacity, x.colour, x.depth),
-                (y.mean, y.conic, y.opacity, y.colour, y.depth)
-            );
-        }
+        let flat = |g: &[SplatGrad<f32>]| -> Vec<f32> {
+            g.iter()
+                .flat_map(|x| {
+                    let mut v = x.mean.to_vec();
+                    v.extend(x.conic);
+                    v.extend(x.colour);
+                    v.extend([x.opacity, x.depth]);
+                    v
+                })
+                .collect()
+        };
+        assert!(close(&flat(&ga), &flat(&gb), 1e-4));
     }
 }

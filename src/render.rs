@@ -10,7 +10,7 @@ use crate::blend::{
 use crate::model::Gaussians;
 use crate::numerics::{Real, sigmoid};
 use crate::project::{PinholeCamera, project, project_backward};
-use crate::sh::{ColourInput, colour, colour_backward};
+use crate::sh::{ColourInput, colour_and_mask, colour_backward_masked};
 use crate::slice::{slice, slice_backward};
 use crate::tiles::{TILE, TileBins, bin_tiles, pixel_rect};
 use crate::{Camera, blend::ALPHA_MIN};
@@ -97,6 +97,8 @@ struct Context<F: Real> {
     /// Model index of each visible splat.
     ids: Vec<u32>,
     splats: Vec<Splat<F>>,
+    /// Per visible splat: its positive (unclamped) colour channels, for the backward.
+    colour_mask: Vec<u8>,
     bins: TileBins,
     final_t: Vec<F>,
     n_contrib: Vec<u32>,
@@ -128,9 +130,10 @@ pub struct Gradients<F: Real = f32> {
 }
 
 impl<F: Real> Gradients<F> {
-    /// Resize to `model` and set every entry to zero (in parallel); the opacity-factor
-    /// gradient gets one entry per Gaussian.
-    fn reset(&mut self, model: &Gaussians<F>) {
+    /// Resize to `model` (the opacity-factor gradient gets one entry per Gaussian). Old
+    /// values stay: the per-Gaussian backward overwrites every entry, so the large colour
+    /// array is written once per step instead of zeroed and then written.
+    fn resize_to(&mut self, model: &Gaussians<F>) {
         let n = model.len();
         let z4 = [F::zero(); 4];
         for v in [
@@ -140,7 +143,6 @@ impl<F: Real> Gradients<F> {
             &mut self.rot_right,
         ] {
             v.resize(n, z4);
-            v.par_iter_mut().for_each(|x| *x = z4);
         }
         for v in [
             &mut self.opacity_logits,
@@ -148,12 +150,8 @@ impl<F: Real> Gradients<F> {
             &mut self.mean2d_norm,
         ] {
             v.resize(n, F::zero());
-            v.par_iter_mut().for_each(|x| *x = F::zero());
         }
         self.colours.resize(model.colours.len(), F::zero());
-        self.colours
-            .par_chunks_mut(4096)
-            .for_each(|c| c.fill(F::zero()));
     }
 
     /// All-zero gradients for `model`.
@@ -253,7 +251,7 @@ pub fn render_with<F: Real>(
     let period = period_of(model);
 
     // Per-Gaussian stages.
-    let pre: Vec<Option<(Splat<F>, [F; 2])>> = (0..n)
+    let pre: Vec<Option<(Splat<F>, [F; 2], u8)>> = (0..n)
         .into_par_iter()
         .with_min_len(1024)
         .map(|i| {
@@ -271,22 +269,24 @@ pub fn render_with<F: Real>(
             }
             let (pr, _) = project(&cam, sl.mean, &sl.factor)?;
             let input = colour_input(model, i, &cam, t, period);
-            let rgb = colour(&input);
+            let (rgb, mask) = colour_and_mask(&input);
             let splat = Splat::new(pr.mean, pr.conic, opacity, rgb, pr.depth);
-            Some((splat, pr.extent))
+            Some((splat, pr.extent, mask))
         })
         .collect();
     let mut ids = Vec::new();
     let mut splats = Vec::new();
     let mut rects = Vec::new();
+    let mut colour_mask = Vec::new();
     let mut radii = vec![F::zero(); n];
     for (i, p) in pre.into_iter().enumerate() {
-        let Some((s, ext)) = p else { continue };
+        let Some((s, ext, mask)) = p else { continue };
         let Some(r) = pixel_rect(s.rect, width, height) else {
             continue;
         };
         ids.push(i as u32);
         splats.push(s);
+        colour_mask.push(mask);
         rects.push(Some(r));
         radii[i] = ext[0].max(ext[1]);
     }
@@ -345,6 +345,7 @@ pub fn render_with<F: Real>(
             factor: options.opacity_factor.map(|f| f.to_vec()),
             ids,
             splats,
+            colour_mask,
             bins,
             final_t,
             n_contrib,
@@ -514,7 +515,7 @@ impl<F: Real> Rendered<F> {
         }
 
         // Per-Gaussian backward.
-        out.reset(model);
+        out.resize_to(model);
         let kc = 3 * model.coeffs_per_channel();
         let cam = &ctx.camera;
         let (t, period) = (ctx.t, ctx.period);
@@ -533,6 +534,10 @@ impl<F: Real> Rendered<F> {
             .with_min_len(256)
             .for_each(
                 |(i, (g_mean, g_scale, g_ql, g_qr, g_o, g_col, g_f, g_norm))| {
+                    let z4 = [F::zero(); 4];
+                    (*g_mean, *g_scale, *g_ql, *g_qr) = (z4, z4, z4, z4);
+                    (*g_o, *g_f, *g_norm) = (F::zero(), F::zero(), F::zero());
+                    g_col.fill(F::zero());
                     let k = visible_of[i];
                     if k == u32::MAX {
                         return;
@@ -556,7 +561,12 @@ impl<F: Real> Rendered<F> {
                     *g_f = sg.opacity * sig * sl.omega;
                     let d_omega = sg.opacity * sig * factor;
                     let input = colour_input(model, i, cam, t, period);
-                    let d_mean_colour = colour_backward(&input, sg.colour, g_col);
+                    let d_mean_colour = colour_backward_masked(
+                        &input,
+                        ctx.colour_mask[k as usize],
+                        sg.colour,
+                        g_col,
+                    );
                     let (d_mean3, d_b) =
                         project_backward(cam, &pr_aux, &sl.factor, sg.mean, sg.conic, sg.depth);
                     let sg4 = slice_backward(&sl, &sl_aux, d_omega, d_mean3, &d_b);

@@ -1,11 +1,10 @@
 //! "Spherindrical" colour (REFERENCE.md §1): spatial spherical harmonics of the view
 //! direction (camera → canonical mean) times temporal cosines `1, cos(2πΔt/T),
 //! cos(4πΔt/T)` with `Δt = μt − t`. RGB = 0.5 + Σ coeff·Y·ψ, clamped at 0. Forward and
-//! backward; the direction gradient uses forward-mode dual numbers over the basis.
+//! backward; the direction gradient is the analytic gradient of the basis.
 
 use crate::model::ColourDegrees;
 use crate::numerics::{Real, normalise3, normalise3_backward};
-use std::ops::{Add, Mul, Sub};
 
 const C0: f64 = 0.282_094_791_773_878_14;
 const C1: f64 = 0.488_602_511_902_919_9;
@@ -26,65 +25,10 @@ const C3: [f64; 7] = [
     -0.590_043_589_926_643_5,
 ];
 
-/// Scalars the basis can be evaluated in: plain floats and dual numbers.
-trait Arith<F>:
-    Copy + Add<Output = Self> + Sub<Output = Self> + Mul<Output = Self> + Mul<F, Output = Self>
-{
-}
-impl<F: Real> Arith<F> for F {}
-
-/// A value and its gradient with respect to the direction `(x, y, z)`.
-#[derive(Clone, Copy, Debug)]
-struct Dual<F> {
-    v: F,
-    d: [F; 3],
-}
-impl<F: Real> Add for Dual<F> {
-    type Output = Self;
-    fn add(self, o: Self) -> Self {
-        Dual {
-            v: self.v + o.v,
-            d: [self.d[0] + o.d[0], self.d[1] + o.d[1], self.d[2] + o.d[2]],
-        }
-    }
-}
-impl<F: Real> Sub for Dual<F> {
-    type Output = Self;
-    fn sub(self, o: Self) -> Self {
-        Dual {
-            v: self.v - o.v,
-            d: [self.d[0] - o.d[0], self.d[1] - o.d[1], self.d[2] - o.d[2]],
-        }
-    }
-}
-impl<F: Real> Mul for Dual<F> {
-    type Output = Self;
-    fn mul(self, o: Self) -> Self {
-        Dual {
-            v: self.v * o.v,
-            d: [
-                self.d[0] * o.v + self.v * o.d[0],
-                self.d[1] * o.v + self.v * o.d[1],
-                self.d[2] * o.v + self.v * o.d[2],
-            ],
-        }
-    }
-}
-impl<F: Real> Mul<F> for Dual<F> {
-    type Output = Self;
-    fn mul(self, s: F) -> Self {
-        Dual {
-            v: self.v * s,
-            d: [self.d[0] * s, self.d[1] * s, self.d[2] * s],
-        }
-    }
-}
-impl<F: Real> Arith<F> for Dual<F> {}
-
 /// The first `count` real SH basis functions (3DGS ordering and signs) at unit `(x,y,z)`.
-fn basis<F: Real, T: Arith<F>>(x: T, y: T, z: T, one: T, count: usize, out: &mut [T; 16]) {
+fn basis<F: Real>(x: F, y: F, z: F, count: usize, out: &mut [F; 16]) {
     let c = F::c;
-    out[0] = one * c(C0);
+    out[0] = c(C0);
     if count > 1 {
         out[1] = y * c(-C1);
         out[2] = z * c(C1);
@@ -107,6 +51,56 @@ fn basis<F: Real, T: Arith<F>>(x: T, y: T, z: T, one: T, count: usize, out: &mut
             out[15] = x * (xx - yy * c(3.0)) * c(C3[6]);
         }
     }
+}
+
+/// `Σₛ d_y[s] ∇Yₛ(x, y, z)` over the basis functions `1..count` (the analytic gradient
+/// of [`basis`]; the direction is not renormalised here).
+fn basis_grad<F: Real>(x: F, y: F, z: F, count: usize, d_y: &[F; 16]) -> [F; 3] {
+    let c = F::c;
+    let mut g = [F::zero(); 3];
+    if count > 1 {
+        g[1] -= d_y[1] * c(C1);
+        g[2] += d_y[2] * c(C1);
+        g[0] -= d_y[3] * c(C1);
+    }
+    if count > 4 {
+        let (xx, yy, zz) = (x * x, y * y, z * z);
+        let two = c(2.0);
+        let mut add = |w: F, k: f64, d: [F; 3]| {
+            let wk = w * c(k);
+            g[0] += wk * d[0];
+            g[1] += wk * d[1];
+            g[2] += wk * d[2];
+        };
+        add(d_y[4], C2[0], [y, x, F::zero()]);
+        add(d_y[5], C2[1], [F::zero(), z, y]);
+        add(d_y[6], C2[2], [-two * x, -two * y, c(4.0) * z]);
+        add(d_y[7], C2[3], [z, F::zero(), x]);
+        add(d_y[8], C2[4], [two * x, -two * y, F::zero()]);
+        if count > 9 {
+            let (three, four, six, eight) = (c(3.0), c(4.0), c(6.0), c(8.0));
+            add(d_y[9], C3[0], [six * x * y, three * (xx - yy), F::zero()]);
+            add(d_y[10], C3[1], [y * z, x * z, x * y]);
+            add(
+                d_y[11],
+                C3[2],
+                [-two * x * y, four * zz - xx - three * yy, eight * y * z],
+            );
+            add(
+                d_y[12],
+                C3[3],
+                [-six * x * z, -six * y * z, six * zz - three * (xx + yy)],
+            );
+            add(
+                d_y[13],
+                C3[4],
+                [four * zz - three * xx - yy, -two * x * y, eight * x * z],
+            );
+            add(d_y[14], C3[5], [two * x * z, -two * y * z, xx - yy]);
+            add(d_y[15], C3[6], [three * (xx - yy), -six * x * y, F::zero()]);
+        }
+    }
+    g
 }
 
 /// Temporal basis `1, cos(2πΔt/T), cos(4πΔt/T)` and its derivative by `Δt`.
@@ -141,12 +135,28 @@ pub struct ColourInput<'a, F> {
 /// RGB of one Gaussian seen from the camera at time t (each channel ≥ 0).
 #[inline]
 pub fn colour<F: Real>(input: &ColourInput<F>) -> [F; 3] {
+    colour_and_mask(input).0
+}
+
+/// [`colour`] plus which channels were positive before the clamp at 0 (bit `c` set for
+/// channel `c`): pass the mask to [`colour_backward_masked`] to skip recomputing the colour.
+#[inline]
+pub fn colour_and_mask<F: Real>(input: &ColourInput<F>) -> ([F; 3], u8) {
     let (rgb, _) = colour_raw(input);
-    [
-        rgb[0].max(F::zero()),
-        rgb[1].max(F::zero()),
-        rgb[2].max(F::zero()),
-    ]
+    let mut mask = 0u8;
+    for (c, v) in rgb.iter().enumerate() {
+        if *v > F::zero() {
+            mask |= 1 << c;
+        }
+    }
+    (
+        [
+            rgb[0].max(F::zero()),
+            rgb[1].max(F::zero()),
+            rgb[2].max(F::zero()),
+        ],
+        mask,
+    )
 }
 
 fn colour_raw<F: Real>(input: &ColourInput<F>) -> ([F; 3], ([F; 16], [F; 3])) {
@@ -161,16 +171,16 @@ fn colour_raw<F: Real>(input: &ColourInput<F>) -> ([F; 3], ([F; 16], [F; 3])) {
         m[2] - input.camera_centre[2],
     ]);
     let mut y = [F::zero(); 16];
-    basis::<F, F>(dir[0], dir[1], dir[2], F::one(), ns, &mut y);
+    basis(dir[0], dir[1], dir[2], ns, &mut y);
     let (psi, _) = temporal(m[3] - input.t, input.period, nt);
     let mut rgb = [F::c(0.5); 3];
-    for j in 0..nt {
-        for s in 0..ns {
-            let w = y[s] * psi[j];
-            let base = (j * ns_cap + s) * 3;
-            for c in 0..3 {
-                rgb[c] += input.coeffs[base + c] * w;
-            }
+    for (j, &p) in psi.iter().enumerate().take(nt) {
+        let row = &input.coeffs[j * ns_cap * 3..(j * ns_cap + ns) * 3];
+        for (c3, &ys) in row.chunks_exact(3).zip(&y) {
+            let w = ys * p;
+            rgb[0] += c3[0] * w;
+            rgb[1] += c3[1] * w;
+            rgb[2] += c3[2] * w;
         }
     }
     (rgb, (y, psi))
@@ -182,10 +192,20 @@ pub fn colour_backward<F: Real>(
     d_rgb: [F; 3],
     d_coeffs: &mut [F],
 ) -> [F; 4] {
-    let (rgb, (y, psi)) = colour_raw(input);
+    let (_, mask) = colour_and_mask(input);
+    colour_backward_masked(input, mask, d_rgb, d_coeffs)
+}
+
+/// [`colour_backward`] given the positive-channel mask from [`colour_and_mask`].
+pub fn colour_backward_masked<F: Real>(
+    input: &ColourInput<F>,
+    mask: u8,
+    d_rgb: [F; 3],
+    d_coeffs: &mut [F],
+) -> [F; 4] {
     let mut d_raw = [F::zero(); 3];
     for c in 0..3 {
-        if rgb[c] > F::zero() {
+        if mask & (1 << c) != 0 {
             d_raw[c] = d_rgb[c];
         }
     }
@@ -193,54 +213,43 @@ pub fn colour_backward<F: Real>(
     let ns = active.spatial_count();
     let nt = active.temporal_count();
     let ns_cap = input.capacity.spatial_count();
+    let m = input.mean;
+    let (dir, norm) = normalise3([
+        m[0] - input.camera_centre[0],
+        m[1] - input.camera_centre[1],
+        m[2] - input.camera_centre[2],
+    ]);
+    let mut y = [F::zero(); 16];
+    basis(dir[0], dir[1], dir[2], ns, &mut y);
+    let (psi, d_psi_dt) = temporal(m[3] - input.t, input.period, nt);
     let mut d_y = [F::zero(); 16];
     let mut d_psi = [F::zero(); 3];
     for j in 0..nt {
-        for s in 0..ns {
-            let base = (j * ns_cap + s) * 3;
-            let mut dot = F::zero();
-            for c in 0..3 {
-                d_coeffs[base + c] += d_raw[c] * y[s] * psi[j];
-                dot += d_raw[c] * input.coeffs[base + c];
-            }
-            d_y[s] += dot * psi[j];
-            d_psi[j] += dot * y[s];
+        let (lo, hi) = (j * ns_cap * 3, (j * ns_cap + ns) * 3);
+        let (row, d_row) = (&input.coeffs[lo..hi], &mut d_coeffs[lo..hi]);
+        let p = psi[j];
+        let mut dp = F::zero();
+        for (s, (c3, d3)) in row
+            .chunks_exact(3)
+            .zip(d_row.chunks_exact_mut(3))
+            .enumerate()
+        {
+            let w = y[s] * p;
+            d3[0] += d_raw[0] * w;
+            d3[1] += d_raw[1] * w;
+            d3[2] += d_raw[2] * w;
+            let dot = d_raw[0] * c3[0] + d_raw[1] * c3[1] + d_raw[2] * c3[2];
+            d_y[s] += dot * p;
+            dp += dot * y[s];
         }
+        d_psi[j] += dp;
     }
-    let m = input.mean;
     let mut d_mean = [F::zero(); 4];
-    let (_, d_psi_dt) = temporal(m[3] - input.t, input.period, nt);
     for j in 1..nt {
         d_mean[3] += d_psi[j] * d_psi_dt[j];
     }
     if ns > 1 {
-        let (dir, norm) = normalise3([
-            m[0] - input.camera_centre[0],
-            m[1] - input.camera_centre[1],
-            m[2] - input.camera_centre[2],
-        ]);
-        let z = F::zero();
-        let o = F::one();
-        let dx = Dual {
-            v: dir[0],
-            d: [o, z, z],
-        };
-        let dy = Dual {
-            v: dir[1],
-            d: [z, o, z],
-        };
-        let dz = Dual {
-            v: dir[2],
-            d: [z, z, o],
-        };
-        let mut yd = [Dual { v: z, d: [z; 3] }; 16];
-        basis::<F, Dual<F>>(dx, dy, dz, Dual { v: o, d: [z; 3] }, ns, &mut yd);
-        let mut d_dir = [F::zero(); 3];
-        for s in 1..ns {
-            for a in 0..3 {
-                d_dir[a] += d_y[s] * yd[s].d[a];
-            }
-        }
+        let d_dir = basis_grad(dir[0], dir[1], dir[2], ns, &d_y);
         let g = normalise3_backward(dir, norm, d_dir);
         d_mean[0] = g[0];
         d_mean[1] = g[1];
