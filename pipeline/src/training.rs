@@ -33,12 +33,17 @@ pub fn on_interrupt() {
     std::process::exit(130);
 }
 
+/// Ask the running (or the next) training to stop cleanly after its current iteration,
+/// as a first Ctrl-C does.
+pub fn request_stop() {
+    STOP.store(true, Ordering::SeqCst);
+}
+
 /// Marks a clean-stop section for [`on_interrupt`]; clears the request when dropped.
 struct Graceful;
 
 impl Graceful {
     fn enter() -> Self {
-        STOP.store(false, Ordering::SeqCst);
         GRACEFUL.store(true, Ordering::SeqCst);
         Graceful
     }

@@ -1,0 +1,152 @@
+//! The train and export stages on a small simulated capture (sync-audio, 160×120) with an
+//! imported calibration: exact timestamps, the trained model, a clean stop with a
+//! checkpoint that the next run continues bit-identically, and the exports.
+//! One test in its own binary: it uses the process-wide stop request.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use pipeline::report::{OutputMode, Reporter};
+use pipeline::runner::{RunSummary, Selection};
+use pipeline::{open_capture, simulate, stages, training};
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../fixtures")
+        .join(name)
+}
+
+fn run(root: &Path, sel: Selection) -> RunSummary {
+    let (capture, config) = open_capture(root).unwrap();
+    stages::pipeline()
+        .run(&capture, &config, &sel, &Reporter::new(OutputMode::Quiet))
+        .unwrap()
+}
+
+fn only(stage: &str, force: bool) -> Selection {
+    Selection {
+        only: Some(stage.into()),
+        force,
+        ..Default::default()
+    }
+}
+
+/// The simulator's true video cameras as an OpenCV-style calibration file.
+fn write_calibration(root: &Path) {
+    let truth: splat4d::CameraSet =
+        serde_json::from_str(&fs::read_to_string(root.join("groundtruth/cameras.json")).unwrap())
+            .unwrap();
+    let mut cameras = serde_json::Map::new();
+    for c in truth.cameras.iter().filter(|c| c.name.starts_with("cam")) {
+        let i = &c.intrinsics;
+        let w = &c.world_to_camera;
+        let r = w.rotation().transpose().to_cols_array_2d(); // rows of R
+        cameras.insert(
+            c.name.clone(),
+            serde_json::json!({
+                "K": [[i.fx, 0.0, i.cx], [0.0, i.fy, i.cy], [0.0, 0.0, 1.0]],
+                "dist": [0.0, 0.0, 0.0, 0.0, 0.0],
+                "R": r,
+                "t": w.translation().to_array(),
+                "size": [i.width, i.height],
+            }),
+        );
+    }
+    fs::write(
+        root.join("calibration.json"),
+        serde_json::to_string_pretty(&serde_json::json!({ "cameras": cameras })).unwrap(),
+    )
+    .unwrap();
+}
+
+#[test]
+fn train_stops_cleanly_resumes_identically_and_exports() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("capture");
+    let scene = rig::sim::Scene::from_file(&fixture("sync-audio.toml")).unwrap();
+    simulate::simulate_into(&scene, &root, &Reporter::new(OutputMode::Quiet)).unwrap();
+    write_calibration(&root);
+    fs::write(
+        root.join("capture.toml"),
+        "[train]\niterations = 24\nbatch_size = 2\ncheckpoint_every = 8\ndegree_every = 4\n\
+         [train.densify]\nfrom_iteration = 4\nuntil_iteration = 16\nevery = 6\nopacity_reset_every = 0\n\
+         [export]\nsteps = 3\nviewer = false\n",
+    )
+    .unwrap();
+    let summary = run(
+        &root,
+        Selection {
+            to: Some("init".into()),
+            ..Default::default()
+        },
+    );
+    assert!(summary.failed.is_none(), "{summary:?}");
+
+    // The views: every camera of every aligned frame, at its exact timestamp.
+    let dataset = training::load_dataset(
+        &root.join("work/frames"),
+        &root.join("work/poses/cameras.json"),
+        &splat4d::NoProgress,
+    )
+    .unwrap();
+    let index = rig::frames::FramesIndex::read_json(&root.join("work/frames/frames.json")).unwrap();
+    assert_eq!(dataset.views.len(), 4 * index.frames.len());
+    let mapping = training::time_mapping(&index);
+    for (view, source) in dataset
+        .views
+        .iter()
+        .zip(index.frames.iter().flat_map(|f| &f.views))
+    {
+        let expected = mapping.model_time(source.timestamp_s) as f32;
+        assert_eq!(view.time, expected);
+        assert!(view.camera.distortion.is_none());
+        assert_eq!(view.image.width, view.camera.intrinsics.width);
+    }
+
+    // A stop request: the stage stops after its first iteration with a checkpoint and
+    // reports how to continue; the model is not written.
+    training::request_stop();
+    let stopped = run(&root, only("train", false));
+    let (stage, error) = stopped.failed.expect("stopped");
+    assert_eq!(stage, "train");
+    assert!(
+        error.contains("run the same `pipeline run` again"),
+        "{error}"
+    );
+    assert!(!root.join("work/train/model.bin").exists());
+    assert!(root.join("work/.train.partial/ckpt").is_dir());
+
+    // The next run continues from that checkpoint …
+    let resumed = run(&root, only("train", false));
+    assert_eq!(resumed.ran, ["train"], "{resumed:?}");
+    let resumed_model = fs::read(root.join("work/train/model.bin")).unwrap();
+    let log = fs::read_to_string(root.join("work/train/log.csv")).unwrap();
+    assert_eq!(
+        log.lines().count(),
+        1 + 24,
+        "one header and one row per iteration"
+    );
+
+    // … to exactly the model of an uninterrupted run.
+    let fresh = run(&root, only("train", true));
+    assert_eq!(fresh.ran, ["train"]);
+    assert_eq!(
+        fs::read(root.join("work/train/model.bin")).unwrap(),
+        resumed_model
+    );
+    let model = splat4d::load_model(&root.join("work/train/model.bin")).unwrap();
+    assert!(!model.is_empty());
+    assert_eq!(model.time, mapping);
+
+    // Export: three time steps as 3DGS PLY, the 4D PLY, the .splatv.
+    let exported = run(&root, only("export", false));
+    assert_eq!(exported.ran, ["export"], "{exported:?}");
+    let report: serde_json::Value =
+        serde_json::from_str(&fs::read_to_string(root.join("work/export/export.json")).unwrap())
+            .unwrap();
+    assert_eq!(report["frames"].as_array().unwrap().len(), 3);
+    assert!(root.join("work/export/model4d.ply").is_file());
+    assert!(root.join("work/export/scene.splatv").is_file());
+    let reloaded = splat4d::export::read_model_ply(&root.join("work/export/model4d.ply")).unwrap();
+    assert_eq!(reloaded.len(), model.len());
+}
