@@ -267,7 +267,7 @@ fn ground_truth_point_maps_fuse_onto_the_true_surfaces() {
     let d = surface_distances(t, &cloud.xyz);
     let (median, p90) = (quantile(d.clone(), 0.5), quantile(d, 0.9));
     eprintln!(
-        "scene size {:.3} m; median distance {:.5} m ({:.4} %), 90th percentile {:.5} m",
+        "scene size {:.3} m; median distance {:.2e} m ({:.2e} %), 90th percentile {:.2e} m",
         t.scene_size,
         median,
         100.0 * median / t.scene_size,

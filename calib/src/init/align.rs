@@ -243,7 +243,7 @@ mod tests {
         let rel = Relative::between(&a, &b);
         let fit = ray_scale(&b, &rel, &m2, &valid).unwrap();
         assert!((fit.scale / 2.5 - 1.0).abs() < 1e-9, "{fit:?}");
-        assert!(fit.residual < 1e-9);
+        assert!(fit.residual < 1e-5, "{fit:?}"); // f32 point maps
         // Sparse points: the world surface points seen by camera a.
         let sparse = m1
             .points

@@ -156,7 +156,10 @@ impl PointMapModel {
             })?;
             let data = caught(|| {
                 let t = t.cast_to::<f32>()?;
-                Ok(t.as_slice::<f32>()?.to_vec())
+                Ok(t.to_plain_array_view::<f32>()?
+                    .iter()
+                    .copied()
+                    .collect::<Vec<f32>>())
             })
             .map_err(|reason| OnnxError::Run {
                 path: self.path.clone(),
