@@ -10,5 +10,6 @@ pub mod colmap;
 pub mod colmap_runner;
 pub mod convert;
 pub mod import;
+pub mod init;
 pub mod poses;
 pub mod undistort;

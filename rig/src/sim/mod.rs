@@ -505,6 +505,18 @@ fn still(ctx: &Context, cam: &SimCamera) -> Result<PathBuf, SimError> {
     Ok(path)
 }
 
+/// Every triangle of the scene's meshes (background and objects) in world coordinates at
+/// scene time `t`: the true surfaces, for checking reconstructions against them.
+pub fn surface_triangles(scene: &Scene, t: f64) -> Vec<[DVec3; 3]> {
+    let meshes = mesh::build_meshes(&scene.file, 16);
+    let world = mesh::world_positions(&scene.file, &meshes, t);
+    meshes
+        .iter()
+        .zip(&world)
+        .flat_map(|(m, pos)| m.mesh.triangles.iter().map(move |tri| tri.map(|i| pos[i as usize].as_dvec3())))
+        .collect()
+}
+
 /// Render one camera of the scene at scene time `t` without sensor effects (for tests and
 /// tools): RGB in [0, 1], z-depth (∞ where empty) and mesh ids.
 pub fn render_clean(scene: &Scene, camera: &str, t: f64) -> Option<Rendered> {

@@ -1,0 +1,720 @@
+//! The `init` stage: the starting point cloud of the 4D Gaussians, from MASt3R-style point
+//! maps (an ONNX model run here with [`onnx`], or its outputs exported as `.npy`/`.npz`,
+//! [`npy`]), aligned to the posed cameras ([`align`]) and fused ([`fuse`]); with the
+//! fallback chain point maps → sparse COLMAP points → a random cloud in the cameras'
+//! common view volume, each fallback announced with `tracing::warn!`.
+//!
+//! Call [`run_init`] with [`InitInputs`] and an [`InitConfig`]; it writes
+//! `<out_dir>/points.ply` (xyz, rgb, time; atomically) and returns an [`InitReport`].
+//! The user-facing description is `docs/init.md`. This module reads no pipeline files
+//! itself (frames index, stage manifests): the caller passes plain inputs.
+
+pub mod align;
+pub mod fuse;
+pub mod npy;
+pub mod onnx;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use glam::DVec3;
+use image::RgbImage;
+use serde::{Deserialize, Serialize};
+use splat4d::ply::{PlyError, read_points_ply, write_points_ply};
+use splat4d::{Camera, CameraSet, Progress};
+
+use crate::undistort::{Fit, UndistortMap};
+use align::{Relative, pixel_centre, ray_scale, sparse_scale};
+use fuse::{FusedPoint, colour_at, unproject};
+use npy::{NpyError, OutputNames, PairMaps, PointMap};
+use onnx::{ModelConfig, OnnxError, PointMapModel};
+
+/// Where the initial points should come from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Source {
+    /// `model` if set, else `pointmaps` if set, else sparse points, else random.
+    #[default]
+    Auto,
+    /// Run the ONNX model `model` (falls back when every pair is rejected).
+    Onnx,
+    /// Read exported point maps from `pointmaps` (falls back when every pair is rejected).
+    Npy,
+    /// The sparse COLMAP points (falls back to random when there are none).
+    Sparse,
+    /// A random cloud in the cameras' common view volume.
+    Random,
+}
+
+/// Which image pairs go through the model: `"all"` or a list of `[first, second]` names.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum Pairs {
+    Keyword(PairsKeyword),
+    List(Vec<[String; 2]>),
+}
+
+/// The keyword form of [`Pairs`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PairsKeyword {
+    /// Every pair of cameras (ONNX: each unordered pair once, in camera order; exported
+    /// maps: every pair present in the directory).
+    All,
+}
+
+impl Default for Pairs {
+    fn default() -> Self {
+        Pairs::Keyword(PairsKeyword::All)
+    }
+}
+
+/// Settings of the init stage (`capture.toml [init]`). Lengths marked "× rig radius" are
+/// fractions of the mean distance of the cameras from their centroid, so they do not
+/// depend on the scene's units.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct InitConfig {
+    pub source: Source,
+    /// ONNX point-map model.
+    pub model: Option<PathBuf>,
+    /// Directory of exported point maps (`a__b.npz` or `a__b/*.npy`).
+    pub pointmaps: Option<PathBuf>,
+    /// Model input names (first image, second image).
+    pub input_names: [String; 2],
+    /// Model output names, also the array names in exported files.
+    pub output_names: OutputNames,
+    /// `[width, height]` the images are resized to for the model.
+    pub input_size: [u32; 2],
+    pub pairs: Pairs,
+    /// Pixels with a lower confidence are dropped (MASt3R confidences are ≥ 1).
+    pub min_confidence: f32,
+    /// Voxel edge for downsampling, × rig radius (0: no downsampling).
+    pub voxel_size: f64,
+    /// At most this many points are written (random subset, seeded).
+    pub max_points: usize,
+    /// Points of the random fallback cloud.
+    pub random_points: usize,
+    pub seed: u64,
+    /// A pair is rejected when its ray scale and sparse-point scale differ by more than
+    /// this fraction.
+    pub scale_tolerance: f64,
+    /// A pair is rejected when its median reprojection error in the second camera exceeds
+    /// this fraction of the map width; second-view pixels above it are dropped.
+    pub max_residual: f64,
+    /// Sparse points needed for the sparse scale check of a pair.
+    pub min_sparse_matches: usize,
+    /// A pair is rejected when more than this fraction of its pixels is not finite.
+    pub max_non_finite: f64,
+    /// Undistortion field of view for the images fed to the model.
+    pub fit: Fit,
+}
+
+impl Default for InitConfig {
+    fn default() -> Self {
+        let m = ModelConfig::default();
+        Self {
+            source: Source::Auto,
+            model: None,
+            pointmaps: None,
+            input_names: m.input_names,
+            output_names: m.output_names,
+            input_size: m.input_size,
+            pairs: Pairs::default(),
+            min_confidence: 1.5,
+            voxel_size: 0.004,
+            max_points: 300_000,
+            random_points: 50_000,
+            seed: 0,
+            scale_tolerance: 0.15,
+            max_residual: 0.02,
+            min_sparse_matches: 20,
+            max_non_finite: 0.5,
+            fit: Fit::ValidPixels,
+        }
+    }
+}
+
+impl InitConfig {
+    /// The model part of the settings.
+    pub fn model_config(&self) -> ModelConfig {
+        ModelConfig {
+            input_names: self.input_names.clone(),
+            output_names: self.output_names.clone(),
+            input_size: self.input_size,
+        }
+    }
+}
+
+/// One image of a training camera: its first frame (distorted, at the cameras' working
+/// size) and that frame's time (the model's time axis; written to each point).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ViewImage {
+    pub camera: String,
+    pub path: PathBuf,
+    pub time: f64,
+}
+
+/// What the init stage is given.
+#[derive(Clone, Debug)]
+pub struct InitInputs {
+    /// The training cameras (`work/poses/cameras.json`), with their lens.
+    pub cameras: CameraSet,
+    /// First frame of each camera (if a camera has several, the earliest is used).
+    pub images: Vec<ViewImage>,
+    /// `work/poses/points3d.ply`, if the poses stage wrote one.
+    pub sparse: Option<PathBuf>,
+}
+
+/// Which source produced `points.ply`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum UsedSource {
+    Onnx,
+    Npy,
+    Sparse,
+    Random,
+}
+
+/// The outcome of one image pair.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PairReport {
+    pub first: String,
+    pub second: String,
+    pub accepted: bool,
+    /// Why it was rejected (`None` when accepted).
+    pub reason: Option<String>,
+    /// Scale applied to the pair's maps (`None` when no scale was found).
+    pub scale: Option<f64>,
+    /// Scale from the second view's rays.
+    pub ray_scale: Option<f64>,
+    /// Scale from the sparse points, and how many points gave it.
+    pub sparse_scale: Option<f64>,
+    pub sparse_matches: usize,
+    /// Median reprojection error in the second camera (fraction of the map width).
+    pub residual: Option<f64>,
+    /// Pixels of both maps, non-finite pixels, confident finite pixels, points kept.
+    pub pixels: usize,
+    pub non_finite: usize,
+    pub confident: usize,
+    pub points: usize,
+}
+
+/// What [`run_init`] did, for the log and `stage.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct InitReport {
+    pub source: UsedSource,
+    /// Each fallback taken, with its reason, in order.
+    pub fallbacks: Vec<String>,
+    pub pairs: Vec<PairReport>,
+    /// Points before downsampling (from the source), after voxel downsampling, written.
+    pub points_before: usize,
+    pub points_after_voxel: usize,
+    pub points_written: usize,
+    /// Voxel edge used, in world units.
+    pub voxel: f64,
+    pub output: PathBuf,
+    pub seconds: f64,
+}
+
+/// Errors of the init stage (a rejected pair is not an error: see [`PairReport`]).
+#[derive(Debug, thiserror::Error)]
+pub enum InitError {
+    #[error("invalid [init] settings: {0}")]
+    Config(String),
+    #[error("cannot read frame {path}: {source}; rerun the frames stage")]
+    Image {
+        path: PathBuf,
+        source: image::ImageError,
+    },
+    #[error(
+        "frame {path} is {got:?} but camera {camera} is calibrated for {want:?}; rerun the frames stage at the working size"
+    )]
+    ImageSize {
+        path: PathBuf,
+        camera: String,
+        got: (u32, u32),
+        want: (u32, u32),
+    },
+    #[error(transparent)]
+    Onnx(#[from] OnnxError),
+    #[error(transparent)]
+    Npy(#[from] NpyError),
+    #[error(transparent)]
+    Ply(#[from] PlyError),
+    #[error("cannot create {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+/// A training camera ready for point maps: pinhole twin, undistorted first frame, time.
+struct View {
+    camera: Camera,
+    image: RgbImage,
+    time: f64,
+}
+
+/// Run the init stage: write `<out_dir>/points.ply` and report what was done.
+pub fn run_init(
+    inputs: &InitInputs,
+    config: &InitConfig,
+    out_dir: &Path,
+    progress: &dyn Progress,
+) -> Result<InitReport, InitError> {
+    let start = Instant::now();
+    let cameras = &inputs.cameras.cameras;
+    if cameras.is_empty() {
+        return Err(InitError::Config(
+            "no cameras given; run the poses stage first".into(),
+        ));
+    }
+    for img in &inputs.images {
+        if inputs.cameras.get(&img.camera).is_none() {
+            return Err(InitError::Config(format!(
+                "frame {} belongs to camera {}, which is not in the poses",
+                img.path.display(),
+                img.camera
+            )));
+        }
+    }
+    let sparse = match &inputs.sparse {
+        Some(p) if p.is_file() => read_points_ply(p)?,
+        _ => splat4d::init::PointCloud {
+            xyz: vec![],
+            rgb: vec![],
+            time: None,
+        },
+    };
+    let sparse_xyz = sparse
+        .xyz
+        .iter()
+        .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+        .collect::<Vec<_>>();
+    let times = inputs.images.iter().map(|i| i.time).collect::<Vec<_>>();
+    let t_range = if times.is_empty() {
+        (0.0, 0.0)
+    } else {
+        (
+            times.iter().copied().fold(f64::INFINITY, f64::min),
+            times.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        )
+    };
+    let radius = fuse::rig_radius(cameras);
+    let voxel = config.voxel_size.max(0.0) * radius;
+
+    let mut fallbacks = Vec::new();
+    let mut fall = |msg: String| {
+        tracing::warn!("point init: {msg}");
+        fallbacks.push(msg);
+    };
+    let pointmap_source = match config.source {
+        Source::Onnx => match &config.model {
+            Some(m) => Some((UsedSource::Onnx, m.clone())),
+            None => return Err(InitError::Config("source = \"onnx\" needs `model`".into())),
+        },
+        Source::Npy => match &config.pointmaps {
+            Some(d) => Some((UsedSource::Npy, d.clone())),
+            None => {
+                return Err(InitError::Config(
+                    "source = \"npy\" needs `pointmaps`".into(),
+                ));
+            }
+        },
+        Source::Auto => match (&config.model, &config.pointmaps) {
+            (Some(m), _) => Some((UsedSource::Onnx, m.clone())),
+            (None, Some(d)) => Some((UsedSource::Npy, d.clone())),
+            (None, None) => {
+                fall("no point-map model or exported point maps configured; using the sparse COLMAP points".into());
+                None
+            }
+        },
+        Source::Sparse | Source::Random => None,
+    };
+
+    let mut pairs = Vec::new();
+    let mut fused: Vec<FusedPoint> = Vec::new();
+    let mut used = None;
+    if let Some((kind, path)) = pointmap_source {
+        let views = load_views(inputs, config.fit)?;
+        let (p, pts) = pointmap_points(kind, &path, &views, &sparse_xyz, config, progress)?;
+        pairs = p;
+        if pts.is_empty() {
+            fall(format!(
+                "no usable point-map pair ({} of {} rejected); using the sparse COLMAP points",
+                pairs.iter().filter(|p| !p.accepted).count(),
+                pairs.len()
+            ));
+        } else {
+            fused = pts;
+            used = Some(kind);
+        }
+    }
+    if used.is_none() && config.source != Source::Random {
+        if sparse.xyz.is_empty() {
+            fall(
+                "no sparse COLMAP points; using a random cloud in the cameras' common view volume"
+                    .into(),
+            );
+        } else {
+            let t = if times.is_empty() {
+                0.0
+            } else {
+                times.iter().sum::<f64>() / times.len() as f64
+            };
+            fused = sparse_xyz
+                .iter()
+                .zip(&sparse.rgb)
+                .map(|(p, c)| FusedPoint {
+                    xyz: *p,
+                    rgb: c.map(f32::from),
+                    time: t,
+                })
+                .collect();
+            used = Some(UsedSource::Sparse);
+        }
+    }
+    let points_before = fused.len();
+    let (source, downsampled) = match used {
+        Some(s @ (UsedSource::Onnx | UsedSource::Npy)) => {
+            (s, fuse::voxel_downsample(&fused, voxel))
+        }
+        Some(s) => (s, fused),
+        None => (
+            UsedSource::Random,
+            fuse::random_cloud(cameras, config.random_points, t_range, config.seed),
+        ),
+    };
+    let points_before = if source == UsedSource::Random {
+        downsampled.len()
+    } else {
+        points_before
+    };
+    let points_after_voxel = downsampled.len();
+    let kept = fuse::cap(downsampled, config.max_points, config.seed);
+    std::fs::create_dir_all(out_dir).map_err(|source| InitError::Io {
+        path: out_dir.into(),
+        source,
+    })?;
+    let output = out_dir.join("points.ply");
+    write_points_ply(&fuse::to_cloud(&kept), &output)?;
+    Ok(InitReport {
+        source,
+        fallbacks,
+        pairs,
+        points_before,
+        points_after_voxel,
+        points_written: kept.len(),
+        voxel,
+        output,
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+/// Read and undistort each camera's first frame.
+fn load_views(inputs: &InitInputs, fit: Fit) -> Result<Vec<(String, View)>, InitError> {
+    let mut views = Vec::new();
+    for cam in &inputs.cameras.cameras {
+        let Some(img) = inputs
+            .images
+            .iter()
+            .filter(|i| i.camera == cam.name)
+            .min_by(|a, b| a.time.total_cmp(&b.time))
+        else {
+            tracing::warn!(
+                "point init: no frame for camera {}; it is left out",
+                cam.name
+            );
+            continue;
+        };
+        let rgb = image::open(&img.path)
+            .map_err(|source| InitError::Image {
+                path: img.path.clone(),
+                source,
+            })?
+            .to_rgb8();
+        let want = (cam.intrinsics.width, cam.intrinsics.height);
+        if rgb.dimensions() != want {
+            return Err(InitError::ImageSize {
+                path: img.path.clone(),
+                camera: cam.name.clone(),
+                got: rgb.dimensions(),
+                want,
+            });
+        }
+        let (camera, image) = if cam.distortion.is_none() {
+            (cam.clone(), rgb)
+        } else {
+            let map = UndistortMap::new(cam, fit);
+            let out = map.apply(&rgb).map_err(|e| {
+                InitError::Config(format!("undistorting {}: {e}", img.path.display()))
+            })?;
+            (map.pinhole().clone(), out)
+        };
+        views.push((
+            cam.name.clone(),
+            View {
+                camera,
+                image,
+                time: img.time,
+            },
+        ));
+    }
+    Ok(views)
+}
+
+/// The pairs to process, as indices into `views`.
+fn choose_pairs(
+    kind: UsedSource,
+    dir: &Path,
+    views: &[(String, View)],
+    config: &InitConfig,
+) -> Result<Vec<(usize, usize)>, InitError> {
+    let index = |name: &str| -> Result<usize, InitError> {
+        views.iter().position(|(n, _)| n == name).ok_or_else(|| {
+            InitError::Config(format!(
+                "pair camera {name} has no frame or is not a training camera"
+            ))
+        })
+    };
+    Ok(match &config.pairs {
+        Pairs::List(list) => {
+            let mut out = Vec::new();
+            for [a, b] in list {
+                let (i, j) = (index(a)?, index(b)?);
+                if i == j {
+                    return Err(InitError::Config(format!(
+                        "pair {a}/{b} uses one camera twice"
+                    )));
+                }
+                out.push((i, j));
+            }
+            out
+        }
+        Pairs::Keyword(PairsKeyword::All) => {
+            let n = views.len();
+            let all = (0..n).flat_map(|i| (0..n).map(move |j| (i, j)));
+            match kind {
+                UsedSource::Npy => all
+                    .filter(|&(i, j)| i != j && npy::has_pair(dir, &views[i].0, &views[j].0))
+                    .collect(),
+                _ => all.filter(|&(i, j)| i < j).collect(),
+            }
+        }
+    })
+}
+
+/// Run/read every pair, align it, and return the reports and the fused (not downsampled)
+/// points of the accepted pairs.
+fn pointmap_points(
+    kind: UsedSource,
+    path: &Path,
+    views: &[(String, View)],
+    sparse: &[DVec3],
+    config: &InitConfig,
+    progress: &dyn Progress,
+) -> Result<(Vec<PairReport>, Vec<FusedPoint>), InitError> {
+    let model = match kind {
+        UsedSource::Onnx => Some(PointMapModel::load(path, &config.model_config())?),
+        _ => {
+            if !path.is_dir() {
+                return Err(InitError::Npy(NpyError::Io {
+                    path: path.into(),
+                    source: std::io::Error::new(
+                        std::io::ErrorKind::NotFound,
+                        "point-map directory not found",
+                    ),
+                }));
+            }
+            None
+        }
+    };
+    let pairs = choose_pairs(kind, path, views, config)?;
+    progress.start(pairs.len() as u64, "pairs");
+    let mut reports = Vec::new();
+    let mut points = Vec::new();
+    for (i, j) in pairs {
+        let ((na, a), (nb, b)) = (&views[i], &views[j]);
+        progress.message(&format!("{na}/{nb}"));
+        let maps = match &model {
+            Some(m) => Some(m.run(&a.image, &b.image)?),
+            None => match npy::read_pair(path, na, nb, &config.output_names) {
+                Ok(m) => Some(m),
+                Err(NpyError::MissingPair { .. }) => None,
+                Err(e) => return Err(e.into()),
+            },
+        };
+        let (report, pts) = match maps {
+            Some(maps) => align_pair(na, a, nb, b, &maps, sparse, config),
+            None => (
+                rejected(na, nb, "no exported point maps for this pair".into()),
+                vec![],
+            ),
+        };
+        if let Some(r) = &report.reason {
+            tracing::warn!("point init: pair {na}/{nb} rejected: {r}");
+        } else {
+            tracing::info!(
+                "point init: pair {na}/{nb}: scale {:.4}, {} points",
+                report.scale.unwrap_or(f64::NAN),
+                report.points
+            );
+        }
+        reports.push(report);
+        points.extend(pts);
+        progress.advance(1);
+    }
+    progress.finish();
+    Ok((reports, points))
+}
+
+fn rejected(first: &str, second: &str, reason: String) -> PairReport {
+    PairReport {
+        first: first.into(),
+        second: second.into(),
+        accepted: false,
+        reason: Some(reason),
+        scale: None,
+        ray_scale: None,
+        sparse_scale: None,
+        sparse_matches: 0,
+        residual: None,
+        pixels: 0,
+        non_finite: 0,
+        confident: 0,
+        points: 0,
+    }
+}
+
+/// Which pixels are finite and confident; and how many are not finite.
+fn valid_mask(map: &PointMap, min_confidence: f32) -> (Vec<bool>, usize) {
+    let mut non_finite = 0;
+    let mask = (0..map.points.len())
+        .map(|i| {
+            let p = map.points[i];
+            let c = map.confidence.as_ref().map_or(f32::INFINITY, |c| c[i]);
+            let finite = p.iter().all(|v| v.is_finite()) && !c.is_nan();
+            if !finite {
+                non_finite += 1;
+            }
+            finite && c >= min_confidence
+        })
+        .collect();
+    (mask, non_finite)
+}
+
+/// Align one pair and turn its confident pixels into world points.
+fn align_pair(
+    na: &str,
+    a: &View,
+    nb: &str,
+    b: &View,
+    maps: &PairMaps,
+    sparse: &[DVec3],
+    config: &InitConfig,
+) -> (PairReport, Vec<FusedPoint>) {
+    let (m1, m2) = (&maps.first, &maps.second);
+    let (mut v1, nf1) = valid_mask(m1, config.min_confidence);
+    let (v2, nf2) = valid_mask(m2, config.min_confidence);
+    for (v, p) in v1.iter_mut().zip(&m1.points) {
+        *v &= p[2] > 0.0;
+    }
+    let mut report = rejected(na, nb, String::new());
+    report.pixels = m1.points.len() + m2.points.len();
+    report.non_finite = nf1 + nf2;
+    report.confident = v1.iter().chain(&v2).filter(|v| **v).count();
+    let reject = |mut r: PairReport, reason: String| {
+        r.reason = Some(reason);
+        (r, vec![])
+    };
+    if report.non_finite as f64 > config.max_non_finite * report.pixels as f64 {
+        let msg = format!(
+            "{} of {} pixels are not finite (NaN/inf)",
+            report.non_finite, report.pixels
+        );
+        return reject(report, msg);
+    }
+    let scaled = |v: &View, m: &PointMap| Camera {
+        intrinsics: v
+            .camera
+            .intrinsics
+            .scaled_to(m.width as u32, m.height as u32),
+        ..v.camera.clone()
+    };
+    let (ca, cb) = (scaled(a, m1), scaled(b, m2));
+    let rel = Relative::between(&ca, &cb);
+    let ray = ray_scale(&cb, &rel, m2, &v2);
+    let sp = sparse_scale(&ca, m1, &v1, sparse, config.min_sparse_matches);
+    report.ray_scale = ray.map(|r| r.scale);
+    report.residual = ray.map(|r| r.residual);
+    report.sparse_scale = sp.map(|s| s.0);
+    report.sparse_matches = sp.map_or(0, |s| s.1);
+    let scale = match (ray, sp) {
+        (Some(r), _) if r.residual > config.max_residual => {
+            let msg = format!(
+                "second view does not fit its camera: median reprojection error {:.2}% of the width (limit {:.2}%)",
+                100.0 * r.residual,
+                100.0 * config.max_residual
+            );
+            return reject(report, msg);
+        }
+        (Some(r), Some((s, _))) => {
+            if (r.scale / s).ln().abs() > (1.0 + config.scale_tolerance).ln() {
+                let msg = format!(
+                    "scale from rays {:.4} disagrees with scale from sparse points {:.4}",
+                    r.scale, s
+                );
+                return reject(report, msg);
+            }
+            r.scale
+        }
+        (Some(r), None) => r.scale,
+        (None, Some((s, _))) => s,
+        (None, None) => {
+            return reject(
+                report,
+                "scale not determined (no baseline or too few confident pixels, and no sparse points)".into(),
+            );
+        }
+    };
+    report.scale = Some(scale);
+    let mut pts = Vec::new();
+    for (i, p) in m1.points.iter().enumerate() {
+        if v1[i] {
+            let pc = pixel_centre(i, m1.width);
+            pts.push(FusedPoint {
+                xyz: unproject(&ca, pc, scale * p[2] as f64),
+                rgb: colour_at(&a.image, pc, m1.width, m1.height),
+                time: a.time,
+            });
+        }
+    }
+    let max_px = config.max_residual * m2.width as f64;
+    for (i, p) in m2.points.iter().enumerate() {
+        if !v2[i] {
+            continue;
+        }
+        let x = scale * (rel.rotation * DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+            + rel.translation;
+        if x.z <= 1e-9 {
+            continue;
+        }
+        let pc = pixel_centre(i, m2.width);
+        let proj = cb
+            .intrinsics
+            .to_pixels(glam::DVec2::new(x.x / x.z, x.y / x.z));
+        if (proj - pc).length() > max_px {
+            continue;
+        }
+        pts.push(FusedPoint {
+            xyz: unproject(&cb, pc, x.z),
+            rgb: colour_at(&b.image, pc, m2.width, m2.height),
+            time: b.time,
+        });
+    }
+    report.accepted = true;
+    report.reason = None;
+    report.points = pts.len();
+    (report, pts)
+}

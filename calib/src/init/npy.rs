@@ -1,0 +1,352 @@
+//! Exported point maps on disk: `.npy` / `.npz` files holding one image pair's output of a
+//! MASt3R-style model (see `docs/init.md`), read with `npyz`. Also the point-map types
+//! shared by the ONNX runner and the alignment.
+//!
+//! Layout of a pair `(a, b)` in the point-map directory, either
+//! - `a__b.npz` with arrays `pts1`, `conf1`, `pts2`, `conf2` (names configurable), or
+//! - a directory `a__b/` holding `pts1.npy`, `conf1.npy`, `pts2.npy`, `conf2.npy`.
+//!
+//! Point maps are `H×W×3` (or `1×H×W×3`), confidences `H×W` (or `1×H×W`), `float32` or
+//! `float64`, C order; both views' points are in camera `a`'s frame. A missing confidence
+//! array means "all pixels confident". This module only reads and checks shapes: values
+//! (NaN, scale) are judged by the alignment.
+
+use std::path::{Path, PathBuf};
+
+/// One view's point map: `width × height` pixels, row-major, in the pair's first camera
+/// frame (arbitrary scale).
+#[derive(Clone, Debug, PartialEq)]
+pub struct PointMap {
+    pub width: usize,
+    pub height: usize,
+    pub points: Vec<[f32; 3]>,
+    /// Per-pixel confidence; `None`: every pixel is confident.
+    pub confidence: Option<Vec<f32>>,
+}
+
+/// A model's output for an image pair: both views' point maps in the first view's frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PairMaps {
+    pub first: PointMap,
+    pub second: PointMap,
+}
+
+/// Array names inside a pair's `.npz` / directory (also the ONNX output names).
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputNames {
+    pub pts1: String,
+    pub conf1: String,
+    pub pts2: String,
+    pub conf2: String,
+}
+
+impl Default for OutputNames {
+    fn default() -> Self {
+        Self {
+            pts1: "pts1".into(),
+            conf1: "conf1".into(),
+            pts2: "pts2".into(),
+            conf2: "conf2".into(),
+        }
+    }
+}
+
+/// Why exported point maps could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum NpyError {
+    #[error("cannot read point map {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error(
+        "point map {path}: {reason}; export float32/float64 C-order arrays, points H×W×3 and confidences H×W"
+    )]
+    Format { path: PathBuf, reason: String },
+    #[error("{path} has no array `{name}` (it has: {found}); set [init] output_names to match")]
+    MissingArray {
+        path: PathBuf,
+        name: String,
+        found: String,
+    },
+    #[error("no exported point maps for pair {first}/{second}: expected {npz} or {dir}/")]
+    MissingPair {
+        first: String,
+        second: String,
+        npz: PathBuf,
+        dir: PathBuf,
+    },
+}
+
+/// File name stem of pair `(a, b)`: `a__b`.
+pub fn pair_stem(first: &str, second: &str) -> String {
+    format!("{first}__{second}")
+}
+
+/// Read pair `(first, second)` from the point-map directory `dir`.
+pub fn read_pair(
+    dir: &Path,
+    first: &str,
+    second: &str,
+    names: &OutputNames,
+) -> Result<PairMaps, NpyError> {
+    let stem = pair_stem(first, second);
+    let npz = dir.join(format!("{stem}.npz"));
+    let sub = dir.join(&stem);
+    if npz.is_file() {
+        read_pair_npz(&npz, names)
+    } else if sub.is_dir() {
+        read_pair_dir(&sub, names)
+    } else {
+        Err(NpyError::MissingPair {
+            first: first.into(),
+            second: second.into(),
+            npz,
+            dir: sub,
+        })
+    }
+}
+
+/// Whether `dir` holds exported maps for pair `(first, second)`.
+pub fn has_pair(dir: &Path, first: &str, second: &str) -> bool {
+    let stem = pair_stem(first, second);
+    dir.join(format!("{stem}.npz")).is_file() || dir.join(&stem).is_dir()
+}
+
+/// A pair stored as one `.npz` archive.
+pub fn read_pair_npz(path: &Path, names: &OutputNames) -> Result<PairMaps, NpyError> {
+    let io = |source| NpyError::Io {
+        path: path.into(),
+        source,
+    };
+    let mut archive = npyz::npz::NpzArchive::open(path).map_err(io)?;
+    let found = archive.array_names().collect::<Vec<_>>().join(", ");
+    let mut get = |name: &str, required: bool| -> Result<Option<Array>, NpyError> {
+        let file = archive.by_name(name).map_err(io)?;
+        match file {
+            Some(f) => array_from(f, path).map(Some),
+            None if required => Err(NpyError::MissingArray {
+                path: path.into(),
+                name: name.into(),
+                found: found.clone(),
+            }),
+            None => Ok(None),
+        }
+    };
+    let pts1 = get(&names.pts1, true)?.unwrap_or_default();
+    let conf1 = get(&names.conf1, false)?;
+    let pts2 = get(&names.pts2, true)?.unwrap_or_default();
+    let conf2 = get(&names.conf2, false)?;
+    Ok(PairMaps {
+        first: point_map(pts1, conf1, path)?,
+        second: point_map(pts2, conf2, path)?,
+    })
+}
+
+/// A pair stored as a directory of `.npy` files.
+pub fn read_pair_dir(dir: &Path, names: &OutputNames) -> Result<PairMaps, NpyError> {
+    let read = |name: &str, required: bool| -> Result<Option<Array>, NpyError> {
+        let path = dir.join(format!("{name}.npy"));
+        if !path.is_file() && !required {
+            return Ok(None);
+        }
+        read_npy(&path).map(Some)
+    };
+    let pts1 = read(&names.pts1, true)?.unwrap_or_default();
+    let conf1 = read(&names.conf1, false)?;
+    let pts2 = read(&names.pts2, true)?.unwrap_or_default();
+    let conf2 = read(&names.conf2, false)?;
+    Ok(PairMaps {
+        first: point_map(pts1, conf1, dir)?,
+        second: point_map(pts2, conf2, dir)?,
+    })
+}
+
+/// A numeric array as `f32` with its shape.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Array {
+    pub shape: Vec<usize>,
+    pub data: Vec<f32>,
+}
+
+/// Read one `.npy` file of `float32` or `float64` values.
+pub fn read_npy(path: &Path) -> Result<Array, NpyError> {
+    let bytes = std::fs::read(path).map_err(|source| NpyError::Io {
+        path: path.into(),
+        source,
+    })?;
+    let file = npyz::NpyFile::new(&bytes[..]).map_err(|e| NpyError::Format {
+        path: path.into(),
+        reason: format!("not an .npy file ({e})"),
+    })?;
+    array_from(file, path)
+}
+
+fn array_from<R: std::io::Read>(file: npyz::NpyFile<R>, path: &Path) -> Result<Array, NpyError> {
+    let format = |reason: String| NpyError::Format {
+        path: path.into(),
+        reason,
+    };
+    if file.order() == npyz::Order::Fortran {
+        return Err(format("Fortran order".into()));
+    }
+    let shape = file.shape().iter().map(|&d| d as usize).collect::<Vec<_>>();
+    let len = shape
+        .iter()
+        .try_fold(1usize, |a, &d| a.checked_mul(d))
+        .ok_or_else(|| format(format!("shape {shape:?} overflows")))?;
+    let data = match file.dtype() {
+        npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 4 => {
+            file.into_vec::<f32>()
+        }
+        npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 8 => {
+            file.into_vec::<f64>()
+                .map(|v| v.into_iter().map(|x| x as f32).collect())
+        }
+        other => return Err(format(format!("dtype {other:?}"))),
+    }
+    .map_err(|e| format(format!("unreadable data ({e})")))?;
+    if data.len() != len {
+        return Err(format(format!(
+            "shape {shape:?} needs {len} values, file has {}",
+            data.len()
+        )));
+    }
+    Ok(Array { shape, data })
+}
+
+/// Check shapes (`[1,]H,W,3` points, `[1,]H,W` confidence) and build a [`PointMap`].
+pub fn point_map(pts: Array, conf: Option<Array>, path: &Path) -> Result<PointMap, NpyError> {
+    let format = |reason: String| NpyError::Format {
+        path: path.into(),
+        reason,
+    };
+    let s = match pts.shape.as_slice() {
+        [1, h, w, 3] | [h, w, 3] => [*h, *w],
+        other => {
+            return Err(format(format!(
+                "point map shape {other:?}, expected [1,]H×W×3"
+            )));
+        }
+    };
+    if s[0] == 0 || s[1] == 0 {
+        return Err(format(format!("empty point map {:?}", pts.shape)));
+    }
+    let confidence = match conf {
+        None => None,
+        Some(c) => {
+            let cs = match c.shape.as_slice() {
+                [1, h, w] | [h, w] | [1, h, w, 1] => [*h, *w],
+                other => {
+                    return Err(format(format!(
+                        "confidence shape {other:?}, expected [1,]H×W"
+                    )));
+                }
+            };
+            if cs != s {
+                return Err(format(format!(
+                    "confidence is {}×{} but its point map is {}×{}",
+                    cs[0], cs[1], s[0], s[1]
+                )));
+            }
+            Some(c.data)
+        }
+    };
+    Ok(PointMap {
+        width: s[1],
+        height: s[0],
+        points: pts
+            .data
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect(),
+        confidence,
+    })
+}
+
+/// Write a `float32` `.npy` file of `shape` (C order), atomically through `<path>.tmp`.
+pub fn write_npy(path: &Path, shape: &[usize], data: &[f32]) -> std::io::Result<()> {
+    use npyz::WriterBuilder;
+    let mut buf = Vec::new();
+    let shape64 = shape.iter().map(|&d| d as u64).collect::<Vec<_>>();
+    let mut w = npyz::WriteOptions::new()
+        .default_dtype()
+        .shape(&shape64)
+        .writer(&mut buf)
+        .begin_nd()?;
+    w.extend(data.iter().copied())?;
+    w.finish()?;
+    let tmp = path.with_extension("npy.tmp");
+    std::fs::write(&tmp, &buf)?;
+    std::fs::rename(&tmp, path)
+}
+
+/// Write pair maps as `a__b/{pts1,conf1,pts2,conf2}.npy` under `dir` (confidences only
+/// when present): the layout [`read_pair`] reads.
+pub fn write_pair_dir(
+    dir: &Path,
+    first: &str,
+    second: &str,
+    maps: &PairMaps,
+    names: &OutputNames,
+) -> std::io::Result<()> {
+    let sub = dir.join(pair_stem(first, second));
+    std::fs::create_dir_all(&sub)?;
+    for (map, pn, cn) in [
+        (&maps.first, &names.pts1, &names.conf1),
+        (&maps.second, &names.pts2, &names.conf2),
+    ] {
+        let flat = map.points.iter().flatten().copied().collect::<Vec<_>>();
+        write_npy(
+            &sub.join(format!("{pn}.npy")),
+            &[map.height, map.width, 3],
+            &flat,
+        )?;
+        if let Some(c) = &map.confidence {
+            write_npy(&sub.join(format!("{cn}.npy")), &[map.height, map.width], c)?;
+        }
+    }
+    Ok(())
+}
+
+/// Write pair maps as one `a__b.npz` archive under `dir` (arrays named by `names`;
+/// confidences only when present), atomically through a `.tmp` name.
+pub fn write_pair_npz(
+    dir: &Path,
+    first: &str,
+    second: &str,
+    maps: &PairMaps,
+    names: &OutputNames,
+) -> std::io::Result<()> {
+    use npyz::WriterBuilder;
+    let path = dir.join(format!("{}.npz", pair_stem(first, second)));
+    let tmp = path.with_extension("npz.tmp");
+    {
+        let mut npz = npyz::npz::NpzWriter::create(&tmp)?;
+        for (map, pn, cn) in [
+            (&maps.first, &names.pts1, &names.conf1),
+            (&maps.second, &names.pts2, &names.conf2),
+        ] {
+            let mut arrays = vec![(
+                pn,
+                vec![map.height as u64, map.width as u64, 3],
+                map.points.iter().flatten().copied().collect::<Vec<_>>(),
+            )];
+            if let Some(c) = &map.confidence {
+                arrays.push((cn, vec![map.height as u64, map.width as u64], c.clone()));
+            }
+            for (name, shape, data) in arrays {
+                let mut w = npz
+                    .array::<f32>(name, Default::default())?
+                    .default_dtype()
+                    .shape(&shape)
+                    .begin_nd()?;
+                w.extend(data)?;
+                w.finish()?;
+            }
+        }
+        npz.zip_writer().finish()?;
+    }
+    std::fs::rename(&tmp, &path)
+}
