@@ -21,7 +21,7 @@ pub struct CaptureConfig {
     pub sync: rig::sync::SyncConfig,
     pub frames: rig::frames::FramesConfig,
     pub poses: calib::poses::PosesConfig,
-    pub init: StageSettings,
+    pub init: calib::init::InitConfig,
     pub train: splat4d::train::TrainConfig,
     pub render: StageSettings,
     pub eval: StageSettings,

@@ -9,6 +9,7 @@ pub mod atomic;
 pub mod cli;
 pub mod config;
 pub mod exporting;
+pub mod initial_points;
 pub mod layout;
 pub mod lock;
 pub mod manifest;

@@ -156,7 +156,8 @@ pub fn pipeline() -> Pipeline {
                 "initial point cloud from MASt3R-style point maps or COLMAP points",
             )
             .after(&["frames", "poses"])
-            .outputs(&["points.ply"]),
+            .outputs(&["points.ply", "init.json"])
+            .run(crate::initial_points::run),
             StageDef::new("train", "train the 4C4D Gaussian model")
                 .after(&["frames", "poses", "init"])
                 .outputs(&["model.bin", "log.csv"])

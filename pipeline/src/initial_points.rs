@@ -1,0 +1,60 @@
+//! The `init` stage: the initial point cloud from MASt3R-style point maps (an ONNX model
+//! run here, or exported maps), else the sparse pose points, else a random cloud
+//! (`calib::init`, docs/init.md).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use calib::init::{InitInputs, ViewImage};
+use calib::poses::PosesFile;
+use rig::frames::FramesIndex;
+
+use crate::stage::StageContext;
+
+/// A path from `capture.toml`, relative to the capture directory.
+fn in_capture(root: &Path, path: &Option<PathBuf>) -> Option<PathBuf> {
+    path.as_ref().map(|p| if p.is_absolute() { p.clone() } else { root.join(p) })
+}
+
+/// The `init` stage.
+pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
+    let frames_dir = ctx.stage_dir("frames");
+    let index = FramesIndex::read_json(&frames_dir.join("frames.json"))?;
+    let poses_dir = ctx.stage_dir("poses");
+    let poses = PosesFile::read(&poses_dir.join("cameras.json"))?;
+    let first = index
+        .frames
+        .first()
+        .context("the frames stage wrote no frames; rerun it")?;
+    let mapping = crate::training::time_mapping(&index);
+    let images = index
+        .cameras
+        .iter()
+        .zip(&first.views)
+        .map(|(camera, view)| ViewImage {
+            camera: camera.name.clone(),
+            path: frames_dir.join(&view.file),
+            time: mapping.model_time(view.timestamp_s),
+        })
+        .collect();
+    let sparse = poses
+        .points_file
+        .as_ref()
+        .map(|f| poses_dir.join(f))
+        .filter(|p| p.exists());
+    let mut config = ctx.config.init.clone();
+    config.model = in_capture(&ctx.capture.root, &config.model);
+    config.pointmaps = in_capture(&ctx.capture.root, &config.pointmaps);
+    let inputs = InitInputs {
+        cameras: poses.set,
+        images,
+        sparse,
+    };
+    let report = calib::init::run_init(&inputs, &config, &ctx.out_dir, ctx.progress)?;
+    crate::atomic::write_atomic(
+        &ctx.output("init.json"),
+        &serde_json::to_vec_pretty(&report)?,
+    )
+    .context("cannot write init.json")?;
+    Ok(())
+}
