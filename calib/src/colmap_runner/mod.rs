@@ -697,3 +697,34 @@ fn describe_status(status: ExitStatus) -> String {
         None => "failed".into(),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn auto_video_cameras_share_one_lens_only_at_one_size() {
+        assert_eq!(VideoCameras::Auto.resolve(true), VideoCameras::Shared);
+        assert_eq!(VideoCameras::Auto.resolve(false), VideoCameras::Separate);
+        assert_eq!(VideoCameras::Separate.resolve(true), VideoCameras::Separate);
+        assert_eq!(VideoCameras::Shared.resolve(false), VideoCameras::Shared);
+        assert_eq!(ColmapConfig::default().video_cameras, VideoCameras::Auto);
+        assert!(ColmapConfig::default().deterministic);
+    }
+
+    #[test]
+    fn prior_parameters_follow_the_model_layout() {
+        assert_eq!(
+            prior_params(CameraModel::Opencv, 502.5, 320.0, 240.0),
+            "502.5,502.5,320,240,0,0,0,0"
+        );
+        assert_eq!(
+            prior_params(CameraModel::SimpleRadial, 400.0, 160.0, 120.0),
+            "400,160,120,0"
+        );
+        assert_eq!(
+            prior_params(CameraModel::OpencvFisheye, 300.0, 1.5, 2.5),
+            "300,300,1.5,2.5,0,0,0,0"
+        );
+    }
+}
