@@ -56,9 +56,10 @@ pub struct ColmapConfig {
     pub video_focal_px: Option<f64>,
     /// Seed of COLMAP's random number generator (RANSAC samples); retries add 1, 2, ….
     pub random_seed: u32,
-    /// Match-verification and mapping in one thread, so that a run is repeatable (COLMAP's
-    /// multithreaded RANSAC and bundle adjustment are not); costs about 2× in matching time
-    /// on a 2-core machine. Feature extraction stays multithreaded (it is deterministic).
+    /// Extraction, matching and mapping in one thread each, so that a run is repeatable:
+    /// threaded extraction numbers the images in the order they finish, and the image IDs
+    /// steer the matcher's RANSAC and the mapper; threaded RANSAC and bundle adjustment
+    /// vary too. Costs up to 2× in extraction and matching time on a 2-core machine.
     pub deterministic: bool,
     /// Mapper runs (each with the next seed and stricter settings) before a degenerate or
     /// incomplete solve is reported as an error; matches are computed once.
@@ -390,7 +391,7 @@ impl Workspace {
                 ("--ImageReader.camera_model", model.name().as_ref()),
                 ("--ImageReader.single_camera_per_folder", "1".as_ref()),
                 ("--SiftExtraction.use_gpu", "0".as_ref()),
-                ("--SiftExtraction.num_threads", threads.as_ref()),
+                ("--SiftExtraction.num_threads", match_threads.as_ref()),
                 (
                     "--SiftExtraction.max_image_size",
                     config.max_image_size.to_string().as_ref(),
