@@ -20,6 +20,7 @@ use splat4d::{Camera, CameraSet, Progress, WorldToCamera};
 
 use crate::colmap::ColmapModel;
 use crate::colmap_runner::diagnose::Diagnosis;
+use crate::colmap_runner::quality::{self, Degeneracy, QualityLimits};
 use crate::colmap_runner::{
     ColmapConfig, ColmapError, ColmapTimings, MatchGraph, StillsCameras, VideoCameras, Workspace,
     find_colmap,
@@ -173,9 +174,23 @@ pub enum PosesError {
     StillSizesDiffer { sizes: String },
     #[error(
         "the video cameras share one camera (poses.colmap.video_cameras = \"shared\") but their \
-         frames differ in size ({sizes}): use \"separate\""
+         frames differ in size ({sizes}): use \"separate\" or \"auto\""
     )]
     VideoSizesDiffer { sizes: String },
+    #[error(
+        "COLMAP's solve looks degenerate in all {} attempts, so no poses were written:\n{}\n\
+         This happens when the scene repeats itself (tiled floors, wallpaper, identical \
+         objects) or the images overlap little. What to try: give the lens's focal length \
+         (poses.colmap.video_focal_px) or import a calibration; add stills between the video \
+         cameras; add non-repeating texture (posters, newspaper).\n{diagnosis}",
+        attempts.len(),
+        attempts.iter().enumerate().map(|(i, a)| format!("  attempt {}: {a}", i + 1)).collect::<Vec<_>>().join("\n")
+    )]
+    Degenerate {
+        /// Per mapper attempt, what was wrong.
+        attempts: Vec<String>,
+        diagnosis: Diagnosis,
+    },
     #[error("{0}")]
     Colmap(#[from] ColmapError),
     #[error(
@@ -238,31 +253,21 @@ pub fn solve(
             })?;
         }
     }
-    check_inputs(inputs)?;
+    let video_sizes = check_inputs(inputs)?;
     let config = &inputs.config;
     let binary = find_colmap(config.colmap.binary.as_deref())?;
     let ws_root = out_dir.join("colmap");
+    let video_cameras = config.colmap.video_cameras.resolve(video_sizes.len() <= 1);
     let ws = Workspace::create(
         &ws_root,
         &inputs.video_frames,
         &inputs.stills,
         config.colmap.stills_cameras,
-        config.colmap.video_cameras,
+        video_cameras,
     )?;
-    let run = match ws.run(&binary, &config.colmap, progress) {
-        Ok(run) => run,
-        Err(ColmapError::StepFailed { no_model: true, .. }) => {
-            let graph = MatchGraph::read(&ws.database()).unwrap_or_default();
-            return Err(PosesError::NoInitialPair {
-                diagnosis: Diagnosis::new(&ws, &graph, &[]),
-            });
-        }
-        Err(e) => return Err(e.into()),
-    };
-    let diagnosis = Diagnosis::new(&ws, &run.graph, &run.models);
-    if run.models.is_empty() {
-        return Err(PosesError::NoInitialPair { diagnosis });
-    }
+    let attempts = config.colmap.max_attempts.max(1);
+    progress.start(3, "COLMAP steps");
+    let mut timings = ws.extract_and_match(&binary, &config.colmap, progress)?;
     let video: Vec<(&str, &str)> = ws
         .images
         .iter()
@@ -272,20 +277,97 @@ pub fn solve(
                 .map(|c| (c, i.colmap_name.as_str()))
         })
         .collect();
-    let model_index = pick_model(&run.models, &video, diagnosis)?;
-    let (model_dir, model) = &run.models[model_index];
-    let (cameras, points) = cameras_from_model(model, &video, inputs.working_size)?;
-    let rel_model = model_dir
-        .strip_prefix(out_dir)
-        .unwrap_or(model_dir)
-        .to_string_lossy()
-        .into_owned();
-    let source = PoseSource::Colmap {
-        model_dir: rel_model,
-        registered_images: model.images.len(),
-        timings: run.timings,
-    };
-    write_outputs(out_dir, cameras, points, source, config.radius)
+    let video_names: Vec<&str> = video.iter().map(|v| v.1).collect();
+    let all_names: Vec<&str> = ws.images.iter().map(|i| i.colmap_name.as_str()).collect();
+    let prior = config
+        .colmap
+        .video_focal_px
+        .map(|f| (f, video_names.as_slice()));
+    let mut problems: Vec<String> = Vec::new();
+    let mut last_error = None;
+    let t0 = std::time::Instant::now();
+    for attempt in 0..attempts {
+        if attempt > 0 {
+            progress.message(&format!(
+                "COLMAP solve attempt {attempt} was rejected ({}); retrying with seed {} and \
+                 stricter settings",
+                problems.last().map(String::as_str).unwrap_or(""),
+                config.colmap.random_seed.wrapping_add(attempt)
+            ));
+        }
+        let mapped = ws.map(&binary, &config.colmap, attempt, progress);
+        if attempt == 0 {
+            progress.advance(1);
+        }
+        timings.mapper_attempts = attempt + 1;
+        timings.mapping_s = t0.elapsed().as_secs_f64();
+        let models = match mapped {
+            Ok(models) => models,
+            Err(ColmapError::StepFailed { no_model: true, .. }) => Vec::new(),
+            Err(e) => return Err(e.into()),
+        };
+        let graph = MatchGraph::read(&ws.database()).unwrap_or_default();
+        let diagnosis = Diagnosis::new(&ws, &graph, &models);
+        if models.is_empty() {
+            problems.push("no model (no good initial image pair)".into());
+            last_error = Some(PosesError::NoInitialPair { diagnosis });
+            continue;
+        }
+        let model_index = match pick_model(&models, &video, diagnosis.clone()) {
+            Ok(i) => i,
+            Err(e) => {
+                problems.push(match &e {
+                    PosesError::VideoNotRegistered { missing, .. } => {
+                        format!("video camera(s) {} not registered", missing.join(", "))
+                    }
+                    _ => "the video cameras are split across models".into(),
+                });
+                last_error = Some(e);
+                continue;
+            }
+        };
+        let (model_dir, model) = &models[model_index];
+        let found = quality::assess(model, &all_names, prior, &QualityLimits::default());
+        if !found.is_empty() {
+            problems.push(
+                found
+                    .iter()
+                    .map(Degeneracy::to_string)
+                    .collect::<Vec<_>>()
+                    .join("; "),
+            );
+            last_error = Some(PosesError::Degenerate {
+                attempts: problems.clone(),
+                diagnosis,
+            });
+            continue;
+        }
+        progress.finish();
+        let (cameras, points) = cameras_from_model(model, &video, inputs.working_size)?;
+        let rel_model = model_dir
+            .strip_prefix(out_dir)
+            .unwrap_or(model_dir)
+            .to_string_lossy()
+            .into_owned();
+        let source = PoseSource::Colmap {
+            model_dir: rel_model,
+            registered_images: model.images.len(),
+            timings,
+        };
+        return write_outputs(out_dir, cameras, points, source, config.radius);
+    }
+    progress.finish();
+    Err(match last_error {
+        Some(PosesError::Degenerate { diagnosis, .. }) => PosesError::Degenerate {
+            attempts: problems,
+            diagnosis,
+        },
+        Some(e) => e,
+        None => PosesError::Degenerate {
+            attempts: problems,
+            diagnosis: Diagnosis::new(&ws, &MatchGraph::default(), &[]),
+        },
+    })
 }
 
 /// The model holding every video camera (the largest such); otherwise the error that says
@@ -550,7 +632,8 @@ pub fn orthonormalise(r: DMat3) -> DMat3 {
     crate::align::to_dmat3(&q)
 }
 
-fn check_inputs(inputs: &PosesInputs) -> Result<(), PosesError> {
+/// Checks the inputs; returns the distinct sizes of the video frames.
+fn check_inputs(inputs: &PosesInputs) -> Result<BTreeSet<(u32, u32)>, PosesError> {
     if inputs.video_frames.is_empty() {
         return Err(PosesError::NoVideoFrames);
     }
@@ -618,7 +701,7 @@ fn check_inputs(inputs: &PosesInputs) -> Result<(), PosesError> {
             sizes: sizes.join(", "),
         });
     }
-    Ok(())
+    Ok(video_sizes)
 }
 
 #[cfg(test)]

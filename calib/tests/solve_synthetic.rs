@@ -208,6 +208,8 @@ fn fisheye_video_cameras_solve_with_opencv_fisheye() {
     // (One image per camera leaves 8 fisheye intrinsics to a single view: rotation errors
     // up to ~1.2° were seen that way.)
     config.colmap.video_cameras = calib::colmap_runner::VideoCameras::Shared;
+    // The lens's focal length is known (datasheet): a prior, checked against the solve.
+    config.colmap.video_focal_px = Some(rig.video[0].intrinsics.fx);
     let inputs = PosesInputs {
         video_frames: rig.video_paths.clone(),
         stills: rig.still_paths.clone(),

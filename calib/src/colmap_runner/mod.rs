@@ -16,6 +16,7 @@
 
 pub mod database;
 pub mod diagnose;
+pub mod quality;
 
 use std::ffi::OsString;
 use std::io::{BufRead, BufReader, Write};
@@ -45,9 +46,24 @@ pub struct ColmapConfig {
     pub stills_camera_model: CameraModel,
     /// Whether all stills share one camera (same phone/lens and size) or get one each.
     pub stills_cameras: StillsCameras,
-    /// Whether each video camera gets its own intrinsics (default) or all share one
-    /// (identical cameras at identical settings: 4 images constrain the lens, not 1).
+    /// Whether the video cameras share one lens (`auto`, the default: shared when their
+    /// frames have one size; 4 images then constrain the lens, not 1) or get one each.
     pub video_cameras: VideoCameras,
+    /// A prior focal length of the video cameras, in pixels of the frames given to COLMAP
+    /// (e.g. from the lens datasheet): COLMAP starts from it and verifies matches with the
+    /// essential matrix instead of the fundamental one. `None`: COLMAP guesses
+    /// 1.2 × the longest side and solves.
+    pub video_focal_px: Option<f64>,
+    /// Seed of COLMAP's random number generator (RANSAC samples); retries add 1, 2, ….
+    pub random_seed: u32,
+    /// Extraction, matching and mapping in one thread each, so that a run is repeatable:
+    /// threaded extraction numbers the images in the order they finish, and the image IDs
+    /// steer the matcher's RANSAC and the mapper; threaded RANSAC and bundle adjustment
+    /// vary too. Costs up to 2× in extraction and matching time on a 2-core machine.
+    pub deterministic: bool,
+    /// Mapper runs (each with the next seed and stricter settings) before a degenerate or
+    /// incomplete solve is reported as an error; matches are computed once.
+    pub max_attempts: u32,
     /// Longest image side SIFT works on (COLMAP downsamples internally, poses stay exact).
     pub max_image_size: u32,
     /// Most SIFT features kept per image (COLMAP's default 8192; fewer is faster to match).
@@ -68,7 +84,11 @@ impl Default for ColmapConfig {
             camera_model: CameraModel::Opencv,
             stills_camera_model: CameraModel::Opencv,
             stills_cameras: StillsCameras::Shared,
-            video_cameras: VideoCameras::Separate,
+            video_cameras: VideoCameras::Auto,
+            video_focal_px: None,
+            random_seed: 0,
+            deterministic: true,
+            max_attempts: 3,
             max_image_size: 3200,
             max_num_features: 8192,
             num_threads: -1,
@@ -92,10 +112,23 @@ pub enum StillsCameras {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum VideoCameras {
+    /// Shared when all video frames have the same size, else separate.
+    Auto,
     /// One camera per video camera.
     Separate,
     /// One camera for all video cameras (same model, lens mode and resolution).
     Shared,
+}
+
+impl VideoCameras {
+    /// `Auto` decided: shared when the video frames all have one size.
+    pub fn resolve(self, one_size: bool) -> Self {
+        match self {
+            Self::Auto if one_size => Self::Shared,
+            Self::Auto => Self::Separate,
+            other => other,
+        }
+    }
 }
 
 /// Seconds spent in each COLMAP step.
@@ -103,7 +136,11 @@ pub enum VideoCameras {
 pub struct ColmapTimings {
     pub feature_extraction_s: f64,
     pub matching_s: f64,
+    /// All mapper attempts together.
     pub mapping_s: f64,
+    /// Mapper runs made (1 when the first solve was sound).
+    #[serde(default)]
+    pub mapper_attempts: u32,
 }
 
 /// One image placed in the workspace.
@@ -210,7 +247,8 @@ impl Workspace {
     /// Lay out a fresh workspace at `root` (anything there before is removed, so a rerun
     /// never mixes old features or matches in): one folder per video camera, stills in
     /// `stills/` (shared camera) or one folder each; with [`VideoCameras::Shared`] all video
-    /// frames in `video/`. Images are copied.
+    /// frames in `video/` (`Auto` is taken as shared: resolve it first with
+    /// [`VideoCameras::resolve`]). Images are copied.
     pub fn create(
         root: &Path,
         video_frames: &[(String, PathBuf)],
@@ -227,7 +265,7 @@ impl Workspace {
             images.push(WorkspaceImage {
                 colmap_name: match video_cameras {
                     VideoCameras::Separate => format!("video/{cam}/{cam}.{ext}"),
-                    VideoCameras::Shared => format!("video/{cam}.{ext}"),
+                    VideoCameras::Shared | VideoCameras::Auto => format!("video/{cam}.{ext}"),
                 },
                 source: src.clone(),
                 video_camera: Some(cam.clone()),
@@ -275,8 +313,9 @@ impl Workspace {
         self.root.join("sparse")
     }
 
-    /// Run extraction, matching and mapping; stream COLMAP's output to `progress`.
-    /// A mapper that finds no model is reported as `StepFailed { no_model: true, .. }`.
+    /// Run extraction, matching and one mapping (attempt 0); stream COLMAP's output to
+    /// `progress`. A mapper that finds no model is reported as
+    /// `StepFailed { no_model: true, .. }`.
     pub fn run(
         &self,
         binary: &Path,
@@ -284,7 +323,36 @@ impl Workspace {
         progress: &dyn Progress,
     ) -> Result<ColmapRun, ColmapError> {
         progress.start(3, "COLMAP steps");
+        let mut timings = self.extract_and_match(binary, config, progress)?;
+        let t0 = Instant::now();
+        let models = self.map(binary, config, 0, progress);
+        timings.mapping_s = t0.elapsed().as_secs_f64();
+        timings.mapper_attempts = 1;
+        progress.advance(1);
+        let models = models?;
+        let graph = MatchGraph::read(&self.database())?;
+        progress.finish();
+        Ok(ColmapRun {
+            models,
+            graph,
+            timings,
+        })
+    }
+
+    /// Feature extraction (one run per camera model, or for the video cameras apart when
+    /// they have a prior focal length) and exhaustive matching; advances `progress` by 2.
+    pub fn extract_and_match(
+        &self,
+        binary: &Path,
+        config: &ColmapConfig,
+        progress: &dyn Progress,
+    ) -> Result<ColmapTimings, ColmapError> {
         let threads = config.num_threads.to_string();
+        let match_threads = if config.deterministic {
+            "1".to_string()
+        } else {
+            threads.clone()
+        };
         let db = self.database();
         let images = self.image_dir();
         let mut timings = ColmapTimings::default();
@@ -295,7 +363,8 @@ impl Workspace {
             (true, config.camera_model),
             (false, config.stills_camera_model),
         ];
-        let same_model = config.camera_model == config.stills_camera_model;
+        let same_model =
+            config.camera_model == config.stills_camera_model && config.video_focal_px.is_none();
         for (video, model) in groups {
             let names: Vec<&str> = self
                 .images
@@ -315,14 +384,14 @@ impl Workspace {
             };
             let list = self.root.join("lists").join(format!("{group}.txt"));
             std::fs::write(&list, names.join("\n") + "\n").map_err(io_err(&list))?;
-            let step_args = args(&[
+            let mut step_args = args(&[
                 ("--database_path", db.as_os_str()),
                 ("--image_path", images.as_os_str()),
                 ("--image_list_path", list.as_os_str()),
                 ("--ImageReader.camera_model", model.name().as_ref()),
                 ("--ImageReader.single_camera_per_folder", "1".as_ref()),
                 ("--SiftExtraction.use_gpu", "0".as_ref()),
-                ("--SiftExtraction.num_threads", threads.as_ref()),
+                ("--SiftExtraction.num_threads", match_threads.as_ref()),
                 (
                     "--SiftExtraction.max_image_size",
                     config.max_image_size.to_string().as_ref(),
@@ -332,6 +401,11 @@ impl Workspace {
                     config.max_num_features.to_string().as_ref(),
                 ),
             ]);
+            if let (true, Some(f)) = (video, config.video_focal_px) {
+                let (w, h) = self.video_size().unwrap_or((0, 0));
+                let params = prior_params(model, f, w as f64 / 2.0, h as f64 / 2.0);
+                step_args.extend(args(&[("--ImageReader.camera_params", params.as_ref())]));
+            }
             self.run_step(
                 binary,
                 "feature_extractor",
@@ -347,10 +421,12 @@ impl Workspace {
         progress.advance(1);
 
         let t0 = Instant::now();
+        let seed = config.random_seed.to_string();
         let step_args = args(&[
             ("--database_path", db.as_os_str()),
+            ("--random_seed", seed.as_ref()),
             ("--SiftMatching.use_gpu", "0".as_ref()),
-            ("--SiftMatching.num_threads", threads.as_ref()),
+            ("--SiftMatching.num_threads", match_threads.as_ref()),
         ]);
         self.run_step(
             binary,
@@ -361,13 +437,40 @@ impl Workspace {
         )?;
         timings.matching_s = t0.elapsed().as_secs_f64();
         progress.advance(1);
+        Ok(timings)
+    }
 
-        let t0 = Instant::now();
+    /// One mapper run into a fresh `sparse/`, log `logs/mapper.log` (attempt 0) or
+    /// `logs/mapper_retry<attempt>.log`. Attempt `k` uses seed `random_seed + k`; retries
+    /// (`k > 0`) also reject implausible lenses during mapping (focal length 0.25–4× the
+    /// longest image side, distortion coefficients below 0.5) and outliers harder.
+    /// Returns the models, most registered images first; a mapper that finds none is
+    /// `StepFailed { no_model: true, .. }`.
+    pub fn map(
+        &self,
+        binary: &Path,
+        config: &ColmapConfig,
+        attempt: u32,
+        progress: &dyn Progress,
+    ) -> Result<Vec<(PathBuf, ColmapModel)>, ColmapError> {
         let sparse = self.sparse_dir();
-        let step_args = args(&[
+        if sparse.exists() {
+            std::fs::remove_dir_all(&sparse).map_err(io_err(&sparse))?;
+        }
+        std::fs::create_dir_all(&sparse).map_err(io_err(&sparse))?;
+        let db = self.database();
+        let images = self.image_dir();
+        let threads = if config.deterministic {
+            "1".to_string()
+        } else {
+            config.num_threads.to_string()
+        };
+        let seed = config.random_seed.wrapping_add(attempt).to_string();
+        let mut step_args = args(&[
             ("--database_path", db.as_os_str()),
             ("--image_path", images.as_os_str()),
             ("--output_path", sparse.as_os_str()),
+            ("--random_seed", seed.as_ref()),
             ("--Mapper.num_threads", threads.as_ref()),
             (
                 "--Mapper.init_min_num_inliers",
@@ -383,9 +486,22 @@ impl Workspace {
                 .as_ref(),
             ),
         ]);
-        let mapped = self.run_step(binary, "mapper", "mapper", step_args, progress);
-        timings.mapping_s = t0.elapsed().as_secs_f64();
-        progress.advance(1);
+        if attempt > 0 {
+            step_args.extend(args(&[
+                ("--Mapper.min_focal_length_ratio", "0.25".as_ref()),
+                ("--Mapper.max_focal_length_ratio", "4".as_ref()),
+                ("--Mapper.max_extra_param", "0.5".as_ref()),
+                ("--Mapper.abs_pose_min_inlier_ratio", "0.4".as_ref()),
+                ("--Mapper.filter_max_reproj_error", "2".as_ref()),
+                ("--Mapper.init_min_tri_angle", "20".as_ref()),
+            ]));
+        }
+        let log_name = if attempt == 0 {
+            "mapper".to_string()
+        } else {
+            format!("mapper_retry{attempt}")
+        };
+        let mapped = self.run_step(binary, "mapper", &log_name, step_args, progress);
         let models = self.read_models()?;
         match mapped {
             Err(ColmapError::StepFailed {
@@ -394,25 +510,22 @@ impl Workspace {
                 log,
                 tail,
                 ..
-            }) if models.is_empty() && !how.contains("signal") => {
-                return Err(ColmapError::StepFailed {
-                    step,
-                    how,
-                    log,
-                    tail,
-                    no_model: true,
-                });
-            }
-            Err(e) => return Err(e),
-            Ok(()) => {}
+            }) if models.is_empty() && !how.contains("signal") => Err(ColmapError::StepFailed {
+                step,
+                how,
+                log,
+                tail,
+                no_model: true,
+            }),
+            Err(e) => Err(e),
+            Ok(()) => Ok(models),
         }
-        let graph = MatchGraph::read(&db)?;
-        progress.finish();
-        Ok(ColmapRun {
-            models,
-            graph,
-            timings,
-        })
+    }
+
+    /// The size of the first video frame (for the prior focal length's principal point).
+    fn video_size(&self) -> Option<(u32, u32)> {
+        let img = self.images.iter().find(|i| i.video_camera.is_some())?;
+        image::image_dimensions(self.image_dir().join(&img.colmap_name)).ok()
     }
 
     /// The models in `sparse/<n>/`, most registered images first.
@@ -517,6 +630,21 @@ impl Workspace {
     }
 }
 
+/// `--ImageReader.camera_params` for `model` with focal length `f`, principal point
+/// `(cx, cy)` and no distortion.
+pub fn prior_params(model: CameraModel, f: f64, cx: f64, cy: f64) -> String {
+    let mut p = vec![0.0; model.num_params()];
+    if model.has_single_focal() {
+        (p[0], p[1], p[2]) = (f, cx, cy);
+    } else {
+        (p[0], p[1], p[2], p[3]) = (f, f, cx, cy);
+    }
+    p.iter()
+        .map(|v| v.to_string())
+        .collect::<Vec<_>>()
+        .join(",")
+}
+
 fn args(pairs: &[(&str, &std::ffi::OsStr)]) -> Vec<OsString> {
     pairs
         .iter()
@@ -568,5 +696,36 @@ fn describe_status(status: ExitStatus) -> String {
     match status.code() {
         Some(c) => format!("failed (exit code {c})"),
         None => "failed".into(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn auto_video_cameras_share_one_lens_only_at_one_size() {
+        assert_eq!(VideoCameras::Auto.resolve(true), VideoCameras::Shared);
+        assert_eq!(VideoCameras::Auto.resolve(false), VideoCameras::Separate);
+        assert_eq!(VideoCameras::Separate.resolve(true), VideoCameras::Separate);
+        assert_eq!(VideoCameras::Shared.resolve(false), VideoCameras::Shared);
+        assert_eq!(ColmapConfig::default().video_cameras, VideoCameras::Auto);
+        assert!(ColmapConfig::default().deterministic);
+    }
+
+    #[test]
+    fn prior_parameters_follow_the_model_layout() {
+        assert_eq!(
+            prior_params(CameraModel::Opencv, 502.5, 320.0, 240.0),
+            "502.5,502.5,320,240,0,0,0,0"
+        );
+        assert_eq!(
+            prior_params(CameraModel::SimpleRadial, 400.0, 160.0, 120.0),
+            "400,160,120,0"
+        );
+        assert_eq!(
+            prior_params(CameraModel::OpencvFisheye, 300.0, 1.5, 2.5),
+            "300,300,1.5,2.5,0,0,0,0"
+        );
     }
 }

@@ -33,6 +33,41 @@ fn open_noise(seed: u64, x: f32, y: f32) -> f32 {
     top + (bottom - top) * sy
 }
 
+/// Lattice cells per tile side of the non-periodic spots.
+const SPOT_CELLS: f32 = 7.0;
+
+/// Non-periodic spots laid over colour `c` at `(u, v)` (tile units): in about half of the
+/// cells of an unbounded lattice, a soft-edged disc, dark or light, of random size and
+/// place. Brightness changes alone do not stop SIFT from matching repeated tiles (its
+/// descriptors ignore them); these change the local structure, so no two neighbourhoods
+/// look alike, while staying a pure function of the seed and the coordinates.
+#[inline]
+fn open_spots(seed: u64, u: f32, v: f32, c: [f32; 3]) -> [f32; 3] {
+    let (x, y) = (u * SPOT_CELLS, v * SPOT_CELLS);
+    let (ix, iy) = (floor_i(x), floor_i(y));
+    let h = hash(seed, ix as u64, iy as u64);
+    if h % 16 < 7 {
+        return c;
+    }
+    let r = 0.12 + 0.22 * unit(h.rotate_left(17));
+    let cx = r + (1.0 - 2.0 * r) * unit(h.rotate_left(29));
+    let cy = r + (1.0 - 2.0 * r) * unit(h.rotate_left(41));
+    let (dx, dy) = (x - ix as f32 - cx, y - iy as f32 - cy);
+    let d = (dx * dx + dy * dy).sqrt();
+    // Soft edge over 0.05 cell: no aliasing at the simulator's supersampling.
+    let w = ((r - d) / 0.05 + 0.5).clamp(0.0, 1.0);
+    if w == 0.0 {
+        return c;
+    }
+    let target = if (h >> 8) % 2 == 0 {
+        [0.06, 0.05, 0.07]
+    } else {
+        let t = unit(h.rotate_left(53));
+        [0.95, 0.8 + 0.15 * t, 0.6 + 0.3 * t]
+    };
+    [0, 1, 2].map(|k| c[k] + (target[k] - c[k]) * w)
+}
+
 /// A 64-bit mix of the inputs (splitmix64 finaliser): the noise lattice values.
 pub(crate) fn hash(seed: u64, a: u64, b: u64) -> u64 {
     let mut z = seed ^ a.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ b.wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
@@ -162,7 +197,8 @@ impl Texture {
                 let m = open_noise(seed, u * 0.53, v * 0.53);
                 let tint = open_noise(seed ^ 2, u * 0.29, v * 0.29) - 0.5;
                 let g = 0.65 + 0.7 * m;
-                [(c[0] * g * (1.0 + 0.3 * tint)).min(1.0), (c[1] * g).min(1.0), (c[2] * g * (1.0 - 0.3 * tint)).min(1.0)]
+                let c = [(c[0] * g * (1.0 + 0.3 * tint)).min(1.0), (c[1] * g).min(1.0), (c[2] * g * (1.0 - 0.3 * tint)).min(1.0)];
+                open_spots(seed ^ 0x7370_6F74, u, v, c)
             }
         }
     }
