@@ -251,6 +251,7 @@ pub struct DecayHooks {
     last: Option<StepStats>,
     stop: Option<Arc<AtomicBool>>,
     state_error: Option<String>,
+    skipped_updates: u64,
 }
 
 const STATE_MAGIC: &[u8; 8] = b"4C4DMLP1";
@@ -273,6 +274,7 @@ impl DecayHooks {
             last: None,
             stop: None,
             state_error: None,
+            skipped_updates: 0,
         })
     }
 
@@ -306,6 +308,11 @@ impl DecayHooks {
         self.state_error.as_deref()
     }
 
+    /// f_θ updates skipped because their gradient was not finite.
+    pub fn skipped_updates(&self) -> u64 {
+        self.skipped_updates
+    }
+
     /// τ of every Gaussian of `model` under the current f_θ.
     pub fn tau(&self, model: &Gaussians<f32>) -> Vec<f32> {
         let x = inputs::input_rows(model, self.config.inputs);
@@ -315,7 +322,18 @@ impl DecayHooks {
 
     fn tau_of(&self, cache: &MlpCache<f32>) -> Vec<f32> {
         let (lo, hi) = (self.config.f_min as f32, self.config.f_max as f32);
-        cache.z.iter().map(|&z| Mlp::tau(z, lo, hi)).collect()
+        // A NaN output (only from a NaN model, which the trainer reports) maps to mid-range.
+        cache
+            .z
+            .iter()
+            .map(|&z| {
+                if z.is_nan() {
+                    0.5 * (lo + hi)
+                } else {
+                    Mlp::tau(z, lo, hi)
+                }
+            })
+            .collect()
     }
 
     fn active(&self, iteration: u64) -> bool {
@@ -442,7 +460,13 @@ impl TrainHooks for DecayHooks {
                 .map(|(&d, &z)| d * Mlp::tau_derivative(z, f_min, f_max))
                 .collect();
             let grad = self.mlp.backward(&state.inputs, &state.cache, &d_z, false);
-            self.adam.step(&mut self.mlp.params, &grad.params);
+            // A non-finite gradient (a diverging render) must not poison f_θ: skip it;
+            // the trainer's NaN guard reports the model.
+            if grad.params.iter().all(|g| g.is_finite()) {
+                self.adam.step(&mut self.mlp.params, &grad.params);
+            } else {
+                self.skipped_updates += 1;
+            }
         }
     }
 
