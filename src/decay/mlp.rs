@@ -14,6 +14,9 @@ use rayon::prelude::*;
 /// Rows per parallel work item (fixed, for a thread-count-independent reduction order).
 const CHUNK: usize = 512;
 
+/// A chunk of rows in the forward pass: index, outputs, hidden activations per layer.
+type RowChunk<'a, F> = (usize, &'a mut [F], Vec<&'a mut [F]>);
+
 /// A ReLU MLP `in → hidden… → 1` in float type `F`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Mlp<F: Real = f32> {
@@ -123,7 +126,7 @@ impl<F: Real> Mlp<F> {
             .collect();
         let mut z = vec![F::zero(); rows];
         // Split every buffer into matching row chunks.
-        let mut chunks: Vec<(usize, &mut [F], Vec<&mut [F]>)> = z
+        let mut chunks: Vec<RowChunk<F>> = z
             .chunks_mut(CHUNK)
             .enumerate()
             .map(|(c, zc)| (c, zc, Vec::new()))
@@ -133,7 +136,7 @@ impl<F: Real> Mlp<F> {
                 slot.2.push(hc);
             }
         }
-        let run = |(c, zc, mut hs): (usize, &mut [F], Vec<&mut [F]>)| {
+        let run = |(c, zc, mut hs): RowChunk<F>| {
             let mut acts: Vec<Vec<F>> = hidden_dims.iter().map(|&w| vec![F::zero(); w]).collect();
             for (r, zr) in zc.iter_mut().enumerate() {
                 let row = c * CHUNK + r;
