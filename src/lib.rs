@@ -31,6 +31,7 @@ pub use render::{
     Gradients, ImageGradients, RenderError, RenderOptions, Rendered, render, render_with,
 };
 
+pub mod decay;
 pub mod densify;
 pub mod export;
 pub mod init;

@@ -1,0 +1,554 @@
+//! 4C4D's opacity decay (paper §3.2–3.3) as [`TrainHooks`]: the Neural Decaying Function
+//! f_θ, visibility detection and the separate decay of invisible Gaussians, plus the
+//! hand-tuned ablation variants. Plain 4DGS is `NoHooks` (or the `none` variant).
+//!
+//! Semantics of one optimiser step `s` (1-based) after the warm-up (`s > warmup`):
+//! 1. f_θ is evaluated once for every Gaussian on the pre-step model (inputs detached);
+//!    `τ_g = f_min + (f_max − f_min)·sigmoid(f_θ(x_g))`. τ depends on the Gaussian only,
+//!    not on the view, so every view of the batch sees the same τ_g.
+//! 2. Each view of the batch renders visible Gaussians (`G_m` of that view and time) with
+//!    opacity `τ_g·ω(t)·sigmoid(o_g)` (invisible ones with factor 1); dL/dτ_g of all views
+//!    is summed and back-propagated into f_θ's weights once per step.
+//! 3. After the Gaussians' Adam step the stored opacity is multiplied ONCE:
+//!    `o ← o·τ_g` (detached) if g was visible in at least one view of the batch, else
+//!    `o ← o·β`. Then f_θ takes its own Adam step.
+//!
+//! The other variants only multiply the stored opacity after each step (`constant`: c;
+//! `pow`/`exp`: hand-tuned functions of o, see [`variants`]); with visibility on,
+//! invisible Gaussians get β instead. Nothing here runs at evaluation/render time.
+//! Full description: docs/decay.md.
+
+pub mod inputs;
+pub mod mlp;
+pub mod variants;
+pub mod visibility;
+
+use crate::model::Gaussians;
+use crate::numerics::sigmoid;
+use crate::train::{TrainHooks, View};
+use mlp::{Mlp, MlpAdam, MlpCache};
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Which decay runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DecayVariant {
+    /// No decay: plain 4DGS.
+    None,
+    /// Stored opacity × `constant` per step (Binocular3DGS).
+    Constant,
+    /// Stored opacity × `pow_factor(o)` per step.
+    Pow,
+    /// Stored opacity × `exp_factor(o)` per step.
+    Exp,
+    /// The Neural Decaying Function f_θ (4C4D).
+    Neural,
+}
+
+/// The visibility test `Z_V` (`Z_T` is always part of it unless `off`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VisibilityMode {
+    /// No visibility detection: every Gaussian gets the variant's decay (no β).
+    Off,
+    /// `Z_T` and the sliced centre in front of the near plane (like the authors' code).
+    NearPlane,
+    /// `Z_T` and the sliced centre in front of the near plane and inside the image.
+    Frustum,
+}
+
+/// f_θ's inputs, see [`inputs`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DecayInputs {
+    /// `(x, y, z, 2o−1, ql, qr)` as in the paper (12 values).
+    Paper,
+    /// `(2o−1, x, y, z, t, 4 log-scales)` as in the authors' code (9 values).
+    Official,
+}
+
+/// The `[decay]` settings (TOML-friendly; unknown keys are rejected).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DecayConfig {
+    pub variant: DecayVariant,
+    pub visibility: VisibilityMode,
+    /// Near plane of the visibility test (world units of camera depth).
+    pub near: f64,
+    /// Per-step factor of invisible Gaussians (1 reproduces the authors' code).
+    pub beta: f64,
+    /// Range of τ (and of the `pow`/`exp` factors).
+    pub f_min: f64,
+    pub f_max: f64,
+    /// Per-step factor of the `constant` variant.
+    pub constant: f64,
+    /// Exponent γ of the `pow` variant.
+    pub pow_gamma: f64,
+    /// Scale κ of the `exp` variant.
+    pub exp_kappa: f64,
+    pub inputs: DecayInputs,
+    /// Hidden layers of f_θ and their width.
+    pub hidden_layers: usize,
+    pub hidden_width: usize,
+    /// f_θ's Adam learning rate and L2 weight decay.
+    pub lr: f64,
+    pub weight_decay: f64,
+    /// Decay starts after this many optimiser steps.
+    pub warmup: u64,
+    /// Seed of f_θ's initial weights.
+    pub seed: u64,
+}
+
+impl Default for DecayConfig {
+    fn default() -> Self {
+        Self {
+            variant: DecayVariant::Neural,
+            visibility: VisibilityMode::Frustum,
+            near: 0.2,
+            beta: 0.999,
+            f_min: 0.996,
+            f_max: 0.998,
+            constant: 0.995,
+            pow_gamma: 0.5,
+            exp_kappa: 0.1,
+            inputs: DecayInputs::Official,
+            hidden_layers: 2,
+            hidden_width: 32,
+            lr: 1e-5,
+            weight_decay: 1e-4,
+            warmup: 500,
+            seed: 0,
+        }
+    }
+}
+
+/// A `[decay]` setting out of range.
+#[derive(Debug, thiserror::Error)]
+#[error("invalid [decay] setting: {0}")]
+pub struct DecayConfigError(pub String);
+
+impl DecayConfig {
+    /// Plain 4DGS.
+    pub fn none() -> Self {
+        Self {
+            variant: DecayVariant::None,
+            ..Default::default()
+        }
+    }
+
+    /// Checks every setting; the message names the key and its valid range.
+    pub fn validate(&self) -> Result<(), DecayConfigError> {
+        let bad = |s: String| Err(DecayConfigError(s));
+        let unit = |x: f64| x > 0.0 && x <= 1.0;
+        if !unit(self.beta) {
+            return bad(format!("beta = {} must be in (0, 1]", self.beta));
+        }
+        if !(unit(self.f_min) && unit(self.f_max) && self.f_min <= self.f_max) {
+            return bad(format!(
+                "f_min = {}, f_max = {} must satisfy 0 < f_min ≤ f_max ≤ 1",
+                self.f_min, self.f_max
+            ));
+        }
+        if !unit(self.constant) {
+            return bad(format!("constant = {} must be in (0, 1]", self.constant));
+        }
+        if !(self.pow_gamma > 0.0 && self.pow_gamma.is_finite()) {
+            return bad(format!("pow_gamma = {} must be > 0", self.pow_gamma));
+        }
+        if !(self.exp_kappa > 0.0 && self.exp_kappa.is_finite()) {
+            return bad(format!("exp_kappa = {} must be > 0", self.exp_kappa));
+        }
+        if !(self.near >= 0.0 && self.near.is_finite()) {
+            return bad(format!("near = {} must be ≥ 0", self.near));
+        }
+        if self.hidden_width == 0 || self.hidden_width > 4096 || self.hidden_layers > 16 {
+            return bad(format!(
+                "hidden_layers = {} (≤ 16) and hidden_width = {} (1..=4096)",
+                self.hidden_layers, self.hidden_width
+            ));
+        }
+        if !(self.lr >= 0.0 && self.lr.is_finite() && self.weight_decay >= 0.0) {
+            return bad("lr and weight_decay must be finite and ≥ 0".into());
+        }
+        Ok(())
+    }
+
+    /// Layer widths of f_θ: inputs, hidden layers, 1.
+    pub fn mlp_dims(&self) -> Vec<usize> {
+        let mut d = vec![self.inputs.width()];
+        d.extend(std::iter::repeat_n(self.hidden_width, self.hidden_layers));
+        d.push(1);
+        d
+    }
+
+    /// The rows of the paper's ablation (Tab. 2–3) plus the input choice, as
+    /// `(label, config)`: none, constant, pow, exp, neural w/o visibility, neural
+    /// (official inputs), neural (paper inputs). Other settings are the defaults.
+    pub fn variants_for_ablation() -> Vec<(String, DecayConfig)> {
+        let with = |variant, visibility, inputs| DecayConfig {
+            variant,
+            visibility,
+            inputs,
+            ..Default::default()
+        };
+        use DecayInputs::*;
+        use DecayVariant::*;
+        use VisibilityMode::*;
+        vec![
+            ("none".into(), with(None, Frustum, Official)),
+            ("constant".into(), with(Constant, Frustum, Official)),
+            ("pow".into(), with(Pow, Frustum, Official)),
+            ("exp".into(), with(Exp, Frustum, Official)),
+            ("neural w/o vis".into(), with(Neural, Off, Official)),
+            (
+                "neural (official inputs)".into(),
+                with(Neural, Frustum, Official),
+            ),
+            ("neural (paper inputs)".into(), with(Neural, Frustum, Paper)),
+        ]
+    }
+}
+
+/// What the decay did in the last step (for logs and tests).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepStats {
+    /// 1-based optimiser step.
+    pub iteration: u64,
+    /// Gaussians visible in at least one view of the batch, and the rest.
+    pub visible: usize,
+    pub invisible: usize,
+    /// Smallest, mean and largest factor applied to the stored opacities.
+    pub min_factor: f64,
+    pub mean_factor: f64,
+    pub max_factor: f64,
+}
+
+/// Per-step scratch, valid between the first `opacity_factor` of a step and `after_step`.
+struct StepState {
+    /// 0-based iteration index the trainer passes to `opacity_factor`.
+    iteration: u64,
+    len: usize,
+    /// Neural only: f_θ's inputs, forward cache, τ, and summed dL/dτ.
+    inputs: Vec<f32>,
+    cache: MlpCache<f32>,
+    tau: Vec<f32>,
+    d_tau: Vec<f32>,
+    /// Visible in at least one view of the batch so far.
+    seen: Vec<bool>,
+    /// Visibility of the view rendered last (its factor gradient comes next).
+    last_view: Vec<bool>,
+}
+
+/// The 4C4D decay as trainer hooks. Construct with [`DecayHooks::new`], pass
+/// `&mut hooks` to [`crate::train::train`].
+pub struct DecayHooks {
+    config: DecayConfig,
+    mlp: Mlp<f32>,
+    adam: MlpAdam,
+    step: Option<StepState>,
+    last: Option<StepStats>,
+    stop: Option<Arc<AtomicBool>>,
+    state_error: Option<String>,
+    skipped_updates: u64,
+}
+
+const STATE_MAGIC: &[u8; 8] = b"4C4DMLP1";
+
+impl DecayHooks {
+    /// Hooks for `config` (f_θ initialised from `config.seed`).
+    pub fn new(config: &DecayConfig) -> Result<Self, DecayConfigError> {
+        config.validate()?;
+        let mlp = Mlp::new(&config.mlp_dims(), config.seed);
+        let adam = MlpAdam::new(
+            mlp.params.len(),
+            config.lr as f32,
+            config.weight_decay as f32,
+        );
+        Ok(Self {
+            config: config.clone(),
+            mlp,
+            adam,
+            step: None,
+            last: None,
+            stop: None,
+            state_error: None,
+            skipped_updates: 0,
+        })
+    }
+
+    /// Stop the run cleanly (checkpoint, resumable) once `flag` is set, e.g. by Ctrl-C.
+    pub fn with_stop_flag(mut self, flag: Arc<AtomicBool>) -> Self {
+        self.stop = Some(flag);
+        self
+    }
+
+    pub fn config(&self) -> &DecayConfig {
+        &self.config
+    }
+
+    /// f_θ (weights as trained so far).
+    pub fn mlp(&self) -> &Mlp<f32> {
+        &self.mlp
+    }
+
+    /// f_θ's optimiser state.
+    pub fn optimiser(&self) -> &MlpAdam {
+        &self.adam
+    }
+
+    /// What the decay did in the last step, if it ran.
+    pub fn last_stats(&self) -> Option<StepStats> {
+        self.last
+    }
+
+    /// Why a checkpoint's hook state was ignored (f_θ then restarted from its seed).
+    pub fn state_error(&self) -> Option<&str> {
+        self.state_error.as_deref()
+    }
+
+    /// f_θ updates skipped because their gradient was not finite.
+    pub fn skipped_updates(&self) -> u64 {
+        self.skipped_updates
+    }
+
+    /// τ of every Gaussian of `model` under the current f_θ.
+    pub fn tau(&self, model: &Gaussians<f32>) -> Vec<f32> {
+        let x = inputs::input_rows(model, self.config.inputs);
+        let cache = self.mlp.forward(&x);
+        self.tau_of(&cache)
+    }
+
+    fn tau_of(&self, cache: &MlpCache<f32>) -> Vec<f32> {
+        let (lo, hi) = (self.config.f_min as f32, self.config.f_max as f32);
+        // A NaN output (only from a NaN model, which the trainer reports) maps to mid-range.
+        cache
+            .z
+            .iter()
+            .map(|&z| {
+                if z.is_nan() {
+                    0.5 * (lo + hi)
+                } else {
+                    Mlp::tau(z, lo, hi)
+                }
+            })
+            .collect()
+    }
+
+    fn active(&self, iteration: u64) -> bool {
+        self.config.variant != DecayVariant::None && iteration >= self.config.warmup
+    }
+
+    /// The per-step decay factor of Gaussian `i` visible in the batch (`seen`).
+    fn variant_factor(&self, state: &StepState, i: usize, logit: f32) -> f64 {
+        let o = || sigmoid(logit as f64);
+        match self.config.variant {
+            DecayVariant::None => 1.0,
+            DecayVariant::Constant => self.config.constant,
+            DecayVariant::Pow => variants::pow_factor(o(), &self.config),
+            DecayVariant::Exp => variants::exp_factor(o(), &self.config),
+            DecayVariant::Neural => state.tau[i] as f64,
+        }
+    }
+}
+
+impl TrainHooks for DecayHooks {
+    fn opacity_factor(
+        &mut self,
+        iteration: u64,
+        model: &Gaussians<f32>,
+        view: &View,
+    ) -> Option<Vec<f32>> {
+        if !self.active(iteration) {
+            return None;
+        }
+        let fresh = match &self.step {
+            Some(s) => s.iteration != iteration || s.len != model.len(),
+            None => true,
+        };
+        if fresh {
+            let neural = self.config.variant == DecayVariant::Neural;
+            let (inputs, cache) = if neural {
+                let x = inputs::input_rows(model, self.config.inputs);
+                let cache = self.mlp.forward(&x);
+                (x, cache)
+            } else {
+                (Vec::new(), MlpCache::default())
+            };
+            let tau = self.tau_of(&cache);
+            self.step = Some(StepState {
+                iteration,
+                len: model.len(),
+                inputs,
+                cache,
+                d_tau: vec![0.0; tau.len()],
+                tau,
+                seen: vec![false; model.len()],
+                last_view: Vec::new(),
+            });
+        }
+        let vis = visibility::visible(
+            model,
+            &view.camera,
+            view.time,
+            self.config.visibility,
+            self.config.near as f32,
+        );
+        let state = self.step.as_mut().expect("step state was just set");
+        state.seen.iter_mut().zip(&vis).for_each(|(s, &v)| *s |= v);
+        let factor = (self.config.variant == DecayVariant::Neural).then(|| {
+            vis.iter()
+                .zip(&state.tau)
+                .map(|(&v, &t)| if v { t } else { 1.0 })
+                .collect()
+        });
+        state.last_view = vis;
+        factor
+    }
+
+    fn factor_gradient(&mut self, iteration: u64, model: &Gaussians<f32>, gradient: &[f32]) {
+        let Some(state) = self.step.as_mut() else {
+            return;
+        };
+        if state.iteration != iteration || state.len != model.len() {
+            return;
+        }
+        for ((d, &g), &v) in state.d_tau.iter_mut().zip(gradient).zip(&state.last_view) {
+            if v {
+                *d += g;
+            }
+        }
+    }
+
+    fn after_step(&mut self, iteration: u64, model: &mut Gaussians<f32>) {
+        let Some(state) = self.step.take() else {
+            return;
+        };
+        // Only the step whose views were just rendered (`iteration` is 1-based).
+        if state.iteration + 1 != iteration || state.len != model.len() {
+            return;
+        }
+        let (mut lo, mut hi, mut sum, mut visible) = (f64::INFINITY, 0.0f64, 0.0, 0);
+        for i in 0..model.len() {
+            let logit = model.opacity_logits[i];
+            let d = if state.seen[i] {
+                visible += 1;
+                self.variant_factor(&state, i, logit)
+            } else {
+                self.config.beta
+            };
+            lo = lo.min(d);
+            hi = hi.max(d);
+            sum += d;
+            model.opacity_logits[i] = variants::decayed_logit(logit, d);
+        }
+        self.last = Some(StepStats {
+            iteration,
+            visible,
+            invisible: model.len() - visible,
+            min_factor: lo,
+            mean_factor: sum / model.len().max(1) as f64,
+            max_factor: hi,
+        });
+        if self.config.variant == DecayVariant::Neural {
+            let (f_min, f_max) = (self.config.f_min as f32, self.config.f_max as f32);
+            let d_z: Vec<f32> = state
+                .d_tau
+                .iter()
+                .zip(&state.cache.z)
+                .map(|(&d, &z)| d * Mlp::tau_derivative(z, f_min, f_max))
+                .collect();
+            let grad = self.mlp.backward(&state.inputs, &state.cache, &d_z, false);
+            // A non-finite gradient (a diverging render) must not poison f_θ: skip it;
+            // the trainer's NaN guard reports the model.
+            if grad.params.iter().all(|g| g.is_finite()) {
+                self.adam.step(&mut self.mlp.params, &grad.params);
+            } else {
+                self.skipped_updates += 1;
+            }
+        }
+    }
+
+    fn save_state(&self) -> Vec<u8> {
+        if self.config.variant != DecayVariant::Neural {
+            return Vec::new();
+        }
+        let mut b = STATE_MAGIC.to_vec();
+        b.extend((self.mlp.dims.len() as u32).to_le_bytes());
+        for &d in &self.mlp.dims {
+            b.extend((d as u32).to_le_bytes());
+        }
+        b.extend(self.adam.step.to_le_bytes());
+        for v in [&self.mlp.params, &self.adam.m, &self.adam.v] {
+            for x in v.iter() {
+                b.extend(x.to_le_bytes());
+            }
+        }
+        b
+    }
+
+    fn load_state(&mut self, state: &[u8]) {
+        if state.is_empty() || self.config.variant != DecayVariant::Neural {
+            return;
+        }
+        match decode_state(state, &self.mlp.dims) {
+            Ok((step, params, m, v)) => {
+                self.mlp.params = params;
+                self.adam.step = step;
+                self.adam.m = m;
+                self.adam.v = v;
+                self.state_error = None;
+            }
+            Err(e) => self.state_error = Some(e),
+        }
+    }
+
+    fn stop_requested(&mut self, _iteration: u64) -> bool {
+        self.stop
+            .as_ref()
+            .is_some_and(|f| f.load(Ordering::Relaxed))
+    }
+}
+
+type Decoded = (u64, Vec<f32>, Vec<f32>, Vec<f32>);
+
+fn decode_state(b: &[u8], dims: &[usize]) -> Result<Decoded, String> {
+    let mut pos = 0;
+    let mut take = |n: usize| -> Result<&[u8], String> {
+        let s = b
+            .get(pos..pos + n)
+            .ok_or("the checkpoint's decay state is truncated")?;
+        pos += n;
+        Ok(s)
+    };
+    if take(8)? != STATE_MAGIC {
+        return Err("the checkpoint's hook state is not a 4C4D decay state".into());
+    }
+    let u32_at = |s: &[u8]| u32::from_le_bytes(s.try_into().expect("4 bytes")) as usize;
+    let n = u32_at(take(4)?);
+    let mut got = Vec::with_capacity(n.min(64));
+    for _ in 0..n {
+        got.push(u32_at(take(4)?));
+    }
+    if got != dims {
+        return Err(format!(
+            "the checkpoint's f_θ has layers {got:?}, the config asks for {dims:?}; restore [decay] inputs/hidden_* or start afresh"
+        ));
+    }
+    let step = u64::from_le_bytes(take(8)?.try_into().expect("8 bytes"));
+    let np = Mlp::<f32>::param_count(dims);
+    let mut vecs = Vec::new();
+    for _ in 0..3 {
+        let s = take(4 * np)?;
+        vecs.push(
+            s.chunks_exact(4)
+                .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
+                .collect::<Vec<f32>>(),
+        );
+    }
+    let v = vecs.pop().expect("3");
+    let m = vecs.pop().expect("2");
+    let p = vecs.pop().expect("1");
+    Ok((step, p, m, v))
+}
