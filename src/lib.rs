@@ -40,3 +40,8 @@ pub mod optim;
 pub mod ply;
 pub mod ssim;
 pub mod train;
+
+pub mod eval;
+pub mod lpips;
+pub mod metrics;
+pub mod paths;

@@ -9,3 +9,4 @@ pub mod record;
 pub mod sim;
 pub mod source;
 pub mod sync;
+pub mod video;

@@ -1,55 +1,29 @@
-//! Writing one MP4 file with FFmpeg: H.264 video (libx264, yuv420p, no B-frames so that
-//! pts = dts) with exact per-frame pts in units of 1/fps, and optionally AAC audio
-//! (FFmpeg's native encoder, mono, fltp). The file is written under a temporary name and
-//! renamed by [`Mp4Writer::finish`].
+//! The simulator's view of [`crate::video`]: the same MP4 writer (libx264 + optional AAC),
+//! with errors reported as [`SimError`] and the call shape the camera loop uses.
 
 use std::path::{Path, PathBuf};
 
-use ffmpeg_next as ffmpeg;
-use ffmpeg::{ChannelLayout, Dictionary, Packet, Rational, codec, encoder, format, frame, software};
-
 use super::error::SimError;
+use crate::video::{self, VideoError, VideoOptions};
 
-/// Frame rate as an exact rational (integer rates, or NTSC `N·1000/1001`).
-pub fn fps_rational(fps: f64) -> Rational {
-    if (fps - fps.round()).abs() < 1e-9 {
-        Rational::new(fps.round() as i32, 1)
-    } else {
-        Rational::new((fps * 1001.0).round() as i32, 1001)
+pub use crate::video::{fps_rational, init};
+
+impl From<VideoError> for SimError {
+    fn from(e: VideoError) -> Self {
+        match e {
+            VideoError::Encode { path, what, source } => SimError::Encode { path, what, source },
+            VideoError::MissingCodec { path, what } => SimError::MissingCodec { path, what },
+            VideoError::Write { path, source } => SimError::Write { path, source },
+            VideoError::Invalid { path, message } => SimError::Invalid {
+                origin: path.display().to_string(),
+                message,
+            },
+        }
     }
 }
 
-/// Initialise FFmpeg once (quiet logging).
-pub fn init() {
-    static ONCE: std::sync::Once = std::sync::Once::new();
-    ONCE.call_once(|| {
-        let _ = ffmpeg::init();
-        ffmpeg::log::set_level(ffmpeg::log::Level::Error);
-    });
-}
-
-struct AudioOut {
-    encoder: encoder::Audio,
-    stream: usize,
-    time_base: Rational,
-    frame_size: usize,
-    /// Samples sent so far (= pts of the next audio frame).
-    sent: usize,
-}
-
-/// An MP4 being written.
-pub struct Mp4Writer {
-    path: PathBuf,
-    tmp: PathBuf,
-    octx: format::context::Output,
-    video: encoder::Video,
-    video_stream: usize,
-    video_tb: Rational,
-    scaler: software::scaling::Context,
-    rgb: frame::Video,
-    yuv: frame::Video,
-    audio: Option<AudioOut>,
-}
+/// An MP4 being written by a simulated camera.
+pub struct Mp4Writer(video::Mp4Writer);
 
 impl Mp4Writer {
     /// Open `path` for `width × height` video at `fps`, with mono audio at `audio_rate` Hz
@@ -63,178 +37,34 @@ impl Mp4Writer {
         preset: &str,
         audio_rate: Option<u32>,
     ) -> Result<Self, SimError> {
-        init();
-        let err = |what: &str| {
-            let path = path.to_path_buf();
-            let what = what.to_string();
-            move |source| SimError::Encode { path, what, source }
+        let options = VideoOptions {
+            fps,
+            crf,
+            preset: preset.to_string(),
+            audio_rate,
         };
-        let tmp = path.with_extension("MP4.tmp");
-        let mut octx = format::output_as(&tmp, "mp4").map_err(err("opening the MP4 muxer"))?;
-        let global = octx.format().flags().contains(format::Flags::GLOBAL_HEADER);
-
-        let h264 = encoder::find_by_name("libx264")
-            .ok_or_else(|| SimError::MissingCodec { path: path.to_path_buf(), what: "the libx264 encoder".into() })?;
-        let rate = fps_rational(fps);
-        let video_tb = rate.invert();
-        let mut enc = codec::context::Context::new_with_codec(h264).encoder().video().map_err(err("video encoder"))?;
-        enc.set_width(width);
-        enc.set_height(height);
-        enc.set_format(format::Pixel::YUV420P);
-        enc.set_time_base(video_tb);
-        enc.set_frame_rate(Some(rate));
-        enc.set_max_b_frames(0);
-        if global {
-            enc.set_flags(codec::Flags::GLOBAL_HEADER);
-        }
-        let mut opts = Dictionary::new();
-        opts.set("preset", preset);
-        opts.set("crf", &crf.to_string());
-        // One thread per file: identical bytes on every machine (cameras run in parallel).
-        opts.set("threads", "1");
-        let video = enc.open_with(opts).map_err(err("opening libx264"))?;
-        let video_stream = {
-            let mut st = octx.add_stream(h264).map_err(err("adding the video stream"))?;
-            st.set_parameters(&video);
-            st.set_time_base(video_tb);
-            st.set_avg_frame_rate(rate);
-            st.index()
-        };
-
-        let audio = match audio_rate {
-            None => None,
-            Some(sr) => {
-                let aac = encoder::find(codec::Id::AAC)
-                    .ok_or_else(|| SimError::MissingCodec { path: path.to_path_buf(), what: "an AAC encoder".into() })?;
-                let mut enc =
-                    codec::context::Context::new_with_codec(aac).encoder().audio().map_err(err("audio encoder"))?;
-                enc.set_rate(sr as i32);
-                enc.set_channel_layout(ChannelLayout::MONO);
-                enc.set_format(format::Sample::F32(format::sample::Type::Planar));
-                enc.set_bit_rate(128_000);
-                enc.set_time_base(Rational::new(1, sr as i32));
-                if global {
-                    enc.set_flags(codec::Flags::GLOBAL_HEADER);
-                }
-                let enc = enc.open_as(aac).map_err(err("opening the AAC encoder"))?;
-                let mut st = octx.add_stream(aac).map_err(err("adding the audio stream"))?;
-                st.set_parameters(&enc);
-                st.set_time_base(Rational::new(1, sr as i32));
-                let frame_size = (enc.frame_size() as usize).max(1);
-                Some(AudioOut { encoder: enc, stream: st.index(), time_base: Rational::new(1, sr as i32), frame_size, sent: 0 })
-            }
-        };
-
-        octx.write_header().map_err(err("writing the MP4 header"))?;
-        let scaler = software::scaling::Context::get(
-            format::Pixel::RGB24,
-            width,
-            height,
-            format::Pixel::YUV420P,
-            width,
-            height,
-            software::scaling::Flags::BILINEAR | software::scaling::Flags::ACCURATE_RND | software::scaling::Flags::BITEXACT,
-        )
-        .map_err(err("creating the RGB→YUV converter"))?;
-        Ok(Mp4Writer {
-            path: path.to_path_buf(),
-            tmp,
-            octx,
-            video,
-            video_stream,
-            video_tb,
-            scaler,
-            rgb: frame::Video::new(format::Pixel::RGB24, width, height),
-            yuv: frame::Video::new(format::Pixel::YUV420P, width, height),
-            audio,
-        })
-    }
-
-    fn err(&self, what: &str) -> impl FnOnce(ffmpeg::Error) -> SimError + use<> {
-        let path = self.path.clone();
-        let what = what.to_string();
-        move |source| SimError::Encode { path, what, source }
+        Ok(Self(video::Mp4Writer::create(
+            path, width, height, &options,
+        )?))
     }
 
     /// Add video frame number `index` (its pts is `index / fps`); `rgb` is tightly packed.
     pub fn push_video(&mut self, index: i64, rgb: &[u8]) -> Result<(), SimError> {
-        let w = self.rgb.width() as usize * 3;
-        let stride = self.rgb.stride(0);
-        let data = self.rgb.data_mut(0);
-        for (row, src) in rgb.chunks_exact(w).enumerate() {
-            data[row * stride..row * stride + w].copy_from_slice(src);
-        }
-        self.scaler.run(&self.rgb, &mut self.yuv).map_err(self.err("converting RGB to YUV"))?;
-        self.yuv.set_pts(Some(index));
-        self.video.send_frame(&self.yuv).map_err(self.err("encoding a video frame"))?;
-        self.drain_video()
+        Ok(self.0.push_video(index, rgb)?)
     }
 
-    fn drain_video(&mut self) -> Result<(), SimError> {
-        let mut pkt = Packet::empty();
-        let stream_tb = self.octx.stream(self.video_stream).map(|s| s.time_base()).unwrap_or(self.video_tb);
-        while self.video.receive_packet(&mut pkt).is_ok() {
-            pkt.set_stream(self.video_stream);
-            pkt.rescale_ts(self.video_tb, stream_tb);
-            pkt.write_interleaved(&mut self.octx).map_err(self.err("writing a video packet"))?;
-        }
-        Ok(())
-    }
-
-    /// Add audio samples (mono, [-1, 1]) following those already added. Only whole encoder
-    /// frames are sent; the rest waits for more samples or for [`Mp4Writer::finish`].
+    /// Add audio samples (mono, [-1, 1]) following those already added. The writer keeps
+    /// partial encoder frames itself, so `pending` is only drained into it.
     pub fn push_audio(&mut self, samples: &[f32], pending: &mut Vec<f32>) -> Result<(), SimError> {
         pending.extend_from_slice(samples);
-        let Some(fs) = self.audio.as_ref().map(|a| a.frame_size) else { return Ok(()) };
-        let whole = pending.len() / fs * fs;
-        let chunk: Vec<f32> = pending.drain(..whole).collect();
-        for c in chunk.chunks(fs) {
-            self.send_audio(c)?;
-        }
+        self.0.push_audio(pending)?;
+        pending.clear();
         Ok(())
     }
 
-    fn send_audio(&mut self, chunk: &[f32]) -> Result<(), SimError> {
-        let err_send = self.err("encoding audio");
-        let err_write = self.err("writing an audio packet");
-        let Some(a) = self.audio.as_mut() else { return Ok(()) };
-        let mut f = frame::Audio::new(format::Sample::F32(format::sample::Type::Planar), chunk.len(), ChannelLayout::MONO);
-        f.set_rate(a.encoder.rate());
-        f.plane_mut::<f32>(0)[..chunk.len()].copy_from_slice(chunk);
-        f.set_pts(Some(a.sent as i64));
-        a.sent += chunk.len();
-        a.encoder.send_frame(&f).map_err(err_send)?;
-        drain_audio(a, &mut self.octx).map_err(err_write)
-    }
-
-    /// Flush both encoders (the last audio frame may be short), write the trailer and
-    /// move the file to its final name.
+    /// Flush, write the trailer and move the file to its final name.
     pub fn finish(mut self, pending_audio: Vec<f32>) -> Result<PathBuf, SimError> {
-        if !pending_audio.is_empty() {
-            self.send_audio(&pending_audio)?;
-        }
-        self.video.send_eof().map_err(self.err("flushing the video encoder"))?;
-        self.drain_video()?;
-        let err_flush = self.err("flushing the audio encoder");
-        let err_write = self.err("writing an audio packet");
-        if let Some(a) = self.audio.as_mut() {
-            a.encoder.send_eof().map_err(err_flush)?;
-            drain_audio(a, &mut self.octx).map_err(err_write)?;
-        }
-        self.octx.write_trailer().map_err(self.err("writing the MP4 trailer"))?;
-        drop(self.octx);
-        std::fs::rename(&self.tmp, &self.path).map_err(|e| SimError::write(&self.path, e))?;
-        Ok(self.path)
+        self.0.push_audio(&pending_audio)?;
+        Ok(self.0.finish()?)
     }
-}
-
-fn drain_audio(a: &mut AudioOut, octx: &mut format::context::Output) -> Result<(), ffmpeg::Error> {
-    let mut pkt = Packet::empty();
-    let stream_tb = octx.stream(a.stream).map(|s| s.time_base()).unwrap_or(a.time_base);
-    while a.encoder.receive_packet(&mut pkt).is_ok() {
-        pkt.set_stream(a.stream);
-        pkt.rescale_ts(a.time_base, stream_tb);
-        pkt.write_interleaved(octx)?;
-    }
-    Ok(())
 }

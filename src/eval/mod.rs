@@ -1,0 +1,357 @@
+//! Rendering and evaluating a trained model: render camera paths to frames
+//! ([`render_path`]) and measure renders against ground-truth images ([`evaluate`]):
+//! PSNR, SSIM, DSSIM₁, DSSIM₂ and (with user-supplied weights) LPIPS per frame and mean,
+//! held-out and training views reported separately, written as `metrics.json`,
+//! `per_frame.csv` and side-by-side PNG grids. Every file is written under a temporary
+//! name and renamed. The metric maths is in `metrics`/`lpips`, the paths in `paths`.
+
+mod frames;
+pub mod images;
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+pub use frames::{FrameOutputs, FrameSink, RenderedPath, render_path};
+
+use crate::camera::Camera;
+use crate::lpips::{Lpips, LpipsError};
+use crate::metrics::{MetricsError, image_metrics};
+use crate::model::Gaussians;
+use crate::progress::Progress;
+use crate::render::{RenderError, RenderOptions, render_with};
+use images::{error_heat_map, rgb8_from, side_by_side, write_atomic, write_png};
+
+/// Grids written per set (first, middle and last frame).
+pub const GRIDS_PER_SET: usize = 3;
+
+/// What `metrics.json` says about LPIPS when no model was given.
+pub const LPIPS_SKIPPED: &str = "skipped: no weights";
+
+/// Why rendering or evaluation stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error(
+        "cannot read ground-truth image {path}: {source}; check that the held-out frames were extracted"
+    )]
+    ReadImage {
+        path: PathBuf,
+        source: image::ImageError,
+    },
+    #[error("cannot render {view}: {source}")]
+    Render { view: String, source: RenderError },
+    #[error("cannot compare {view}: {source}")]
+    Metrics { view: String, source: MetricsError },
+    #[error(transparent)]
+    Lpips(#[from] LpipsError),
+    #[error("cannot write {path}: {source}")]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("cannot encode image {path}: {source}")]
+    EncodeImage {
+        path: PathBuf,
+        source: image::ImageError,
+    },
+    #[error("the frame consumer stopped at frame {frame}: {message}")]
+    Sink { frame: usize, message: String },
+    #[error("nothing to evaluate: no held-out and no training views were given")]
+    NoViews,
+}
+
+/// One ground-truth image to compare against.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EvalView {
+    /// The (undistorted, pinhole) camera; rescaled to the image's size when they differ.
+    pub camera: Camera,
+    /// Model time `t` of the image (`model.time.model_time(seconds)`).
+    pub time: f64,
+    /// The ground-truth image (PNG or JPEG, 8-bit RGB).
+    pub image_path: PathBuf,
+}
+
+/// Metrics of one view.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameMetrics {
+    pub camera: String,
+    pub time: f64,
+    pub image_path: PathBuf,
+    /// dB; `+∞` for a pixel-exact render.
+    pub psnr: f64,
+    pub ssim: f64,
+    pub dssim1: f64,
+    pub dssim2: f64,
+    /// `None` when LPIPS was skipped (no weights).
+    pub lpips: Option<f64>,
+}
+
+/// Means over the views of one set (`None` for an empty set). PSNR is the mean of the
+/// per-frame PSNRs (the 3DGS convention), `+∞` only if every frame is exact.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SetMetrics {
+    pub frames: Vec<FrameMetrics>,
+    pub psnr: Option<f64>,
+    pub ssim: Option<f64>,
+    pub dssim1: Option<f64>,
+    pub dssim2: Option<f64>,
+    pub lpips: Option<f64>,
+}
+
+/// Result of [`evaluate`]; the same numbers are in `metrics.json` and `per_frame.csv`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct EvalReport {
+    pub heldout: SetMetrics,
+    pub train: SetMetrics,
+    /// `"computed"` or [`LPIPS_SKIPPED`].
+    pub lpips_status: String,
+    /// Files written: `metrics.json`, `per_frame.csv`, the grids.
+    pub files: Vec<PathBuf>,
+}
+
+/// Metric definitions written into `metrics.json`.
+fn definitions() -> serde_json::Value {
+    serde_json::json!({
+        "psnr": "Peak signal-to-noise ratio in dB, 10·log10(1/MSE) on RGB in [0,1] (render clamped to [0,1]); mean = mean of per-frame PSNRs; null = infinite (pixel-exact render)",
+        "ssim": "Structural similarity, 11×11 Gaussian window σ=1.5, data range 1, zero-padded same-size filtering, mean over pixels and RGB channels (3DGS convention)",
+        "dssim1": "(1 − SSIM)/2 with SSIM at data range 1.0 (C1=(0.01·1)², C2=(0.03·1)²)",
+        "dssim2": "(1 − SSIM)/2 with SSIM at data range 2.0 (C1=(0.01·2)², C2=(0.03·2)²; the older scikit-image default for float images); smaller than dssim1 for the same images",
+        "lpips": "Learned perceptual distance from a user-supplied ONNX model (images scaled to [-1,1]); lower is better; 'skipped: no weights' when no model was given",
+        "heldout": "views not used for training (novel-view quality)",
+        "train": "training views (reported separately so overfitting is visible)",
+    })
+}
+
+fn finite(v: Option<f64>) -> serde_json::Value {
+    match v {
+        Some(x) if x.is_finite() => serde_json::json!(x),
+        _ => serde_json::Value::Null,
+    }
+}
+
+fn load_truth(path: &Path) -> Result<(Vec<f32>, u32, u32), EvalError> {
+    let img = image::open(path)
+        .map_err(|source| EvalError::ReadImage {
+            path: path.to_path_buf(),
+            source,
+        })?
+        .to_rgb8();
+    let (w, h) = img.dimensions();
+    Ok((
+        img.into_raw().iter().map(|&v| v as f32 / 255.0).collect(),
+        w,
+        h,
+    ))
+}
+
+fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
+    let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+    (n > 0).then(|| sum / n as f64)
+}
+
+/// Frames of a set that get a grid image: first, middle and last.
+fn grid_indices(n: usize) -> Vec<usize> {
+    let mut idx: Vec<usize> = match n {
+        0 => vec![],
+        _ => (0..GRIDS_PER_SET.min(n))
+            .map(|k| {
+                if GRIDS_PER_SET.min(n) == 1 {
+                    0
+                } else {
+                    k * (n - 1) / (GRIDS_PER_SET.min(n) - 1)
+                }
+            })
+            .collect(),
+    };
+    idx.dedup();
+    idx
+}
+
+struct SetRun<'a> {
+    name: &'static str,
+    views: &'a [EvalView],
+}
+
+/// Render every view of `heldout` and `train`, compare with its ground-truth image, and
+/// write into `out_dir`: `metrics.json` (definitions, LPIPS status, per-set means),
+/// `per_frame.csv` (one row per view) and `grid_<set>_<frame>.png` (ground truth |
+/// render | error heat map) for a few frames of each set. LPIPS is computed only when
+/// `lpips` is given; otherwise it is reported as [`LPIPS_SKIPPED`].
+pub fn evaluate(
+    model: &Gaussians<f32>,
+    heldout: &[EvalView],
+    train: &[EvalView],
+    out_dir: &Path,
+    lpips: Option<&Lpips>,
+    progress: &dyn Progress,
+) -> Result<EvalReport, EvalError> {
+    if heldout.is_empty() && train.is_empty() {
+        return Err(EvalError::NoViews);
+    }
+    std::fs::create_dir_all(out_dir).map_err(|source| EvalError::Write {
+        path: out_dir.to_path_buf(),
+        source,
+    })?;
+    progress.start((heldout.len() + train.len()) as u64, "views");
+    let mut report = EvalReport {
+        lpips_status: if lpips.is_some() {
+            "computed".into()
+        } else {
+            LPIPS_SKIPPED.into()
+        },
+        ..Default::default()
+    };
+    let sets = [
+        SetRun {
+            name: "heldout",
+            views: heldout,
+        },
+        SetRun {
+            name: "train",
+            views: train,
+        },
+    ];
+    let mut grids = Vec::new();
+    for set in &sets {
+        let wanted_grids = grid_indices(set.views.len());
+        let mut frames = Vec::with_capacity(set.views.len());
+        for (i, view) in set.views.iter().enumerate() {
+            let label = || format!("{} view {i} ({})", set.name, view.camera.name);
+            let (truth, w, h) = load_truth(&view.image_path)?;
+            let mut camera = view.camera.clone();
+            if (camera.intrinsics.width, camera.intrinsics.height) != (w, h) {
+                camera.intrinsics = camera.intrinsics.scaled_to(w, h);
+            }
+            let r = render_with(model, &camera, view.time as f32, &RenderOptions::default())
+                .map_err(|source| EvalError::Render {
+                    view: label(),
+                    source,
+                })?;
+            let rendered: Vec<f32> = r.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect();
+            let m = image_metrics(&rendered, &truth, w as usize, h as usize).map_err(|source| {
+                EvalError::Metrics {
+                    view: label(),
+                    source,
+                }
+            })?;
+            let lp = match lpips {
+                Some(net) => Some(net.distance(&rendered, &truth, w as usize, h as usize)?),
+                None => None,
+            };
+            if wanted_grids.contains(&i) {
+                let grid = side_by_side(&[
+                    &rgb8_from(&truth, w, h),
+                    &rgb8_from(&rendered, w, h),
+                    &error_heat_map(&rendered, &truth, w, h),
+                ]);
+                let path = out_dir.join(format!("grid_{}_{i:04}.png", set.name));
+                write_png(&path, &grid)?;
+                grids.push(path);
+            }
+            progress.message(&format!("{} PSNR {:.2} dB", label(), m.psnr));
+            progress.advance(1);
+            frames.push(FrameMetrics {
+                camera: view.camera.name.clone(),
+                time: view.time,
+                image_path: view.image_path.clone(),
+                psnr: m.psnr,
+                ssim: m.ssim,
+                dssim1: m.dssim1,
+                dssim2: m.dssim2,
+                lpips: lp,
+            });
+        }
+        let summary = SetMetrics {
+            psnr: mean(frames.iter().map(|f| f.psnr)),
+            ssim: mean(frames.iter().map(|f| f.ssim)),
+            dssim1: mean(frames.iter().map(|f| f.dssim1)),
+            dssim2: mean(frames.iter().map(|f| f.dssim2)),
+            lpips: if lpips.is_some() {
+                mean(frames.iter().filter_map(|f| f.lpips))
+            } else {
+                None
+            },
+            frames,
+        };
+        if set.name == "heldout" {
+            report.heldout = summary;
+        } else {
+            report.train = summary;
+        }
+    }
+
+    // per_frame.csv
+    let mut csv = String::from("set,camera,time,image,psnr,ssim,dssim1,dssim2,lpips\n");
+    for (name, set) in [("heldout", &report.heldout), ("train", &report.train)] {
+        for f in &set.frames {
+            let lp = f
+                .lpips
+                .map(|v| format!("{v:.6}"))
+                .unwrap_or_else(|| "skipped".into());
+            let _ = writeln!(
+                csv,
+                "{name},{},{:.6},{},{:.4},{:.6},{:.6},{:.6},{lp}",
+                csv_field(&f.camera),
+                f.time,
+                csv_field(&f.image_path.display().to_string()),
+                f.psnr,
+                f.ssim,
+                f.dssim1,
+                f.dssim2,
+            );
+        }
+    }
+    let csv_path = out_dir.join("per_frame.csv");
+    write_atomic(&csv_path, csv.as_bytes())?;
+
+    // metrics.json
+    let set_json = |s: &SetMetrics| {
+        serde_json::json!({
+            "frames": s.frames.len(),
+            "mean": {
+                "psnr": finite(s.psnr),
+                "ssim": finite(s.ssim),
+                "dssim1": finite(s.dssim1),
+                "dssim2": finite(s.dssim2),
+                "lpips": match (lpips.is_some(), s.lpips) {
+                    (true, v) => finite(v),
+                    (false, _) => serde_json::json!(LPIPS_SKIPPED),
+                },
+            },
+        })
+    };
+    let file_name = |p: &PathBuf| {
+        p.file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    let json = serde_json::json!({
+        "version": 1,
+        "definitions": definitions(),
+        "lpips": {
+            "status": report.lpips_status,
+            "model": lpips.map(|l| l.path().display().to_string()),
+        },
+        "heldout": set_json(&report.heldout),
+        "train": set_json(&report.train),
+        "per_frame": "per_frame.csv",
+        "grids": grids.iter().map(file_name).collect::<Vec<_>>(),
+        "grid_layout": format!("ground truth | render | mean absolute error (inferno, 0 to {})", images::ERROR_SCALE),
+    });
+    let json_path = out_dir.join("metrics.json");
+    let text = serde_json::to_string_pretty(&json).unwrap_or_default();
+    write_atomic(&json_path, text.as_bytes())?;
+    progress.finish();
+
+    report.files = vec![json_path, csv_path];
+    report.files.extend(grids);
+    Ok(report)
+}
+
+/// Quote a CSV field when it holds a comma, quote or newline.
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}

@@ -1,0 +1,258 @@
+//! `evaluate` end to end on a small scene: metrics per frame and mean for held-out and
+//! training views separately, `metrics.json` with definitions, `per_frame.csv`, grids,
+//! LPIPS skipped without weights and computed with an ONNX model.
+
+mod eval_support;
+
+use eval_support::*;
+use glam::DVec3;
+use splat4d::NoProgress;
+use splat4d::eval::{EvalError, EvalView, LPIPS_SKIPPED, evaluate};
+use splat4d::lpips::Lpips;
+use splat4d::metrics::image_metrics;
+
+fn lpips_fixture() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures/onnx/lpips_tiny/mean_abs_diff.onnx")
+}
+
+struct Setup {
+    dir: tempfile::TempDir,
+    heldout: Vec<EvalView>,
+    train: Vec<EvalView>,
+}
+
+/// Held-out view 0: ground truth = the model's own render (8-bit). Held-out view 1: its
+/// ground truth shows another moment, so the render at the stated time differs.
+/// Training views: exact renders.
+fn setup() -> Setup {
+    let dir = tempfile::tempdir().unwrap();
+    let model = scene();
+    let cams = rig(64, 48);
+    let view = |cam: &splat4d::Camera, t: f64, truth_t: f64, name: &str| {
+        let path = dir.path().join(name);
+        save_render(&model, cam, truth_t, &path);
+        EvalView {
+            camera: cam.clone(),
+            time: t,
+            image_path: path,
+        }
+    };
+    let heldout = vec![
+        view(&cams[1], 0.5, 0.5, "h0.png"),
+        view(&cams[3], 0.0, 1.0, "h1.png"),
+    ];
+    let train = vec![
+        view(&cams[0], 0.25, 0.25, "t0.png"),
+        view(&cams[2], 0.75, 0.75, "t1.png"),
+    ];
+    Setup {
+        dir,
+        heldout,
+        train,
+    }
+}
+
+#[test]
+fn report_files_hold_per_frame_and_mean_metrics_with_definitions() {
+    let s = setup();
+    let out = s.dir.path().join("eval");
+    let model = scene();
+    let report = evaluate(&model, &s.heldout, &s.train, &out, None, &NoProgress).unwrap();
+
+    assert_eq!(report.heldout.frames.len(), 2);
+    assert_eq!(report.train.frames.len(), 2);
+    let (exact, moved) = (&report.heldout.frames[0], &report.heldout.frames[1]);
+    assert!(exact.psnr > 40.0, "8-bit rounding only: {}", exact.psnr);
+    assert!(
+        moved.psnr < exact.psnr - 5.0,
+        "another moment: {}",
+        moved.psnr
+    );
+    assert!(moved.dssim1 > moved.dssim2 && moved.dssim2 > 0.0);
+    assert!(report.heldout.frames.iter().all(|f| f.lpips.is_none()));
+    // Each number is the metric of the render against the file, recomputed here.
+    let r = splat4d::render(&model, &s.heldout[1].camera, 0.0).unwrap();
+    let rendered: Vec<f32> = r.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect();
+    let truth: Vec<f32> = image::open(&s.heldout[1].image_path)
+        .unwrap()
+        .to_rgb8()
+        .into_raw()
+        .iter()
+        .map(|&v| v as f32 / 255.0)
+        .collect();
+    let m = image_metrics(&rendered, &truth, 64, 48).unwrap();
+    assert_eq!(
+        (moved.psnr, moved.ssim, moved.dssim1, moved.dssim2),
+        (m.psnr, m.ssim, m.dssim1, m.dssim2)
+    );
+    let mean_psnr = (exact.psnr + moved.psnr) / 2.0;
+    assert!((report.heldout.psnr.unwrap() - mean_psnr).abs() < 1e-12);
+    assert_eq!(report.lpips_status, LPIPS_SKIPPED);
+
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
+    for key in ["psnr", "ssim", "dssim1", "dssim2", "lpips"] {
+        assert!(
+            json["definitions"][key]
+                .as_str()
+                .is_some_and(|d| d.len() > 20),
+            "definition of {key}"
+        );
+    }
+    assert_eq!(json["lpips"]["status"], LPIPS_SKIPPED);
+    assert_eq!(
+        json["heldout"]["mean"]["lpips"], LPIPS_SKIPPED,
+        "never a number without weights"
+    );
+    assert_eq!(json["heldout"]["frames"], 2);
+    assert!((json["heldout"]["mean"]["psnr"].as_f64().unwrap() - mean_psnr).abs() < 1e-9);
+    assert!(
+        (json["train"]["mean"]["ssim"].as_f64().unwrap() - report.train.ssim.unwrap()).abs()
+            < 1e-12
+    );
+
+    let csv = std::fs::read_to_string(out.join("per_frame.csv")).unwrap();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(
+        lines[0],
+        "set,camera,time,image,psnr,ssim,dssim1,dssim2,lpips"
+    );
+    assert_eq!(lines.len(), 5);
+    assert!(
+        lines[2].starts_with("heldout,cam3,0.000000,") && lines[2].ends_with(",skipped"),
+        "{}",
+        lines[2]
+    );
+    assert!(lines[3].starts_with("train,cam0,"));
+
+    // Grids: ground truth | render | error for first and last frame of each set.
+    let grids: Vec<&str> = json["grids"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|g| g.as_str().unwrap())
+        .collect();
+    assert_eq!(
+        grids,
+        [
+            "grid_heldout_0000.png",
+            "grid_heldout_0001.png",
+            "grid_train_0000.png",
+            "grid_train_0001.png"
+        ]
+    );
+    let grid = image::open(out.join("grid_heldout_0001.png"))
+        .unwrap()
+        .to_rgb8();
+    assert_eq!(grid.dimensions(), (3 * 64, 48));
+    // Left third is the ground truth as stored.
+    let gt = image::open(&s.heldout[1].image_path).unwrap().to_rgb8();
+    assert!((0..64).all(|x| grid.get_pixel(x, 20) == gt.get_pixel(x, 20)));
+    // No temporary files remain.
+    assert!(
+        std::fs::read_dir(&out).unwrap().all(|e| !e
+            .unwrap()
+            .file_name()
+            .to_string_lossy()
+            .ends_with(".tmp"))
+    );
+}
+
+#[test]
+fn lpips_is_computed_with_an_onnx_model() {
+    let s = setup();
+    let out = s.dir.path().join("eval");
+    let net = Lpips::load(&lpips_fixture()).unwrap();
+    let model = scene();
+    let report = evaluate(&model, &s.heldout, &[], &out, Some(&net), &NoProgress).unwrap();
+    let f = &report.heldout.frames[1];
+    // The fixture computes mean |a − b| of the images scaled to [-1, 1].
+    let r = splat4d::render(&model, &s.heldout[1].camera, 0.0).unwrap();
+    let truth = image::open(&s.heldout[1].image_path)
+        .unwrap()
+        .to_rgb8()
+        .into_raw();
+    let expected = r
+        .rgb
+        .iter()
+        .zip(&truth)
+        .map(|(&a, &b)| (2.0 * a.clamp(0.0, 1.0) as f64 - 2.0 * b as f64 / 255.0).abs())
+        .sum::<f64>()
+        / truth.len() as f64;
+    assert!(
+        (f.lpips.unwrap() - expected).abs() < 1e-5,
+        "{:?} vs {expected}",
+        f.lpips
+    );
+    assert_eq!(report.lpips_status, "computed");
+    assert!(report.train.frames.is_empty() && report.train.psnr.is_none());
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
+    assert!(json["heldout"]["mean"]["lpips"].as_f64().is_some());
+    assert!(json["train"]["mean"]["psnr"].is_null());
+}
+
+#[test]
+fn ground_truth_of_another_size_renders_at_that_size() {
+    let s = setup();
+    let model = scene();
+    let mut view = s.heldout[0].clone();
+    let small = view.camera.intrinsics.scaled_to(32, 24);
+    let mut cam = view.camera.clone();
+    cam.intrinsics = small;
+    view.image_path = s.dir.path().join("small.png");
+    save_render(&model, &cam, view.time, &view.image_path);
+    let report = evaluate(
+        &model,
+        &[view],
+        &[],
+        &s.dir.path().join("e"),
+        None,
+        &NoProgress,
+    )
+    .unwrap();
+    assert!(report.heldout.frames[0].psnr > 40.0);
+}
+
+#[test]
+fn missing_images_and_empty_requests_are_typed_errors() {
+    let s = setup();
+    let model = scene();
+    let mut view = s.heldout[0].clone();
+    view.image_path = s.dir.path().join("nope.png");
+    let e = evaluate(
+        &model,
+        &[view],
+        &[],
+        &s.dir.path().join("e"),
+        None,
+        &NoProgress,
+    )
+    .unwrap_err();
+    assert!(
+        matches!(&e, EvalError::ReadImage { path, .. } if path.ends_with("nope.png")),
+        "{e}"
+    );
+    let e = evaluate(&model, &[], &[], &s.dir.path().join("e"), None, &NoProgress).unwrap_err();
+    assert!(matches!(e, EvalError::NoViews));
+    let mut far = s.heldout[0].clone();
+    far.camera = camera("distorted", DVec3::new(0.0, -3.0, 0.0), 64, 48);
+    far.camera.distortion = splat4d::Distortion::Opencv {
+        k1: 0.1,
+        k2: 0.0,
+        p1: 0.0,
+        p2: 0.0,
+        k3: 0.0,
+    };
+    let e = evaluate(
+        &model,
+        &[far],
+        &[],
+        &s.dir.path().join("e"),
+        None,
+        &NoProgress,
+    )
+    .unwrap_err();
+    assert!(matches!(e, EvalError::Render { .. }), "{e}");
+}

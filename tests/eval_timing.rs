@@ -1,0 +1,160 @@
+//! Timing of render/eval on a demo-sized model (numbers for BENCHMARKS.md, no assertions
+//! on time). Run: `cargo test --release -p splat4d --test eval_timing -- --ignored --nocapture`.
+
+mod eval_support;
+
+use std::time::Instant;
+
+use eval_support::*;
+use glam::DVec3;
+use splat4d::eval::{EvalView, FrameOutputs, evaluate, render_path};
+use splat4d::lpips::Lpips;
+use splat4d::paths::{PathKind, PathSpec, TimeMode, camera_path};
+use splat4d::{ColourDegrees, Gaussians, NoProgress, TimeMapping};
+
+/// ~63k Gaussians (the demo's trained size) in a 3×3×2 box, spread over 1.2 model units
+/// (2.4 s at 15 fps), full colour degree.
+fn demo_sized() -> Gaussians<f32> {
+    let mut g = Gaussians::new(
+        ColourDegrees::FULL,
+        TimeMapping::frames_over_30(0.0, 15.0, 2.4),
+    );
+    g.active = ColourDegrees::FULL;
+    let mut s = 0x2545_f491_4f6c_dd1du64;
+    let mut u = || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 11) as f32 / (1u64 << 53) as f32
+    };
+    for _ in 0..63_000 {
+        let m = [3.0 * u() - 1.5, 3.0 * u() - 1.5, 2.0 * u() - 1.0, 1.2 * u()];
+        g.push(
+            m,
+            [-3.2 - u(), -3.2 - u(), -3.2 - u(), -1.5],
+            1.0,
+            [u(), u(), u()],
+        );
+    }
+    g
+}
+
+#[test]
+#[ignore = "timing for BENCHMARKS.md; run with --release --ignored --nocapture"]
+fn render_and_eval_timing() {
+    let model = demo_sized();
+    let train = rig(240, 180);
+    let dir = tempfile::tempdir().unwrap();
+    for (w, h) in [(240, 180), (480, 360)] {
+        let mut spec = PathSpec::new(PathKind::Orbit, TimeMode::Sweep, 36);
+        spec.size = Some((w, h));
+        let path = camera_path(&spec, &train, &[], &model.time).unwrap();
+        for (label, outputs) in [
+            (
+                "rgb only",
+                FrameOutputs {
+                    rgb: true,
+                    depth: false,
+                    alpha: false,
+                },
+            ),
+            ("rgb+depth+alpha", FrameOutputs::ALL),
+        ] {
+            let start = Instant::now();
+            render_path(
+                &model,
+                &path,
+                &dir.path().join(format!("r{w}{label}")),
+                outputs,
+                &NoProgress,
+                None,
+            )
+            .unwrap();
+            let s = start.elapsed().as_secs_f64();
+            println!(
+                "render_path orbit 36 frames {w}x{h} {label}: {s:.2} s ({:.0} ms/frame)",
+                s * 1000.0 / 36.0
+            );
+        }
+        let start = Instant::now();
+        for (cam, t) in &path {
+            splat4d::render(&model, cam, *t as f32).unwrap();
+        }
+        let s = start.elapsed().as_secs_f64();
+        println!(
+            "render only (no PNG) 36 frames {w}x{h}: {s:.2} s ({:.0} ms/frame)",
+            s * 1000.0 / 36.0
+        );
+    }
+    // 24 held-out views at 240×180 (4 cameras × 6 times), ground truth = renders at
+    // shifted times, as PNG.
+    let held: Vec<_> = (0..4)
+        .map(|i| {
+            let a = 1.0 + i as f64 * 1.3;
+            camera(
+                &format!("h{i}"),
+                DVec3::new(4.6 * a.cos(), 4.6 * a.sin(), 1.2),
+                240,
+                180,
+            )
+        })
+        .collect();
+    let mut views = Vec::new();
+    for (i, cam) in held.iter().enumerate() {
+        for k in 0..6 {
+            let t = 0.1 + 0.18 * k as f64;
+            let path = dir.path().join(format!("gt{i}_{k}.png"));
+            save_render(&model, cam, t + 0.02, &path);
+            views.push(EvalView {
+                camera: cam.clone(),
+                time: t,
+                image_path: path,
+            });
+        }
+    }
+    let start = Instant::now();
+    let report = evaluate(
+        &model,
+        &views,
+        &[],
+        &dir.path().join("eval"),
+        None,
+        &NoProgress,
+    )
+    .unwrap();
+    let s = start.elapsed().as_secs_f64();
+    println!(
+        "evaluate 24 views 240x180, no LPIPS: {s:.2} s ({:.0} ms/view), mean PSNR {:.2}",
+        s * 1000.0 / 24.0,
+        report.heldout.psnr.unwrap()
+    );
+    let net = Lpips::load(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("fixtures/onnx/lpips_tiny/mean_abs_diff.onnx"),
+    )
+    .unwrap();
+    let start = Instant::now();
+    evaluate(
+        &model,
+        &views,
+        &[],
+        &dir.path().join("eval2"),
+        Some(&net),
+        &NoProgress,
+    )
+    .unwrap();
+    let s = start.elapsed().as_secs_f64();
+    println!(
+        "evaluate 24 views 240x180, tiny LPIPS fixture: {s:.2} s ({:.0} ms/view)",
+        s * 1000.0 / 24.0
+    );
+    let (a, b) = (vec![0.3f32; 240 * 180 * 3], vec![0.5f32; 240 * 180 * 3]);
+    let start = Instant::now();
+    for _ in 0..24 {
+        splat4d::metrics::image_metrics(&a, &b, 240, 180).unwrap();
+    }
+    println!(
+        "image_metrics (PSNR+SSIM1+SSIM2) 240x180: {:.1} ms",
+        start.elapsed().as_secs_f64() * 1000.0 / 24.0
+    );
+}
