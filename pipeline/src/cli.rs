@@ -61,6 +61,14 @@ pub enum Command {
     ///
     /// Example: pipeline record --device /dev/video0 --device /dev/video2 --seconds 20 my_capture/
     Record(RecordArgs),
+    /// Render the trained model of a capture along a camera path, outside the stage graph
+    /// (the `render` stage does the same with the [render] settings).
+    ///
+    /// Example: pipeline render my_capture/ --path spiral --time fixed:1.0 --out spiral.mp4
+    Render(RenderArgs),
+    /// Benchmarks that train and measure (numbers for BENCHMARKS.md).
+    #[command(subcommand)]
+    Bench(BenchCommand),
     /// Render a scene file (TOML) into a new capture directory with simulated cameras:
     /// videos with audio in raw/camN/, stills/, and the ground truth in groundtruth/.
     ///
@@ -115,4 +123,59 @@ pub struct RecordArgs {
     /// Do not prompt for a sync flash or clap once all cameras run.
     #[arg(long)]
     pub no_flash_prompt: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// The capture directory (its `train` stage must have run).
+    pub capture_dir: PathBuf,
+    /// Camera path: orbit, spiral, interpolate, train or heldout.
+    #[arg(long, default_value = "orbit")]
+    pub path: String,
+    /// Time: fixed:SECONDS (e.g. fixed:1.5), sweep or real.
+    #[arg(long, default_value = "sweep")]
+    pub time: String,
+    /// Number of frames (default: one per aligned frame, at least 60).
+    #[arg(long)]
+    pub frames: Option<usize>,
+    /// Frames per second of the video (default: the capture's).
+    #[arg(long)]
+    pub fps: Option<f64>,
+    /// Output size WIDTHxHEIGHT (default: the first camera's working size).
+    #[arg(long, value_parser = parse_size)]
+    pub size: Option<[u32; 2]>,
+    /// Output: a `.mp4` file (H.264), or a folder for PNG frames (rgb/, depth/, alpha/).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+fn parse_size(s: &str) -> Result<[u32; 2], String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("'{s}' is not WIDTHxHEIGHT (e.g. 960x540)"))?;
+    let n = |v: &str| {
+        v.trim()
+            .parse::<u32>()
+            .ok()
+            .filter(|&n| n > 0)
+            .ok_or_else(|| format!("'{s}' is not WIDTHxHEIGHT (e.g. 960x540)"))
+    };
+    Ok([n(w)?, n(h)?])
+}
+
+#[derive(Debug, Subcommand)]
+pub enum BenchCommand {
+    /// Train every 4C4D decay variant on a simulated scene with held-out cameras and write
+    /// the paper-style table (PSNR, DSSIM1, DSSIM2, LPIPS) to work/bench/ablation.md + .csv.
+    ///
+    /// Example: pipeline bench ablation fixtures/demo.toml /tmp/ablation --iterations 600
+    Ablation {
+        /// The scene file (needs held-out cameras).
+        scene: PathBuf,
+        /// Where the simulated capture and the results go (reused when it exists).
+        capture_dir: PathBuf,
+        /// Training iterations per variant (schedules are scaled to it).
+        #[arg(long, default_value_t = 600)]
+        iterations: u64,
+    },
 }

@@ -23,8 +23,10 @@ pub struct CaptureConfig {
     pub poses: calib::poses::PosesConfig,
     pub init: calib::init::InitConfig,
     pub train: splat4d::train::TrainConfig,
-    pub render: StageSettings,
-    pub eval: StageSettings,
+    /// The 4C4D opacity decay used by the `train` stage (`variant = "none"`: plain 4DGS).
+    pub decay: splat4d::decay::DecayConfig,
+    pub render: crate::rendering::RenderSettings,
+    pub eval: crate::evaluation::EvalSettings,
     pub export: splat4d::export::ExportOptions,
 }
 

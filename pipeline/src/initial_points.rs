@@ -13,7 +13,13 @@ use crate::stage::StageContext;
 
 /// A path from `capture.toml`, relative to the capture directory.
 fn in_capture(root: &Path, path: &Option<PathBuf>) -> Option<PathBuf> {
-    path.as_ref().map(|p| if p.is_absolute() { p.clone() } else { root.join(p) })
+    path.as_ref().map(|p| {
+        if p.is_absolute() {
+            p.clone()
+        } else {
+            root.join(p)
+        }
+    })
 }
 
 /// The `init` stage.

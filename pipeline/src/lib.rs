@@ -5,14 +5,17 @@
 //! outputs (`manifest`, `atomic`, `lock`), `report` shows progress, `cli` is the
 //! command line.
 
+pub mod ablation;
 pub mod atomic;
 pub mod cli;
 pub mod config;
+pub mod evaluation;
 pub mod exporting;
 pub mod initial_points;
 pub mod layout;
 pub mod lock;
 pub mod manifest;
+pub mod rendering;
 pub mod report;
 pub mod runner;
 pub mod simulate;

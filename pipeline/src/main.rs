@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::Parser;
 use indicatif::MultiProgress;
-use pipeline::cli::{Cli, Command, RecordArgs, RunArgs};
+use pipeline::cli::{BenchCommand, Cli, Command, RecordArgs, RenderArgs, RunArgs};
 use pipeline::report::{OutputMode, Reporter};
 use pipeline::runner::{RunSummary, Selection};
 use pipeline::{open_capture, simulate, stages, status};
@@ -60,6 +60,19 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Demo { out_dir } => demo(&out_dir, reporter),
+        Command::Render(args) => render(args, reporter),
+        Command::Bench(BenchCommand::Ablation {
+            scene,
+            capture_dir,
+            iterations,
+        }) => {
+            let table = pipeline::ablation::run(&scene, &capture_dir, iterations, reporter)?;
+            reporter.say(&format!("ablation table written to {}", table.display()));
+            if reporter.mode() == OutputMode::Human {
+                print!("{}", std::fs::read_to_string(&table).unwrap_or_default());
+            }
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Record(args) => record(args, reporter),
         Command::Simulate { scene, capture_dir } => {
             let scene = rig::sim::Scene::from_file(&scene)?;
@@ -91,6 +104,81 @@ fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     } else {
         ExitCode::FAILURE
     })
+}
+
+/// Render the trained model along a path into an MP4 file or a folder of PNGs; the
+/// output appears only when complete.
+fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
+    let (capture, _) = open_capture(&args.capture_dir)?;
+    let work = capture.work_dir();
+    let model_path = work.join("train/model.bin");
+    let model = splat4d::load_model(&model_path).with_context(|| {
+        format!(
+            "cannot load {}; run `pipeline run {} --to train` first",
+            model_path.display(),
+            args.capture_dir.display()
+        )
+    })?;
+    let cameras_file = work.join("poses/cameras.json");
+    let poses = calib::poses::PosesFile::read(&cameras_file)?;
+    let index = rig::frames::FramesIndex::read_json(&work.join("frames/frames.json"))?;
+    let cameras: Vec<_> = pipeline::training::pinhole_cameras(&index, &poses.set, &cameras_file)?
+        .into_iter()
+        .map(|(c, _)| c)
+        .collect();
+    let video = args
+        .out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("mp4"));
+    let settings = pipeline::rendering::RenderSettings {
+        path: args.path,
+        time: args.time,
+        frames: args.frames,
+        fps: args.fps,
+        size: args.size,
+        video,
+        png: !video,
+    };
+    let name = args
+        .out
+        .file_name()
+        .context("--out needs a file or folder name")?;
+    let staging = args
+        .out
+        .with_file_name(format!(".{}.partial", name.to_string_lossy()));
+    if staging.exists() {
+        std::fs::remove_dir_all(&staging)?;
+    }
+    let progress = reporter.progress("render");
+    let frames = pipeline::rendering::render(
+        &model,
+        &cameras,
+        &settings,
+        index.frames.len(),
+        index.fps,
+        &staging,
+        &progress,
+    );
+    splat4d::Progress::finish(&progress);
+    let frames = frames.inspect_err(|_| {
+        let _ = std::fs::remove_dir_all(&staging);
+    })?;
+    if video {
+        std::fs::rename(staging.join("render.mp4"), &args.out)
+            .with_context(|| format!("cannot write {}", args.out.display()))?;
+        std::fs::remove_dir_all(&staging).ok();
+    } else {
+        if args.out.exists() {
+            anyhow::bail!("{} already exists; choose a new folder", args.out.display());
+        }
+        std::fs::rename(&staging, &args.out)
+            .with_context(|| format!("cannot write {}", args.out.display()))?;
+    }
+    reporter.say(&format!(
+        "{frames} frames written to {}",
+        args.out.display()
+    ));
+    Ok(ExitCode::SUCCESS)
 }
 
 /// Record V4L2 cameras into a new capture directory until Ctrl-C or `--seconds`.

@@ -66,3 +66,41 @@ pub fn demo_scene() -> anyhow::Result<rig::sim::Scene> {
         "built-in demo scene (fixtures/demo.toml)",
     )?)
 }
+
+/// Write the simulator's true video cameras (`groundtruth/cameras.json`, `cam*`) as an
+/// OpenCV-style `calibration.json` in the capture, so that the poses stage imports them
+/// instead of running COLMAP (for tests and benchmarks that isolate later stages).
+pub fn write_truth_calibration(capture_dir: &Path) -> anyhow::Result<()> {
+    let path = capture_dir.join("groundtruth/cameras.json");
+    let truth: splat4d::CameraSet = serde_json::from_str(
+        &fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?,
+    )
+    .with_context(|| format!("{} is not a camera set", path.display()))?;
+    let mut cameras = serde_json::Map::new();
+    for c in truth.cameras.iter().filter(|c| c.name.starts_with("cam")) {
+        let (i, d, w) = (&c.intrinsics, &c.distortion, &c.world_to_camera);
+        if !d.is_none() {
+            bail!(
+                "{}: camera {} has a lens distortion; only pinhole ground truth is written as a calibration",
+                path.display(),
+                c.name
+            );
+        }
+        cameras.insert(
+            c.name.clone(),
+            serde_json::json!({
+                "K": [[i.fx, 0.0, i.cx], [0.0, i.fy, i.cy], [0.0, 0.0, 1.0]],
+                "dist": [0.0, 0.0, 0.0, 0.0, 0.0],
+                "R": w.rotation().transpose().to_cols_array_2d(),
+                "t": w.translation().to_array(),
+                "size": [i.width, i.height],
+            }),
+        );
+    }
+    let out = capture_dir.join("calibration.json");
+    crate::atomic::write_atomic(
+        &out,
+        serde_json::to_string_pretty(&serde_json::json!({ "cameras": cameras }))?.as_bytes(),
+    )
+    .with_context(|| format!("cannot write {}", out.display()))
+}

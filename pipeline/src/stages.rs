@@ -112,6 +112,16 @@ fn poses(ctx: &StageContext) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The train stage's parameters: `[train]`, with `[decay]` under the key `decay`
+/// (`status` then names a change `train.decay.variant`).
+fn train_params(config: &crate::config::CaptureConfig) -> serde_json::Value {
+    let mut params = config.section("train");
+    if let Some(map) = params.as_object_mut() {
+        map.insert("decay".into(), config.section("decay"));
+    }
+    params
+}
+
 /// The pipeline as `pipeline run` executes it.
 pub fn pipeline() -> Pipeline {
     Pipeline {
@@ -160,16 +170,21 @@ pub fn pipeline() -> Pipeline {
             .run(crate::initial_points::run),
             StageDef::new("train", "train the 4C4D Gaussian model")
                 .after(&["frames", "poses", "init"])
+                .params(train_params)
                 .outputs(&["model.bin", "log.csv"])
                 .resumable()
                 .run(crate::training::run),
-            StageDef::new("render", "render videos along camera paths").after(&["poses", "train"]),
+            StageDef::new("render", "render videos along camera paths")
+                .after(&["frames", "poses", "train"])
+                .run(crate::rendering::run),
             StageDef::new(
                 "eval",
                 "metrics on held-out views (PSNR, SSIM, DSSIM, LPIPS)",
             )
-            .after(&["frames", "poses", "train"])
-            .inputs(|c| vec![c.root.join("groundtruth")]),
+            .after(&["sync", "frames", "poses", "train"])
+            .inputs(|c| vec![c.root.join("groundtruth")])
+            .outputs(&["metrics.json", "per_frame.csv"])
+            .run(crate::evaluation::run),
             StageDef::new("export", "PLY / .splatv exports and a browser viewer")
                 .after(&["frames", "poses", "train"])
                 .outputs(&["export.json"])

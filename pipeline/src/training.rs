@@ -223,7 +223,10 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
         points.xyz.len(),
         if ctx.resume { " (resuming)" } else { "" }
     );
-    let mut method = splat4d::train::NoHooks;
+    let decay = &ctx.config.decay;
+    let mut method = splat4d::decay::DecayHooks::new(decay)
+        .map_err(|e| anyhow::anyhow!("capture.toml [decay]: {e}"))?;
+    tracing::info!("opacity decay: {:?}", decay.variant);
     let mut hooks = StageHooks { inner: &mut method };
     let _graceful = Graceful::enter();
     let summary = match splat4d::train::train(

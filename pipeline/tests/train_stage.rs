@@ -31,41 +31,13 @@ fn only(stage: &str, force: bool) -> Selection {
     }
 }
 
-/// The simulator's true video cameras as an OpenCV-style calibration file.
-fn write_calibration(root: &Path) {
-    let truth: splat4d::CameraSet =
-        serde_json::from_str(&fs::read_to_string(root.join("groundtruth/cameras.json")).unwrap())
-            .unwrap();
-    let mut cameras = serde_json::Map::new();
-    for c in truth.cameras.iter().filter(|c| c.name.starts_with("cam")) {
-        let i = &c.intrinsics;
-        let w = &c.world_to_camera;
-        let r = w.rotation().transpose().to_cols_array_2d(); // rows of R
-        cameras.insert(
-            c.name.clone(),
-            serde_json::json!({
-                "K": [[i.fx, 0.0, i.cx], [0.0, i.fy, i.cy], [0.0, 0.0, 1.0]],
-                "dist": [0.0, 0.0, 0.0, 0.0, 0.0],
-                "R": r,
-                "t": w.translation().to_array(),
-                "size": [i.width, i.height],
-            }),
-        );
-    }
-    fs::write(
-        root.join("calibration.json"),
-        serde_json::to_string_pretty(&serde_json::json!({ "cameras": cameras })).unwrap(),
-    )
-    .unwrap();
-}
-
 #[test]
 fn train_stops_cleanly_resumes_identically_and_exports() {
     let tmp = tempfile::tempdir().unwrap();
     let root = tmp.path().join("capture");
     let scene = rig::sim::Scene::from_file(&fixture("sync-audio.toml")).unwrap();
     simulate::simulate_into(&scene, &root, &Reporter::new(OutputMode::Quiet)).unwrap();
-    write_calibration(&root);
+    simulate::write_truth_calibration(&root).unwrap();
     fs::write(
         root.join("capture.toml"),
         "[train]\niterations = 24\nbatch_size = 2\ncheckpoint_every = 8\ndegree_every = 4\n\

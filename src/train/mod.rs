@@ -79,6 +79,25 @@ impl Default for TrainConfig {
     }
 }
 
+impl TrainConfig {
+    /// This configuration shortened (or lengthened) to `iterations`, with every schedule
+    /// that counts iterations (colour degree, densification window, opacity reset,
+    /// position decay) scaled by the same factor; checkpoints only at the end.
+    pub fn with_iterations(&self, iterations: u64) -> Self {
+        let s = iterations as f64 / self.iterations.max(1) as f64;
+        let scale = |n: u64| (n as f64 * s).round() as u64;
+        let mut c = self.clone();
+        c.iterations = iterations;
+        c.degree_every = scale(self.degree_every).max(1);
+        c.densify.from_iteration = scale(self.densify.from_iteration);
+        c.densify.until_iteration = scale(self.densify.until_iteration);
+        c.densify.opacity_reset_every = scale(self.densify.opacity_reset_every);
+        c.lr.position_decay_steps = scale(self.lr.position_decay_steps);
+        c.checkpoint_every = 0;
+        c
+    }
+}
+
 /// Why training stopped without a model.
 #[derive(Debug, thiserror::Error)]
 pub enum TrainError {

@@ -1,3 +1,4 @@
+#![allow(dead_code)] // each test binary uses a different part of this module
 //! A small 4D scene and cameras shared by the render/eval tests.
 
 use glam::DVec3;

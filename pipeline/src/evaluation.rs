@@ -1,0 +1,275 @@
+//! The `eval` stage: metrics of the trained model on held-out views (the simulator's
+//! ground truth in `groundtruth/`) and, separately, on a sample of the training views
+//! (`splat4d::eval`, docs/render-eval.md).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use calib::poses::PosesFile;
+use glam::DVec3;
+use rig::frames::FramesIndex;
+use rig::sim::{HeldoutTimestamps, OffsetsFile};
+use rig::sync::SyncResult;
+use serde::{Deserialize, Serialize};
+use splat4d::eval::EvalView;
+use splat4d::{Camera, CameraSet, TimeMapping, WorldToCamera};
+
+use crate::layout::Capture;
+use crate::stage::StageContext;
+use crate::training::{load_frame, pinhole_cameras, time_mapping};
+
+/// `[eval]` settings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvalSettings {
+    /// LPIPS weights as ONNX (docs/render-eval.md says how to export them); without them
+    /// LPIPS is reported as skipped. Relative to the capture directory.
+    pub lpips: Option<PathBuf>,
+    /// Training views measured (evenly spread over cameras and frames; 0: none).
+    pub train_views: usize,
+    /// Every held-out frame is measured up to this many per held-out camera (evenly
+    /// spread; 0: all).
+    pub heldout_per_camera: usize,
+}
+
+impl Default for EvalSettings {
+    fn default() -> Self {
+        Self {
+            lpips: None,
+            train_views: 16,
+            heldout_per_camera: 0,
+        }
+    }
+}
+
+/// `n` evenly spread picks of `0..len` (all when `n` is 0 or ≥ `len`).
+fn spread(len: usize, n: usize) -> Vec<usize> {
+    if n == 0 || n >= len {
+        return (0..len).collect();
+    }
+    (0..n).map(|k| k * len / n).collect()
+}
+
+/// Ground-truth cameras moved into the poses' frame: the similarity that carries the
+/// true video camera centres onto the solved (or imported and normalised) ones.
+fn align_truth(truth: &CameraSet, poses: &CameraSet) -> anyhow::Result<impl Fn(&Camera) -> Camera> {
+    let (mut src, mut dst) = (Vec::new(), Vec::new());
+    for c in &poses.cameras {
+        if let Some(t) = truth.get(&c.name) {
+            src.push(t.world_to_camera.centre());
+            dst.push(c.world_to_camera.centre());
+        }
+    }
+    let Some(s) = calib::align::umeyama(&src, &dst) else {
+        bail!(
+            "cannot relate the ground-truth cameras to the solved ones (fewer than 3 shared, or collinear)"
+        );
+    };
+    Ok(move |c: &Camera| {
+        let centre: DVec3 = s.apply(c.world_to_camera.centre());
+        let rotation = c.world_to_camera.rotation() * s.rotation.transpose();
+        let mut out = c.clone();
+        out.world_to_camera = WorldToCamera::from_parts(rotation, -(rotation * centre));
+        out
+    })
+}
+
+/// Held-out views of a simulated capture (cameras moved into the poses' frame), undistorted into `gt_dir` when the held-out
+/// camera has a lens. Empty when the capture has no ground truth.
+pub fn heldout_views(
+    capture: &Capture,
+    settings: &EvalSettings,
+    poses: &CameraSet,
+    mapping: &TimeMapping,
+    gt_dir: &Path,
+) -> anyhow::Result<Vec<EvalView>> {
+    let truth_dir = capture.root.join("groundtruth");
+    let heldout_dir = truth_dir.join("heldout");
+    if !heldout_dir.is_dir() {
+        return Ok(Vec::new());
+    }
+    let read = |name: &str| -> anyhow::Result<String> {
+        let path = truth_dir.join(name);
+        std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))
+    };
+    let truth: CameraSet = serde_json::from_str(&read("cameras.json")?)
+        .context("groundtruth/cameras.json is not a camera set")?;
+    let offsets: OffsetsFile = serde_json::from_str(&read("offsets.json")?)
+        .context("groundtruth/offsets.json is not the simulator's offsets file")?;
+    // The common timeline is the sync reference camera's clock.
+    let sync = SyncResult::read_json(&capture.work_dir().join("sync/sync.json"))?;
+    let reference = sync
+        .cameras
+        .iter()
+        .find(|c| c.offset_s == 0.0)
+        .map(|c| c.name.clone())
+        .unwrap_or_else(|| "cam0".into());
+    let start = offsets
+        .cameras
+        .iter()
+        .find(|c| c.name == reference)
+        .map(|c| c.start_time_s)
+        .context("groundtruth/offsets.json lacks the reference camera")?;
+    let to_poses_frame = align_truth(&truth, poses)?;
+    let mut views = Vec::new();
+    let mut names: Vec<PathBuf> = std::fs::read_dir(&heldout_dir)?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_dir())
+        .collect();
+    names.sort();
+    for dir in names {
+        let stamps_path = dir.join("timestamps.json");
+        let stamps: HeldoutTimestamps = serde_json::from_str(
+            &std::fs::read_to_string(&stamps_path)
+                .with_context(|| format!("cannot read {}", stamps_path.display()))?,
+        )
+        .with_context(|| {
+            format!(
+                "{} is not a held-out timestamps file",
+                stamps_path.display()
+            )
+        })?;
+        let camera = truth
+            .get(&stamps.camera)
+            .with_context(|| format!("groundtruth/cameras.json has no camera {}", stamps.camera))?;
+        let camera = to_poses_frame(camera);
+        let map = (!camera.distortion.is_none()).then(|| {
+            calib::undistort::UndistortMap::new(&camera, calib::undistort::Fit::ValidPixels)
+        });
+        let pinhole = map.as_ref().map_or(camera.clone(), |m| m.pinhole().clone());
+        for k in spread(stamps.times_s.len(), settings.heldout_per_camera) {
+            let time = mapping.model_time(stamps.times_s[k] - start);
+            if time < 0.0 || time > mapping.duration {
+                continue; // outside the trained sequence
+            }
+            let source = dir.join(format!("{k:06}.png"));
+            let image_path = match &map {
+                None => source,
+                Some(map) => write_undistorted(&source, map, gt_dir, &stamps.camera, k)?,
+            };
+            views.push(EvalView {
+                camera: pinhole.clone(),
+                time,
+                image_path,
+            });
+        }
+    }
+    Ok(views)
+}
+
+/// Undistort a ground-truth image into `gt_dir/<camera>/NNNNNN.png`.
+fn write_undistorted(
+    source: &Path,
+    map: &calib::undistort::UndistortMap,
+    gt_dir: &Path,
+    camera: &str,
+    k: usize,
+) -> anyhow::Result<PathBuf> {
+    let image = load_frame(source, Some(map))?;
+    let out = gt_dir.join(camera).join(format!("{k:06}.png"));
+    std::fs::create_dir_all(out.parent().unwrap_or(gt_dir))?;
+    let buffer = image::RgbImage::from_raw(image.width, image.height, image.data)
+        .context("undistorted image has the wrong size")?;
+    buffer
+        .save(&out)
+        .with_context(|| format!("cannot write {}", out.display()))?;
+    Ok(out)
+}
+
+/// A spread of the training views (undistorted copies in `gt_dir` where needed).
+fn train_views(
+    ctx: &StageContext,
+    poses: &CameraSet,
+    index: &FramesIndex,
+    mapping: &TimeMapping,
+    gt_dir: &Path,
+) -> anyhow::Result<Vec<EvalView>> {
+    let frames_dir = ctx.stage_dir("frames");
+    let cameras = pinhole_cameras(index, poses, &ctx.stage_dir("poses").join("cameras.json"))?;
+    let all: Vec<(usize, usize)> = (0..index.frames.len())
+        .flat_map(|f| (0..index.cameras.len()).map(move |c| (f, c)))
+        .collect();
+    let mut views = Vec::new();
+    for k in spread(all.len(), ctx.config.eval.train_views.max(1)) {
+        if ctx.config.eval.train_views == 0 {
+            break;
+        }
+        let (f, c) = all[k];
+        let view = &index.frames[f].views[c];
+        let (camera, map) = &cameras[c];
+        let source = frames_dir.join(&view.file);
+        let image_path = match map {
+            None => source,
+            Some(map) => write_undistorted(&source, map, gt_dir, &camera.name, f)?,
+        };
+        views.push(EvalView {
+            camera: camera.clone(),
+            time: mapping.model_time(view.timestamp_s),
+            image_path,
+        });
+    }
+    Ok(views)
+}
+
+/// The `eval` stage.
+pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
+    let model_path = ctx.stage_dir("train").join("model.bin");
+    let model = splat4d::load_model(&model_path)
+        .with_context(|| format!("cannot load the trained model {}", model_path.display()))?;
+    let poses = PosesFile::read(&ctx.stage_dir("poses").join("cameras.json"))?;
+    let index = FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
+    let mapping = time_mapping(&index);
+    let gt_dir = ctx.output("groundtruth");
+    let heldout = heldout_views(
+        ctx.capture,
+        &ctx.config.eval,
+        &poses.set,
+        &mapping,
+        &gt_dir.join("heldout"),
+    )?;
+    if heldout.is_empty() {
+        tracing::warn!(
+            "no held-out views (groundtruth/heldout/ is absent): only training views are measured, which shows fit, not novel-view quality"
+        );
+    }
+    let train = train_views(ctx, &poses.set, &index, &mapping, &gt_dir.join("train"))?;
+    let lpips = match &ctx.config.eval.lpips {
+        Some(path) => {
+            let path = if path.is_absolute() {
+                path.clone()
+            } else {
+                ctx.capture.root.join(path)
+            };
+            Some(splat4d::lpips::Lpips::load(&path).with_context(|| {
+                format!(
+                    "[eval] lpips = {}: cannot load the LPIPS model",
+                    path.display()
+                )
+            })?)
+        }
+        None => None,
+    };
+    let report = splat4d::eval::evaluate(
+        &model,
+        &heldout,
+        &train,
+        &ctx.out_dir,
+        lpips.as_ref(),
+        ctx.progress,
+    )?;
+    let show = |set: &str, m: &splat4d::eval::SetMetrics| {
+        let f = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.4}"));
+        tracing::info!(
+            "{set}: {} views, PSNR {} dB, SSIM {}, DSSIM1 {}, DSSIM2 {}, LPIPS {}",
+            m.frames.len(),
+            f(m.psnr),
+            f(m.ssim),
+            f(m.dssim1),
+            f(m.dssim2),
+            f(m.lpips)
+        );
+    };
+    show("held-out", &report.heldout);
+    show("training", &report.train);
+    Ok(())
+}

@@ -1,0 +1,137 @@
+//! The `render` stage and the `pipeline render` command: the trained model along a camera
+//! path (orbit, spiral, interpolate, train, heldout) with time frozen, swept or real, as
+//! PNG frames (colour, colour-mapped depth, alpha) and an H.264 MP4
+//! (`splat4d::paths`, `splat4d::eval::render_path`, `rig::video`).
+
+use std::path::Path;
+
+use anyhow::{Context, bail};
+use calib::poses::PosesFile;
+use rig::frames::FramesIndex;
+use serde::{Deserialize, Serialize};
+use splat4d::eval::FrameOutputs;
+use splat4d::paths::{PathKind, PathSpec, TimeMode, camera_path};
+use splat4d::{Gaussians, Progress};
+
+use crate::stage::StageContext;
+use crate::training::pinhole_cameras;
+
+/// `[render]` settings (the same keys as the `pipeline render` flags).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RenderSettings {
+    /// orbit | spiral | interpolate | train | heldout
+    pub path: String,
+    /// fixed:SECONDS | sweep | real
+    pub time: String,
+    /// Frames of the path (`None`: one per aligned frame of the capture, at least 60).
+    pub frames: Option<usize>,
+    /// Frames per second of the video (`None`: the capture's frame rate).
+    pub fps: Option<f64>,
+    /// Output `[width, height]` (`None`: the first camera's working size).
+    pub size: Option<[u32; 2]>,
+    /// Write `render.mp4` (H.264).
+    pub video: bool,
+    /// Write `rgb/`, `depth/` and `alpha/` PNG frames.
+    pub png: bool,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        Self {
+            path: "orbit".into(),
+            time: "sweep".into(),
+            frames: None,
+            fps: None,
+            size: None,
+            video: true,
+            png: true,
+        }
+    }
+}
+
+/// Render `model` along the path of `settings` into `out_dir` (`render.mp4` and/or PNG
+/// folders). `cameras` are the pinhole training cameras.
+pub fn render(
+    model: &Gaussians<f32>,
+    cameras: &[splat4d::Camera],
+    settings: &RenderSettings,
+    default_frames: usize,
+    default_fps: f64,
+    out_dir: &Path,
+    progress: &dyn Progress,
+) -> anyhow::Result<usize> {
+    let kind: PathKind = settings.path.parse().context("[render] path")?;
+    let time: TimeMode = settings.time.parse().context("[render] time")?;
+    let frames = settings.frames.unwrap_or(default_frames.max(60));
+    let mut spec = PathSpec::new(kind, time, frames);
+    spec.fps = settings.fps.unwrap_or(default_fps);
+    spec.size = settings.size.map(|[w, h]| (w, h));
+    let path = camera_path(&spec, cameras, &[], &model.time)?;
+    if path.is_empty() {
+        bail!("the camera path is empty");
+    }
+    std::fs::create_dir_all(out_dir)?;
+    let outputs = if settings.png {
+        FrameOutputs::ALL
+    } else {
+        FrameOutputs::NONE
+    };
+    let mut video = None;
+    if settings.video {
+        let (w, h) = (path[0].0.intrinsics.width, path[0].0.intrinsics.height);
+        if w % 2 == 1 || h % 2 == 1 {
+            bail!("H.264 needs an even frame size, got {w}×{h}; set [render] size = [even, even]");
+        }
+        let file = out_dir.join("render.mp4");
+        video = Some(rig::video::Mp4Writer::create(
+            &file,
+            w,
+            h,
+            &rig::video::VideoOptions::new(spec.fps),
+        )?);
+    }
+    let mut sink = |_: usize, rgb: &image::RgbImage| -> Result<(), String> {
+        match video.as_mut() {
+            Some(v) => v.push(rgb.as_raw()).map_err(|e| e.to_string()),
+            None => Ok(()),
+        }
+    };
+    let rendered =
+        splat4d::eval::render_path(model, &path, out_dir, outputs, progress, Some(&mut sink))?;
+    if let Some(v) = video {
+        v.finish()?;
+    }
+    Ok(rendered.frames)
+}
+
+/// The `render` stage.
+pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
+    let model_path = ctx.stage_dir("train").join("model.bin");
+    let model = splat4d::load_model(&model_path)
+        .with_context(|| format!("cannot load the trained model {}", model_path.display()))?;
+    let cameras_file = ctx.stage_dir("poses").join("cameras.json");
+    let poses = PosesFile::read(&cameras_file)?;
+    let index = FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
+    let cameras: Vec<_> = pinhole_cameras(&index, &poses.set, &cameras_file)?
+        .into_iter()
+        .map(|(c, _)| c)
+        .collect();
+    let settings = &ctx.config.render;
+    let frames = render(
+        &model,
+        &cameras,
+        settings,
+        index.frames.len(),
+        index.fps,
+        &ctx.out_dir,
+        ctx.progress,
+    )?;
+    tracing::info!(
+        "rendered {frames} frames along the {} path (time {}) into {}",
+        settings.path,
+        settings.time,
+        ctx.stage_dir("render").display()
+    );
+    Ok(())
+}
