@@ -8,6 +8,7 @@
 // culled. Index loops mirror the matrix formulas they implement.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 
+pub mod atomic;
 pub mod camera;
 pub mod progress;
 

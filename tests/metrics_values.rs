@@ -58,7 +58,7 @@ fn ssim_and_both_dssims_match_the_definition_on_one_pixel() {
     assert!((d2 - (1.0 - s2) / 2.0).abs() < 1e-12);
     // The larger stabilisers of data range 2 make the same pair look more similar:
     // the two conventions give visibly different numbers, so they must be named.
-    assert!(d2 < d1 - 0.01, "DSSIM₁ {d1} vs DSSIM₂ {d2}");
+    assert!(d2 < d1 - 0.005, "DSSIM₁ {d1} vs DSSIM₂ {d2}");
 }
 
 #[test]

@@ -137,7 +137,8 @@ mod tests {
         assert_eq!(c.section("frames")["long_side"], 960);
         assert_eq!(c.section("train")["iterations"], 30_000);
         assert_eq!(c.section("export")["viewer"], true);
-        assert_eq!(c.section("render"), serde_json::json!({}));
+        assert_eq!(c.section("render")["path"], "orbit");
+        assert_eq!(c.section("ingest"), serde_json::json!({}));
         let c = CaptureConfig::parse("[train]\niterations = 5\n", Path::new("c.toml")).unwrap();
         assert_eq!(c.train.iterations, 5);
         assert!(CaptureConfig::parse("[capture]\ncameras = 0\n", Path::new("c.toml")).is_err());

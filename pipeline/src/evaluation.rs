@@ -213,9 +213,7 @@ fn train_views(
 
 /// The `eval` stage.
 pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
-    let model_path = ctx.stage_dir("train").join("model.bin");
-    let model = splat4d::load_model(&model_path)
-        .with_context(|| format!("cannot load the trained model {}", model_path.display()))?;
+    let model = crate::training::load_trained_model(&ctx.capture.work_dir())?;
     let poses = PosesFile::read(&ctx.stage_dir("poses").join("cameras.json"))?;
     let index = FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
     let mapping = time_mapping(&index);

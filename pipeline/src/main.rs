@@ -111,14 +111,7 @@ fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
 fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     let (capture, _) = open_capture(&args.capture_dir)?;
     let work = capture.work_dir();
-    let model_path = work.join("train/model.bin");
-    let model = splat4d::load_model(&model_path).with_context(|| {
-        format!(
-            "cannot load {}; run `pipeline run {} --to train` first",
-            model_path.display(),
-            args.capture_dir.display()
-        )
-    })?;
+    let model = pipeline::training::load_trained_model(&work)?;
     let cameras_file = work.join("poses/cameras.json");
     let poses = calib::poses::PosesFile::read(&cameras_file)?;
     let index = rig::frames::FramesIndex::read_json(&work.join("frames/frames.json"))?;

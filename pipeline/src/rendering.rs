@@ -107,9 +107,7 @@ pub fn render(
 
 /// The `render` stage.
 pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
-    let model_path = ctx.stage_dir("train").join("model.bin");
-    let model = splat4d::load_model(&model_path)
-        .with_context(|| format!("cannot load the trained model {}", model_path.display()))?;
+    let model = crate::training::load_trained_model(&ctx.capture.work_dir())?;
     let cameras_file = ctx.stage_dir("poses").join("cameras.json");
     let poses = PosesFile::read(&cameras_file)?;
     let index = FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;

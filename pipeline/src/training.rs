@@ -193,6 +193,17 @@ pub fn load_dataset(
     })
 }
 
+/// The trained model of a capture (`work/train/model.bin`).
+pub fn load_trained_model(work_dir: &Path) -> anyhow::Result<Gaussians<f32>> {
+    let path = work_dir.join("train/model.bin");
+    splat4d::load_model(&path).with_context(|| {
+        format!(
+            "cannot load the trained model {}; run the train stage first",
+            path.display()
+        )
+    })
+}
+
 /// The initial points: `work/init/points.ply`, else the poses stage's sparse points.
 fn initial_points(ctx: &StageContext) -> anyhow::Result<PointCloud> {
     let init = ctx.stage_dir("init").join("points.ply");

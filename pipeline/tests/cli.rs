@@ -140,9 +140,16 @@ fn status_prints_a_table_of_every_stage() {
 fn record_without_devices_fails_cleanly() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("rec");
-    let out = Command::new(env!("CARGO_BIN_EXE_pipeline")).args(["record", "--seconds", "1"]).arg(&dir).output().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .args(["record", "--seconds", "1"])
+        .arg(&dir)
+        .output()
+        .unwrap();
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("V4L2") || err.contains("/dev/video"), "{err}");
-    assert!(!dir.join("raw").exists(), "nothing recorded, nothing written");
+    assert!(
+        !dir.join("raw").exists(),
+        "nothing recorded, nothing written"
+    );
 }

@@ -1,24 +1,18 @@
 //! The real stages on a simulated capture: ingest → sync → frames, with the offsets found
 //! checked against the simulator's ground truth, and reruns checked on real outputs.
 
+mod common;
+
+use common::fixture;
 use std::fs;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use pipeline::report::{OutputMode, Reporter};
 use pipeline::runner::{RunSummary, Selection};
 use pipeline::{open_capture, simulate, stages};
 
-fn fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../fixtures")
-        .join(name)
-}
-
 fn run(root: &Path, sel: Selection) -> RunSummary {
-    let (capture, config) = open_capture(root).unwrap();
-    stages::pipeline()
-        .run(&capture, &config, &sel, &Reporter::new(OutputMode::Quiet))
-        .unwrap()
+    common::run_stages(root, sel)
 }
 
 fn to(stage: &str) -> Selection {

@@ -3,24 +3,18 @@
 //! checkpoint that the next run continues bit-identically, and the exports.
 //! One test in its own binary: it uses the process-wide stop request.
 
+mod common;
+
+use common::fixture;
 use std::fs;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use pipeline::report::{OutputMode, Reporter};
 use pipeline::runner::{RunSummary, Selection};
-use pipeline::{open_capture, simulate, stages, training};
-
-fn fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../fixtures")
-        .join(name)
-}
+use pipeline::{simulate, training};
 
 fn run(root: &Path, sel: Selection) -> RunSummary {
-    let (capture, config) = open_capture(root).unwrap();
-    stages::pipeline()
-        .run(&capture, &config, &sel, &Reporter::new(OutputMode::Quiet))
-        .unwrap()
+    common::run_stages(root, sel)
 }
 
 fn only(stage: &str, force: bool) -> Selection {

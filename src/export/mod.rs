@@ -14,7 +14,6 @@ pub mod viewer;
 use crate::model::Gaussians;
 use crate::{CameraSet, Progress};
 use serde::{Deserialize, Serialize};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 pub use bake::{Frame3d, Splat3d, bake_frame};
@@ -43,23 +42,12 @@ pub enum ExportError {
     ViewerBundleMissing { looked_in: PathBuf },
 }
 
-/// Write `bytes` to `path` through `<path>.tmp` and a rename; creates parent folders.
+/// Write `bytes` to `path` atomically (`crate::atomic`); creates parent folders.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ExportError> {
-    let io = |source| ExportError::Io {
+    crate::atomic::write_atomic(path, bytes).map_err(|source| ExportError::Io {
         path: path.into(),
         source,
-    };
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(io)?;
-    }
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    let mut f = std::fs::File::create(&tmp).map_err(io)?;
-    f.write_all(bytes).map_err(io)?;
-    f.sync_all().map_err(io)?;
-    drop(f);
-    std::fs::rename(&tmp, path).map_err(io)
+    })
 }
 
 /// Settings of [`export_all`]: the `[export]` section of `capture.toml`.

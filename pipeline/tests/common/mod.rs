@@ -50,3 +50,26 @@ pub fn tree(root: &Path) -> Vec<String> {
     out.sort();
     out
 }
+
+/// A file of the repository's `fixtures/` folder.
+pub fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../fixtures")
+        .join(name)
+}
+
+/// Run the real pipeline's `selection` on a capture directory, quietly.
+pub fn run_stages(
+    root: &Path,
+    selection: pipeline::runner::Selection,
+) -> pipeline::runner::RunSummary {
+    let (capture, config) = pipeline::open_capture(root).unwrap();
+    pipeline::stages::pipeline()
+        .run(
+            &capture,
+            &config,
+            &selection,
+            &pipeline::report::Reporter::new(pipeline::report::OutputMode::Quiet),
+        )
+        .unwrap()
+}

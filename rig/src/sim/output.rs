@@ -7,15 +7,9 @@ use serde::Serialize;
 
 use super::error::SimError;
 
-/// Write `bytes` to `path` through `path.tmp` and a rename.
+/// Write `bytes` to `path` atomically (`splat4d::atomic`).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), SimError> {
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|e| SimError::write(dir, e))?;
-    }
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    std::fs::write(&tmp, bytes).map_err(|e| SimError::write(path, e))?;
-    std::fs::rename(&tmp, path).map_err(|e| SimError::write(path, e))
+    splat4d::atomic::write_atomic(path, bytes).map_err(|e| SimError::write(path, e))
 }
 
 pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), SimError> {
