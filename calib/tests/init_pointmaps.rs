@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use calib::init::npy::{self, OutputNames, PairMaps, PointMap};
+use calib::init::npy::{self, OutputNames, PairMaps};
 use calib::init::{InitConfig, InitInputs, Source, UsedSource, ViewImage, run_init};
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
@@ -113,32 +113,8 @@ fn world_of(cam: &Camera, i: usize, z: f64) -> DVec3 {
 
 /// What a perfect model would output for pair (a, b), divided by `scale`.
 fn gt_pair(t: &Truth, a: usize, b: usize, scale: f64) -> PairMaps {
-    let ca = &t.cameras.cameras[a];
-    let view = |v: usize| {
-        let cam = &t.cameras.cameras[v];
-        let mut points = Vec::new();
-        let mut conf = Vec::new();
-        for (i, z) in t.depth[v].iter().enumerate() {
-            if *z > 0.0 {
-                let p = ca.world_to_camera.apply(world_of(cam, i, *z as f64)) / scale;
-                points.push(p.as_vec3().to_array());
-                conf.push(5.0);
-            } else {
-                points.push([0.0; 3]);
-                conf.push(0.0);
-            }
-        }
-        PointMap {
-            width: cam.intrinsics.width as usize,
-            height: cam.intrinsics.height as usize,
-            points,
-            confidence: Some(conf),
-        }
-    };
-    PairMaps {
-        first: view(a),
-        second: view(b),
-    }
+    let view = |v: usize| (&t.cameras.cameras[v], t.depth[v].as_slice());
+    npy::pair_maps_from_depth(view(a), view(b), scale)
 }
 
 fn closest_on_triangle(p: DVec3, [a, b, c]: [DVec3; 3]) -> DVec3 {

@@ -80,6 +80,10 @@ pub enum Command {
         scene: PathBuf,
         /// The capture directory to create (must not already hold a capture).
         capture_dir: PathBuf,
+        /// Also write the point maps a perfect MASt3R would give, from the true depth, to
+        /// pointmaps/ (use them with `[init] pointmaps = "pointmaps"`).
+        #[arg(long)]
+        truth_pointmaps: bool,
     },
 }
 

@@ -74,9 +74,20 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Record(args) => record(args, reporter),
-        Command::Simulate { scene, capture_dir } => {
+        Command::Simulate {
+            scene,
+            capture_dir,
+            truth_pointmaps,
+        } => {
             let scene = rig::sim::Scene::from_file(&scene)?;
             simulate::simulate_into(&scene, &capture_dir, reporter)?;
+            if truth_pointmaps {
+                let dir = simulate::write_truth_pointmaps(&capture_dir)?;
+                reporter.say(&format!(
+                    "true point maps written to {} (set [init] pointmaps = \"pointmaps\" to use them)",
+                    dir.display()
+                ));
+            }
             reporter.say(&format!(
                 "simulated capture written to {}",
                 capture_dir.display()

@@ -67,17 +67,80 @@ pub fn demo_scene() -> anyhow::Result<rig::sim::Scene> {
     )?)
 }
 
-/// Write the simulator's true video cameras (`groundtruth/cameras.json`, `cam*`) as an
-/// OpenCV-style `calibration.json` in the capture, so that the poses stage imports them
-/// instead of running COLMAP (for tests and benchmarks that isolate later stages).
-pub fn write_truth_calibration(capture_dir: &Path) -> anyhow::Result<()> {
+/// The simulator's true video cameras (`groundtruth/cameras.json`, names `cam*`).
+fn truth_video_cameras(
+    capture_dir: &Path,
+) -> anyhow::Result<(std::path::PathBuf, Vec<splat4d::Camera>)> {
     let path = capture_dir.join("groundtruth/cameras.json");
     let truth: splat4d::CameraSet = serde_json::from_str(
         &fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?,
     )
     .with_context(|| format!("{} is not a camera set", path.display()))?;
+    let video = truth
+        .cameras
+        .into_iter()
+        .filter(|c| c.name.starts_with("cam"))
+        .collect();
+    Ok((path, video))
+}
+
+/// Write what a perfect MASt3R-style model would output for every pair of the
+/// simulator's video cameras, from their true depth at their first frame
+/// (`groundtruth/depth/camN.npy`), as exported point maps `pointmaps/a__b.npz` (the
+/// layout of docs/init.md). Set `[init] pointmaps = "pointmaps"` to initialise from them.
+pub fn write_truth_pointmaps(capture_dir: &Path) -> anyhow::Result<std::path::PathBuf> {
+    use calib::init::npy;
+    let (path, cameras) = truth_video_cameras(capture_dir)?;
+    let mut depths = Vec::new();
+    for c in &cameras {
+        if !c.distortion.is_none() {
+            bail!(
+                "{}: camera {} has a lens distortion; true point maps are written only for pinhole cameras",
+                path.display(),
+                c.name
+            );
+        }
+        let file = capture_dir.join(format!("groundtruth/depth/{}.npy", c.name));
+        let depth = npy::read_npy(&file)?;
+        let want = [c.intrinsics.height as usize, c.intrinsics.width as usize];
+        if depth.shape != want {
+            bail!(
+                "{}: shape {:?}, expected {want:?} (the camera's image size)",
+                file.display(),
+                depth.shape
+            );
+        }
+        depths.push(depth.data);
+    }
+    let out = capture_dir.join("pointmaps");
+    fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    for a in 0..cameras.len() {
+        for b in a + 1..cameras.len() {
+            let maps = npy::pair_maps_from_depth(
+                (&cameras[a], &depths[a]),
+                (&cameras[b], &depths[b]),
+                1.0,
+            );
+            npy::write_pair_npz(
+                &out,
+                &cameras[a].name,
+                &cameras[b].name,
+                &maps,
+                &Default::default(),
+            )
+            .with_context(|| format!("cannot write point maps into {}", out.display()))?;
+        }
+    }
+    Ok(out)
+}
+
+/// Write the simulator's true video cameras (`groundtruth/cameras.json`, `cam*`) as an
+/// OpenCV-style `calibration.json` in the capture, so that the poses stage imports them
+/// instead of running COLMAP (for tests and benchmarks that isolate later stages).
+pub fn write_truth_calibration(capture_dir: &Path) -> anyhow::Result<()> {
+    let (path, video) = truth_video_cameras(capture_dir)?;
     let mut cameras = serde_json::Map::new();
-    for c in truth.cameras.iter().filter(|c| c.name.starts_with("cam")) {
+    for c in &video {
         let (i, d, w) = (&c.intrinsics, &c.distortion, &c.world_to_camera);
         if !d.is_none() {
             bail!(

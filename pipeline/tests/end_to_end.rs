@@ -215,4 +215,30 @@ fn simulated_static_capture_gets_poses_from_colmap() {
         solved.set.cameras[0].intrinsics.width,
         index.cameras[0].width
     );
+
+    // Issue 9: the true depth as exported point maps, aligned to the solved poses: every
+    // pair accepted, its ray scale agreeing with COLMAP's sparse points.
+    let maps = simulate::write_truth_pointmaps(&root).unwrap();
+    assert_eq!(fs::read_dir(&maps).unwrap().count(), 6);
+    let mut toml = fs::read_to_string(root.join("capture.toml")).unwrap();
+    toml.push_str("[init]\npointmaps = \"pointmaps\"\n");
+    fs::write(root.join("capture.toml"), toml).unwrap();
+    let summary = run(
+        &root,
+        Selection {
+            only: Some("init".into()),
+            ..Default::default()
+        },
+    );
+    assert_eq!(summary.ran, ["init"], "{summary:?}");
+    let report: calib::init::InitReport =
+        serde_json::from_str(&fs::read_to_string(root.join("work/init/init.json")).unwrap())
+            .unwrap();
+    assert_eq!(report.source, calib::init::UsedSource::Npy, "{report:#?}");
+    assert_eq!(report.pairs.len(), 6);
+    for p in &report.pairs {
+        assert!(p.accepted, "{p:?}");
+        let (ray, sparse) = (p.ray_scale.unwrap(), p.sparse_scale.unwrap());
+        assert!((ray / sparse - 1.0).abs() < 0.05, "{p:?}");
+    }
 }

@@ -350,3 +350,47 @@ pub fn write_pair_npz(
     }
     std::fs::rename(&tmp, &path)
 }
+
+/// What a perfect MASt3R-style model would output for the pair `(first, second)`: each
+/// view's z-depth map (`0` or non-finite = no surface; row-major at the camera's
+/// resolution) turned into points in `first`'s camera frame, divided by `scale`.
+/// Pixels without a surface get the point `(0, 0, 0)` and confidence 0; the others
+/// confidence 5. Both cameras must be pinhole (depth from a distortion-free render).
+/// Used to benchmark and test the init stage with the simulator's true depth.
+pub fn pair_maps_from_depth(
+    first: (&splat4d::Camera, &[f32]),
+    second: (&splat4d::Camera, &[f32]),
+    scale: f64,
+) -> PairMaps {
+    let to_first = first.0.world_to_camera;
+    let view = |(cam, depth): (&splat4d::Camera, &[f32])| {
+        let w = cam.intrinsics.width as usize;
+        let (points, confidence) = depth
+            .iter()
+            .enumerate()
+            .map(|(i, &z)| {
+                if !(z > 0.0 && z.is_finite()) {
+                    return ([0.0; 3], 0.0);
+                }
+                let n = cam
+                    .intrinsics
+                    .to_normalised(glam::DVec2::new((i % w) as f64 + 0.5, (i / w) as f64 + 0.5));
+                let z = z as f64;
+                let world =
+                    cam.world_to_camera
+                        .inverse_apply(glam::DVec3::new(n.x * z, n.y * z, z));
+                ((to_first.apply(world) / scale).as_vec3().to_array(), 5.0)
+            })
+            .unzip();
+        PointMap {
+            width: w,
+            height: cam.intrinsics.height as usize,
+            points,
+            confidence: Some(confidence),
+        }
+    };
+    PairMaps {
+        first: view(first),
+        second: view(second),
+    }
+}
