@@ -250,11 +250,14 @@ pub fn render_with<F: Real>(
     let (width, height) = (cam.width, cam.height);
     let period = period_of(model);
 
-    // Per-Gaussian stages.
-    let pre: Vec<Option<(Splat<F>, [F; 2], u8)>> = (0..n)
+    // Per-Gaussian stages, in parallel; the visible splats keep the Gaussians' order.
+    let (ids, (splats, (rects, (colour_mask, radius)))): (
+        Vec<u32>,
+        (Vec<Splat<F>>, (Vec<Option<[u32; 4]>>, (Vec<u8>, Vec<F>))),
+    ) = (0..n)
         .into_par_iter()
         .with_min_len(1024)
-        .map(|i| {
+        .filter_map(|i| {
             let (sl, _) = slice(
                 model.means[i],
                 model.log_scales[i],
@@ -271,24 +274,14 @@ pub fn render_with<F: Real>(
             let input = colour_input(model, i, &cam, t, period);
             let (rgb, mask) = colour_and_mask(&input);
             let splat = Splat::new(pr.mean, pr.conic, opacity, rgb, pr.depth);
-            Some((splat, pr.extent, mask))
+            let rect = pixel_rect(splat.rect, width, height)?;
+            let radius = pr.extent[0].max(pr.extent[1]);
+            Some((i as u32, (splat, (Some(rect), (mask, radius)))))
         })
-        .collect();
-    let mut ids = Vec::new();
-    let mut splats = Vec::new();
-    let mut rects = Vec::new();
-    let mut colour_mask = Vec::new();
+        .unzip();
     let mut radii = vec![F::zero(); n];
-    for (i, p) in pre.into_iter().enumerate() {
-        let Some((s, ext, mask)) = p else { continue };
-        let Some(r) = pixel_rect(s.rect, width, height) else {
-            continue;
-        };
-        ids.push(i as u32);
-        splats.push(s);
-        colour_mask.push(mask);
-        rects.push(Some(r));
-        radii[i] = ext[0].max(ext[1]);
+    for (&i, r) in ids.iter().zip(radius) {
+        radii[i as usize] = r;
     }
     let depths: Vec<F> = splats.iter().map(|s| s.depth).collect();
     let bins = bin_tiles(&rects, &depths, width, height);
@@ -309,27 +302,40 @@ pub fn render_with<F: Real>(
             out
         })
         .collect();
-    let npix = width as usize * height as usize;
+    // Copy the tiles into the images, one band of tile rows per task.
+    let (w_px, band) = (width as usize, TILE as usize * width as usize);
+    let npix = w_px * height as usize;
     let mut rgb = vec![F::zero(); 3 * npix];
     let mut alpha = vec![F::zero(); npix];
     let mut depth = vec![F::zero(); npix];
     let mut final_t = vec![F::one(); npix];
     let mut n_contrib = vec![0u32; npix];
-    let mut evaluations = 0u64;
-    for (tile, out) in tiles.iter().enumerate() {
-        evaluations += out.evaluations;
-        let r = tile_rect(&bins, tile, width, height);
-        let w = (r.x1 - r.x0) as usize;
-        for y in r.y0..r.y1 {
-            let src = (y - r.y0) as usize * w;
-            let dst = y as usize * width as usize + r.x0 as usize;
-            rgb[3 * dst..3 * (dst + w)].copy_from_slice(&out.rgb[3 * src..3 * (src + w)]);
-            alpha[dst..dst + w].copy_from_slice(&out.alpha[src..src + w]);
-            depth[dst..dst + w].copy_from_slice(&out.depth[src..src + w]);
-            final_t[dst..dst + w].copy_from_slice(&out.final_t[src..src + w]);
-            n_contrib[dst..dst + w].copy_from_slice(&out.n_contrib[src..src + w]);
-        }
-    }
+    (
+        rgb.par_chunks_mut(3 * band),
+        alpha.par_chunks_mut(band),
+        depth.par_chunks_mut(band),
+        final_t.par_chunks_mut(band),
+        n_contrib.par_chunks_mut(band),
+    )
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(ty, (rgb, alpha, depth, final_t, n_contrib))| {
+            for tx in 0..bins.tiles_x as usize {
+                let tile = ty * bins.tiles_x as usize + tx;
+                let (r, out) = (tile_rect(&bins, tile, width, height), &tiles[tile]);
+                let w = (r.x1 - r.x0) as usize;
+                for y in r.y0..r.y1 {
+                    let src = (y - r.y0) as usize * w;
+                    let dst = (y - r.y0) as usize * w_px + r.x0 as usize;
+                    rgb[3 * dst..3 * (dst + w)].copy_from_slice(&out.rgb[3 * src..3 * (src + w)]);
+                    alpha[dst..dst + w].copy_from_slice(&out.alpha[src..src + w]);
+                    depth[dst..dst + w].copy_from_slice(&out.depth[src..src + w]);
+                    final_t[dst..dst + w].copy_from_slice(&out.final_t[src..src + w]);
+                    n_contrib[dst..dst + w].copy_from_slice(&out.n_contrib[src..src + w]);
+                }
+            }
+        });
+    let evaluations = tiles.iter().map(|o| o.evaluations).sum();
     Ok(Rendered {
         width,
         height,
@@ -450,65 +456,81 @@ impl<F: Real> Rendered<F> {
         let ctx = &self.ctx;
         let bins = &ctx.bins;
 
-        // Blend backward per tile; gradients per (tile, splat) entry.
-        let per_tile: Vec<Vec<SplatGrad<F>>> = (0..bins.tile_count())
-            .into_par_iter()
-            .map_init(
-                || {
-                    (
-                        Vec::new(),
-                        Vec::new(),
-                        Vec::new(),
-                        Vec::new(),
-                        Vec::new(),
-                        Vec::new(),
-                    )
-                },
-                |(local, ft, nc, ur, ua, ud), tile| {
-                    let ids = bins.tile(tile);
-                    let mut grads = vec![SplatGrad::default(); ids.len()];
-                    if ids.is_empty() {
-                        return grads;
-                    }
-                    local.clear();
-                    local.extend(ids.iter().map(|&k| ctx.splats[k as usize]));
-                    let r = tile_rect(bins, tile, width, height);
-                    let w = (r.x1 - r.x0) as usize;
-                    for v in [&mut *ft, &mut *ua, &mut *ud] {
-                        v.clear();
-                    }
-                    nc.clear();
-                    ur.clear();
-                    for y in r.y0..r.y1 {
-                        let s = y as usize * width as usize + r.x0 as usize;
-                        ft.extend_from_slice(&ctx.final_t[s..s + w]);
-                        nc.extend_from_slice(&ctx.n_contrib[s..s + w]);
-                        ur.extend_from_slice(&up.rgb[3 * s..3 * (s + w)]);
-                        match up.alpha {
-                            Some(a) => ua.extend_from_slice(&a[s..s + w]),
-                            None => ua.resize(ua.len() + w, F::zero()),
-                        }
-                        match up.depth {
-                            Some(d) => ud.extend_from_slice(&d[s..s + w]),
-                            None => ud.resize(ud.len() + w, F::zero()),
-                        }
-                    }
-                    let upstream = TileUpstream {
-                        rgb: ur,
-                        alpha: ua,
-                        depth: ud,
-                    };
-                    blend_tile_backward(r, local, ctx.background, ft, nc, &upstream, &mut grads);
-                    grads
-                },
-            )
-            .collect();
-        let mut splat_grads = vec![SplatGrad::<F>::default(); ctx.splats.len()];
-        for (tile, grads) in per_tile.iter().enumerate() {
-            for (&k, g) in bins.tile(tile).iter().zip(grads) {
-                splat_grads[k as usize].add(g);
-            }
+        // Blend backward per tile; gradients per (tile, splat) entry, in one buffer laid
+        // out like `bins.entries`.
+        let mut entry_grads = vec![SplatGrad::<F>::default(); bins.entries.len()];
+        let mut per_tile: Vec<(usize, &mut [SplatGrad<F>])> = Vec::with_capacity(bins.tile_count());
+        let mut rest: &mut [SplatGrad<F>] = &mut entry_grads;
+        for tile in 0..bins.tile_count() {
+            let (head, tail) = rest.split_at_mut(bins.offsets[tile + 1] - bins.offsets[tile]);
+            per_tile.push((tile, head));
+            rest = tail;
         }
+        per_tile.into_par_iter().for_each_init(
+            || {
+                (
+                    Vec::new(),
+                    Vec::new(),
+                    Vec::new(),
+                    Vec::new(),
+                    Vec::new(),
+                    Vec::new(),
+                )
+            },
+            |(local, ft, nc, ur, ua, ud), (tile, grads)| {
+                let ids = bins.tile(tile);
+                if ids.is_empty() {
+                    return;
+                }
+                local.clear();
+                local.extend(ids.iter().map(|&k| ctx.splats[k as usize]));
+                let r = tile_rect(bins, tile, width, height);
+                let w = (r.x1 - r.x0) as usize;
+                for v in [&mut *ft, &mut *ua, &mut *ud] {
+                    v.clear();
+                }
+                nc.clear();
+                ur.clear();
+                for y in r.y0..r.y1 {
+                    let s = y as usize * width as usize + r.x0 as usize;
+                    ft.extend_from_slice(&ctx.final_t[s..s + w]);
+                    nc.extend_from_slice(&ctx.n_contrib[s..s + w]);
+                    ur.extend_from_slice(&up.rgb[3 * s..3 * (s + w)]);
+                    match up.alpha {
+                        Some(a) => ua.extend_from_slice(&a[s..s + w]),
+                        None => ua.resize(ua.len() + w, F::zero()),
+                    }
+                    match up.depth {
+                        Some(d) => ud.extend_from_slice(&d[s..s + w]),
+                        None => ud.resize(ud.len() + w, F::zero()),
+                    }
+                }
+                let upstream = TileUpstream {
+                    rgb: ur,
+                    alpha: ua,
+                    depth: ud,
+                };
+                blend_tile_backward(r, local, ctx.background, ft, nc, &upstream, grads);
+            },
+        );
+        // Sum each splat's entries in tile order. Parallel over ranges of splats: every
+        // task scans all entries and adds those of its own range.
+        let mut splat_grads = vec![SplatGrad::<F>::default(); ctx.splats.len()];
+        let range = splat_grads
+            .len()
+            .div_ceil(rayon::current_num_threads().max(1))
+            .max(1);
+        splat_grads
+            .par_chunks_mut(range)
+            .enumerate()
+            .for_each(|(c, mine)| {
+                let lo = c * range;
+                for (&k, g) in bins.entries.iter().zip(&entry_grads) {
+                    if let Some(dst) = (k as usize).checked_sub(lo).and_then(|j| mine.get_mut(j)) {
+                        dst.add(g);
+                    }
+                }
+            });
         let mut visible_of = vec![u32::MAX; n];
         for (k, &i) in ctx.ids.iter().enumerate() {
             visible_of[i as usize] = k as u32;

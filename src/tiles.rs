@@ -41,7 +41,9 @@ pub fn pixel_rect(rect: [i32; 4], width: u32, height: u32) -> Option<[u32; 4]> {
     Some([x0 as u32, x1 as u32, y0 as u32, y1 as u32])
 }
 
-/// Bin splats (given by pixel rectangle and depth) into tiles.
+/// Bin splats (given by pixel rectangle and depth) into tiles. Counting and filling run
+/// in parallel over chunks of splats; each tile's list is then sorted by (depth, index),
+/// so the result does not depend on the chunking.
 pub fn bin_tiles<F: Real>(
     rects: &[Option<[u32; 4]>],
     depths: &[F],
@@ -51,34 +53,65 @@ pub fn bin_tiles<F: Real>(
     let tiles_x = width.div_ceil(TILE);
     let tiles_y = height.div_ceil(TILE);
     let n_tiles = (tiles_x * tiles_y) as usize;
-    let mut counts = vec![0usize; n_tiles + 1];
-    let tile_rect = |r: &[u32; 4]| [r[0] / TILE, r[1] / TILE, r[2] / TILE, r[3] / TILE];
-    for r in rects.iter().flatten() {
-        let [tx0, tx1, ty0, ty1] = tile_rect(r);
-        for ty in ty0..=ty1 {
-            for tx in tx0..=tx1 {
-                counts[(ty * tiles_x + tx) as usize + 1] += 1;
+    // The tiles (row-major indices) a pixel box touches.
+    let tiles_of = move |r: &[u32; 4]| {
+        let [tx0, tx1, ty0, ty1] = [r[0] / TILE, r[1] / TILE, r[2] / TILE, r[3] / TILE];
+        (ty0..=ty1).flat_map(move |ty| (tx0..=tx1).map(move |tx| (ty * tiles_x + tx) as usize))
+    };
+    // Per chunk of splats: how many entries it adds to each tile.
+    let chunk = rects
+        .len()
+        .div_ceil(rayon::current_num_threads().max(1) * 4)
+        .max(4096);
+    let mut chunk_counts: Vec<Vec<usize>> = rects
+        .par_chunks(chunk)
+        .map(|rs| {
+            let mut counts = vec![0usize; n_tiles];
+            for t in rs.iter().flatten().flat_map(tiles_of) {
+                counts[t] += 1;
             }
-        }
-    }
+            counts
+        })
+        .collect();
+    // Tile offsets, and each chunk's start inside every tile (chunks in splat order).
+    let mut offsets = vec![0usize; n_tiles + 1];
     for t in 0..n_tiles {
-        counts[t + 1] += counts[t];
-    }
-    let offsets = counts;
-    let mut cursor = offsets.clone();
-    let mut keys = vec![0u64; offsets[n_tiles]];
-    for (i, r) in rects.iter().enumerate() {
-        let Some(r) = r else { continue };
-        let depth_bits = (depths[i].f64() as f32).max(0.0).to_bits() as u64;
-        let key = (depth_bits << 32) | i as u64;
-        let [tx0, tx1, ty0, ty1] = tile_rect(r);
-        for ty in ty0..=ty1 {
-            for tx in tx0..=tx1 {
-                let t = (ty * tiles_x + tx) as usize;
-                keys[cursor[t]] = key;
-                cursor[t] += 1;
-            }
+        let mut cursor = offsets[t];
+        for counts in chunk_counts.iter_mut() {
+            let c = counts[t];
+            counts[t] = cursor;
+            cursor += c;
         }
+        offsets[t + 1] = cursor;
+    }
+    let total = offsets[n_tiles];
+    let mut keys = vec![0u64; total];
+    {
+        // Each (chunk, tile) range of `keys` is written by exactly one chunk.
+        struct Shared(*mut u64);
+        // SAFETY: the pointer is only used for disjoint writes (see below).
+        unsafe impl Sync for Shared {}
+        let out = Shared(keys.as_mut_ptr());
+        let out = &out;
+        rects
+            .par_chunks(chunk)
+            .zip(chunk_counts.par_iter_mut())
+            .enumerate()
+            .for_each(|(c, (rs, cursor))| {
+                for (j, r) in rs.iter().enumerate() {
+                    let Some(r) = r else { continue };
+                    let i = c * chunk + j;
+                    let depth_bits = (depths[i].f64() as f32).max(0.0).to_bits() as u64;
+                    let key = (depth_bits << 32) | i as u64;
+                    for t in tiles_of(r) {
+                        // SAFETY: chunk c's cursor for tile t runs over the range
+                        // [start(c, t), start(c + 1, t)) that only this chunk owns, and
+                        // stays below `total` (the counts above bound it).
+                        unsafe { *out.0.add(cursor[t]) = key };
+                        cursor[t] += 1;
+                    }
+                }
+            });
     }
     // Split the key array into per-tile slices and sort each in parallel.
     let mut slices: Vec<&mut [u64]> = Vec::with_capacity(n_tiles);
