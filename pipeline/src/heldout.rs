@@ -92,6 +92,25 @@ pub fn split_poses(out_dir: &Path, heldout: &[String], origin: &str) -> anyhow::
     write_json(&out_dir.join(HELDOUT_FILE), &part(true))
 }
 
+/// The held-out cameras of a capture's `work/` folder as the undistorted pinhole cameras
+/// that `eval` renders (e.g. for `[render] path = "heldout"`); empty when the capture
+/// lists no held-out cameras (no `work/frames/heldout.json`).
+pub fn pinhole_heldout_cameras(work_dir: &Path) -> anyhow::Result<Vec<splat4d::Camera>> {
+    let index_path = work_dir.join("frames").join(HELDOUT_FILE);
+    if !index_path.exists() {
+        return Ok(Vec::new());
+    }
+    let index = FramesIndex::read_json(&index_path)?;
+    let poses_path = work_dir.join("poses").join(HELDOUT_FILE);
+    let poses = PosesFile::read(&poses_path)?;
+    Ok(
+        crate::training::pinhole_cameras(&index, &poses.set, &poses_path)?
+            .into_iter()
+            .map(|(camera, _)| camera)
+            .collect(),
+    )
+}
+
 fn write_json(path: &Path, value: &impl serde::Serialize) -> anyhow::Result<()> {
     crate::atomic::write_atomic(path, &serde_json::to_vec_pretty(value)?)
         .with_context(|| format!("cannot write {}", path.display()))

@@ -169,6 +169,8 @@ fn heldout_cameras_of_a_real_capture_are_posed_never_trained_and_measured() {
     assert_eq!(names(&poses.set), ["cam0", "cam1", "cam2", "cam3"]);
     assert_eq!(names(&held_poses.set), ["cam4", "cam5"]);
     assert_eq!(held_poses.normalisation, poses.normalisation);
+    let pinholes = pipeline::heldout::pinhole_heldout_cameras(&work).unwrap();
+    assert_eq!(names(&splat4d::CameraSet::new(pinholes)), ["cam4", "cam5"]);
 
     // Training never saw cam4/cam5.
     let dataset = training::load_dataset(
