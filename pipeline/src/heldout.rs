@@ -115,3 +115,158 @@ fn write_json(path: &Path, value: &impl serde::Serialize) -> anyhow::Result<()> 
     crate::atomic::write_atomic(path, &serde_json::to_vec_pretty(value)?)
         .with_context(|| format!("cannot write {}", path.display()))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use calib::poses::{Normalisation, PoseSource};
+    use glam::{DMat3, DVec3};
+    use rig::frames::{AlignedFrame, CameraImages, View};
+    use splat4d::{Camera, Distortion, Intrinsics, WorldToCamera};
+
+    fn names(n: &[&str]) -> Vec<String> {
+        n.iter().map(|s| s.to_string()).collect()
+    }
+
+    fn index(cameras: &[&str]) -> FramesIndex {
+        FramesIndex {
+            fps: 10.0,
+            start_s: 0.25,
+            cameras: cameras
+                .iter()
+                .map(|name| CameraImages {
+                    name: name.to_string(),
+                    width: 16,
+                    height: 12,
+                })
+                .collect(),
+            frames: (0..3)
+                .map(|f| AlignedFrame {
+                    index: f,
+                    time_s: 0.25 + f as f64 / 10.0,
+                    views: cameras
+                        .iter()
+                        .enumerate()
+                        .map(|(c, name)| View {
+                            source_frame: f + c,
+                            timestamp_s: 0.25 + f as f64 / 10.0 + 0.01 * c as f64,
+                            residual_s: 0.01 * c as f64,
+                            file: format!("{name}/{f:06}.png"),
+                        })
+                        .collect(),
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn frames_split_keeps_the_timeline_and_each_cameras_views() {
+        let all = index(&["cam0", "cam1", "cam4", "cam2"]);
+        let (train, held) = split_frames(&all, &names(&["cam4"])).unwrap();
+        let cams = |i: &FramesIndex| i.cameras.iter().map(|c| c.name.clone()).collect::<Vec<_>>();
+        assert_eq!(cams(&train), ["cam0", "cam1", "cam2"]);
+        assert_eq!(cams(&held), ["cam4"]);
+        for part in [&train, &held] {
+            assert_eq!((part.fps, part.start_s), (all.fps, all.start_s));
+            assert_eq!(part.frames.len(), all.frames.len());
+        }
+        for (f, frame) in all.frames.iter().enumerate() {
+            assert_eq!(held.frames[f].views, [frame.views[2].clone()]);
+            assert_eq!(train.frames[f].views[2], frame.views[3]);
+            assert_eq!(train.frames[f].time_s, frame.time_s);
+        }
+        let err = split_frames(&all, &names(&["cam5"]))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("cam5") && err.contains("frames"), "{err}");
+    }
+
+    fn camera(name: &str, x: f64) -> Camera {
+        Camera {
+            name: name.into(),
+            intrinsics: Intrinsics::from_hfov(16, 12, 60.0),
+            distortion: Distortion::None,
+            world_to_camera: WorldToCamera::from_parts(DMat3::IDENTITY, DVec3::new(x, 0.0, 4.0)),
+        }
+    }
+
+    fn write_poses(dir: &Path, cameras: &[&str]) {
+        let file = PosesFile {
+            set: CameraSet::new(
+                cameras
+                    .iter()
+                    .enumerate()
+                    .map(|(i, n)| camera(n, i as f64))
+                    .collect(),
+            ),
+            normalisation: Normalisation {
+                centre: [1.0, 2.0, 3.0],
+                scale: 0.5,
+            },
+            source: PoseSource::Import {
+                path: "calibration.json".into(),
+            },
+            points_file: Some("points3d.ply".into()),
+            num_points: 7,
+        };
+        write_json(&dir.join("cameras.json"), &file).unwrap();
+    }
+
+    #[test]
+    fn poses_split_into_training_and_heldout_files() {
+        let tmp = tempfile::tempdir().unwrap();
+        write_poses(tmp.path(), &["cam0", "cam1", "cam4", "cam5"]);
+        split_poses(
+            tmp.path(),
+            &names(&["cam5", "cam4"]),
+            "the calibration c.json",
+        )
+        .unwrap();
+        let train = PosesFile::read(&tmp.path().join("cameras.json")).unwrap();
+        let held = PosesFile::read(&tmp.path().join(HELDOUT_FILE)).unwrap();
+        let cams = |f: &PosesFile| {
+            f.set
+                .cameras
+                .iter()
+                .map(|c| c.name.clone())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(cams(&train), ["cam0", "cam1"]);
+        assert_eq!(cams(&held), ["cam4", "cam5"]);
+        assert_eq!(held.normalisation, train.normalisation);
+        assert_eq!(held.set.get("cam4"), Some(&camera("cam4", 2.0)));
+        assert_eq!(
+            (train.points_file.as_deref(), train.num_points),
+            (Some("points3d.ply"), 7)
+        );
+        assert_eq!((held.points_file, held.num_points), (None, 0));
+    }
+
+    #[test]
+    fn a_calibration_without_a_heldout_camera_is_refused() {
+        let tmp = tempfile::tempdir().unwrap();
+        write_poses(tmp.path(), &["cam0", "cam1", "cam4"]);
+        let err = split_poses(
+            tmp.path(),
+            &names(&["cam4", "cam5"]),
+            "the calibration c.json",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("the calibration c.json")
+                && err.contains("cam5")
+                && err.contains("heldout"),
+            "{err}"
+        );
+        assert!(!err.contains("cam4,"), "{err}");
+        assert!(!tmp.path().join(HELDOUT_FILE).exists());
+        // Without held-out cameras nothing changes.
+        let before = std::fs::read(tmp.path().join("cameras.json")).unwrap();
+        split_poses(tmp.path(), &[], "x").unwrap();
+        assert_eq!(
+            std::fs::read(tmp.path().join("cameras.json")).unwrap(),
+            before
+        );
+    }
+}
