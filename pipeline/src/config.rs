@@ -34,13 +34,40 @@ pub struct CaptureConfig {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CaptureSection {
-    /// Number of video cameras (folders `raw/cam0` … in the capture directory).
+    /// Number of training video cameras: the folders `raw/camN/` not listed in `heldout`.
     pub cameras: usize,
+    /// Extra camera folders `raw/<name>/` that are ingested, synchronised, aligned and
+    /// posed like the training cameras but never trained on: the `eval` stage measures
+    /// novel-view quality on them (docs/render-eval.md).
+    pub heldout: Vec<String>,
 }
 
 impl Default for CaptureSection {
     fn default() -> Self {
-        Self { cameras: 4 }
+        Self {
+            cameras: 4,
+            heldout: Vec::new(),
+        }
+    }
+}
+
+impl CaptureSection {
+    /// What is wrong with `heldout`, if anything: an empty, hidden or nested name, or a
+    /// name listed twice.
+    fn heldout_problem(&self) -> Option<String> {
+        for (i, name) in self.heldout.iter().enumerate() {
+            if name.is_empty() || name.starts_with('.') || name.contains(['/', '\\']) {
+                return Some(format!(
+                    "[capture] heldout: {name:?} is not a camera folder name (use the name of a folder in raw/, e.g. \"cam4\")"
+                ));
+            }
+            if self.heldout[..i].contains(name) {
+                return Some(format!(
+                    "[capture] heldout lists {name:?} twice; a camera is held out once (a held-out camera is never a training camera)"
+                ));
+            }
+        }
+        None
     }
 }
 
@@ -86,6 +113,12 @@ impl CaptureConfig {
             return Err(ConfigError::Invalid {
                 path: path.to_path_buf(),
                 message: "[capture] cameras must be at least 1".into(),
+            });
+        }
+        if let Some(message) = config.capture.heldout_problem() {
+            return Err(ConfigError::Invalid {
+                path: path.to_path_buf(),
+                message,
             });
         }
         Ok(config)
@@ -142,5 +175,28 @@ mod tests {
         let c = CaptureConfig::parse("[train]\niterations = 5\n", Path::new("c.toml")).unwrap();
         assert_eq!(c.train.iterations, 5);
         assert!(CaptureConfig::parse("[capture]\ncameras = 0\n", Path::new("c.toml")).is_err());
+    }
+
+    #[test]
+    fn heldout_cameras_parse_and_bad_lists_are_refused() {
+        let c = CaptureConfig::parse("", Path::new("c.toml")).unwrap();
+        assert!(c.capture.heldout.is_empty());
+        let c = CaptureConfig::parse(
+            "[capture]\nheldout = [\"cam4\", \"cam5\"]\n",
+            Path::new("c.toml"),
+        )
+        .unwrap();
+        assert_eq!(c.capture.heldout, ["cam4", "cam5"]);
+        assert_eq!(c.capture.cameras, 4);
+        for (text, needle) in [
+            ("heldout = [\"cam4\", \"cam4\"]", "twice"),
+            ("heldout = [\"\"]", "not a camera folder name"),
+            ("heldout = [\"../cam4\"]", "not a camera folder name"),
+        ] {
+            let err = CaptureConfig::parse(&format!("[capture]\n{text}\n"), Path::new("c.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(needle) && err.contains("heldout"), "{err}");
+        }
     }
 }

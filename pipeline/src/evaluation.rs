@@ -1,6 +1,7 @@
-//! The `eval` stage: metrics of the trained model on held-out views (the simulator's
-//! ground truth in `groundtruth/`) and, separately, on a sample of the training views
-//! (`splat4d::eval`, docs/render-eval.md).
+//! The `eval` stage: metrics of the trained model on held-out views and, separately, on a
+//! sample of the training views (`splat4d::eval`, docs/render-eval.md). Held-out views
+//! are the frames of the cameras listed in `[capture] heldout` (a real capture, see
+//! `crate::heldout`) or else the simulator's ground truth in `groundtruth/`.
 
 use std::path::{Path, PathBuf};
 
@@ -14,6 +15,7 @@ use serde::{Deserialize, Serialize};
 use splat4d::eval::EvalView;
 use splat4d::{Camera, CameraSet, TimeMapping, WorldToCamera};
 
+use crate::heldout::HELDOUT_FILE;
 use crate::layout::Capture;
 use crate::stage::StageContext;
 use crate::training::{load_frame, pinhole_cameras, time_mapping};
@@ -157,6 +159,52 @@ pub fn heldout_views(
     Ok(views)
 }
 
+/// Held-out views of a capture with `[capture] heldout` cameras: every aligned frame of
+/// those cameras (`frames_dir/heldout.json`, thinned to `heldout_per_camera` per camera),
+/// posed by `poses_dir/heldout.json`, undistorted to pinhole exactly as the train stage
+/// undistorts its frames (copies in `gt_dir/<camera>/` where a lens needs it), at the
+/// model time of each frame's exact timestamp.
+pub fn capture_heldout_views(
+    frames_dir: &Path,
+    poses_dir: &Path,
+    settings: &EvalSettings,
+    mapping: &TimeMapping,
+    gt_dir: &Path,
+) -> anyhow::Result<Vec<EvalView>> {
+    let index_path = frames_dir.join(HELDOUT_FILE);
+    let index = FramesIndex::read_json(&index_path).with_context(|| {
+        format!(
+            "cannot read the held-out cameras' frames {}; rerun the frames stage (`pipeline run CAPTURE --from frames --force`)",
+            index_path.display()
+        )
+    })?;
+    let poses_path = poses_dir.join(HELDOUT_FILE);
+    let poses = PosesFile::read(&poses_path).with_context(|| {
+        format!(
+            "cannot read the held-out cameras' poses {}; rerun the poses stage (`pipeline run CAPTURE --from poses --force`)",
+            poses_path.display()
+        )
+    })?;
+    let cameras = pinhole_cameras(&index, &poses.set, &poses_path)?;
+    let mut views = Vec::new();
+    for (c, (camera, map)) in cameras.iter().enumerate() {
+        for f in spread(index.frames.len(), settings.heldout_per_camera) {
+            let view = &index.frames[f].views[c];
+            let source = frames_dir.join(&view.file);
+            let image_path = match map {
+                None => source,
+                Some(map) => write_undistorted(&source, map, gt_dir, &camera.name, f)?,
+            };
+            views.push(EvalView {
+                camera: camera.clone(),
+                time: mapping.model_time(view.timestamp_s),
+                image_path,
+            });
+        }
+    }
+    Ok(views)
+}
+
 /// Undistort a ground-truth image into `gt_dir/<camera>/NNNNNN.png`.
 fn write_undistorted(
     source: &Path,
@@ -218,16 +266,26 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
     let index = FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
     let mapping = time_mapping(&index);
     let gt_dir = ctx.output("groundtruth");
-    let heldout = heldout_views(
-        ctx.capture,
-        &ctx.config.eval,
-        &poses.set,
-        &mapping,
-        &gt_dir.join("heldout"),
-    )?;
+    let heldout = if ctx.config.capture.heldout.is_empty() {
+        heldout_views(
+            ctx.capture,
+            &ctx.config.eval,
+            &poses.set,
+            &mapping,
+            &gt_dir.join("heldout"),
+        )?
+    } else {
+        capture_heldout_views(
+            &ctx.stage_dir("frames"),
+            &ctx.stage_dir("poses"),
+            &ctx.config.eval,
+            &mapping,
+            &gt_dir.join("heldout"),
+        )?
+    };
     if heldout.is_empty() {
         tracing::warn!(
-            "no held-out views (groundtruth/heldout/ is absent): only training views are measured, which shows fit, not novel-view quality"
+            "no held-out views (no [capture] heldout cameras and no groundtruth/heldout/): only training views are measured, which shows fit, not novel-view quality"
         );
     }
     let train = train_views(ctx, &poses.set, &index, &mapping, &gt_dir.join("train"))?;

@@ -5,6 +5,8 @@
 //! CAPTURE_DIR/
 //!   capture.toml          optional settings (see `config`)
 //!   raw/cam0/ … raw/camN/ video files per camera (GoPro chapters GX01xxxx.MP4, GX02xxxx.MP4, …)
+//!   raw/<heldout>/        optional extra cameras listed in `[capture] heldout`: posed and
+//!                         aligned like the others, never trained on, used by `eval`
 //!   stills/               extra photos for pose solving (*.jpg, *.png)
 //!   calibration.*         optional calibration to import instead of solving poses
 //!                         (calibration.json|yaml|toml, camera_array.toml, calibration/ COLMAP)
@@ -30,8 +32,11 @@ pub const IMAGE_EXTENSIONS: &[&str] = &["jpg", "jpeg", "png"];
 #[derive(Clone, Debug)]
 pub struct Capture {
     pub root: PathBuf,
-    /// Cameras in order of their number, each with its video files in recording order.
+    /// Training cameras (the `raw/camN/` folders not listed in `[capture] heldout`) in
+    /// order of their number, each with its video files in recording order.
     pub cameras: Vec<CameraFolder>,
+    /// Held-out cameras, in the order of `[capture] heldout` (empty when none are listed).
+    pub heldout: Vec<CameraFolder>,
     /// Files in `stills/`, sorted by name (empty when the folder is absent).
     pub stills: Vec<PathBuf>,
     /// A calibration to import instead of solving poses (`calibration.json|yaml|toml`,
@@ -56,6 +61,11 @@ impl Capture {
     pub fn config_path(&self) -> PathBuf {
         self.root.join(crate::config::CONFIG_FILE)
     }
+    /// Training cameras, then held-out ones: every camera that is ingested, synchronised,
+    /// aligned and posed (the first one is the sync reference by default).
+    pub fn all_cameras(&self) -> impl Iterator<Item = &CameraFolder> {
+        self.cameras.iter().chain(&self.heldout)
+    }
 }
 
 /// What is wrong with a capture directory. Each message names the path and the fix.
@@ -67,17 +77,27 @@ pub enum LayoutError {
     NotADirectory(PathBuf),
     #[error("{0} is missing: put each camera's videos in raw/cam0/ … raw/cam{last}/", last = .1 - 1)]
     NoRawDir(PathBuf, usize),
-    #[error("{dir}: expected {expected} camera folders (cam0 … cam{last}), found {found}{list}; \
-             add the missing camera's folder or set `cameras = {found}` under [capture] in capture.toml",
-            last = .expected - 1, list = if .names.is_empty() { String::new() } else { format!(" ({})", .names.join(", ")) })]
+    #[error("{dir}: expected {expected} {kind}camera folders (cam0 … cam{last}), found {found}{list}; \
+             add the missing camera's folder or set `cameras = {found}` under [capture] in capture.toml \
+             (or list extra cameras that are only for evaluation as `heldout = [\"camN\", …]` there)",
+            last = .expected - 1, list = if .names.is_empty() { String::new() } else { format!(" ({})", .names.join(", ")) },
+            kind = if .heldout.is_empty() { String::new() } else { format!("training (besides held-out {}) ", .heldout.join(", ")) })]
     WrongCameraCount {
         dir: PathBuf,
         expected: usize,
         found: usize,
         names: Vec<String>,
+        /// The held-out folders (not counted).
+        heldout: Vec<String>,
     },
     #[error(
-        "{0} does not belong in raw/: only camera folders named camN (cam0, cam1, …) may be there"
+        "{dir} is missing (or not a folder): [capture] heldout in capture.toml lists {name}; \
+             copy that camera's videos into it, or remove {name:?} from `heldout`"
+    )]
+    HeldoutMissing { dir: PathBuf, name: String },
+    #[error(
+        "{0} does not belong in raw/: only camera folders named camN (cam0, cam1, …) may be there, \
+         and folders listed in `heldout = [...]` under [capture] in capture.toml"
     )]
     UnexpectedEntry(PathBuf),
     #[error("{0} holds no video: copy that camera's recordings (e.g. GX010001.MP4) into it")]
@@ -191,6 +211,18 @@ pub fn sniff_video(path: &Path) -> Result<(), LayoutError> {
 /// Validate a capture directory: exactly `expected_cameras` folders `raw/camN/`, each with
 /// at least one video, nothing else in `raw/`, `stills/` (optional) holding only images.
 pub fn validate(root: &Path, expected_cameras: usize) -> Result<Capture, LayoutError> {
+    validate_rig(root, expected_cameras, &[])
+}
+
+/// Validate a capture directory with held-out cameras: the folders `raw/<name>/` of
+/// `heldout` (each must exist) plus exactly `expected_cameras` training folders `raw/camN/`
+/// (every other folder), each with at least one video; `stills/` holding only images.
+/// `heldout` comes from a parsed `capture.toml` (no duplicates, plain names).
+pub fn validate_rig(
+    root: &Path,
+    expected_cameras: usize,
+    heldout: &[String],
+) -> Result<Capture, LayoutError> {
     if !root.exists() {
         return Err(LayoutError::NoCaptureDir(root.to_path_buf()));
     }
@@ -201,9 +233,21 @@ pub fn validate(root: &Path, expected_cameras: usize) -> Result<Capture, LayoutE
     if !raw.is_dir() {
         return Err(LayoutError::NoRawDir(raw, expected_cameras.max(1)));
     }
+    for name in heldout {
+        let dir = raw.join(name);
+        if !dir.is_dir() {
+            return Err(LayoutError::HeldoutMissing {
+                dir,
+                name: name.clone(),
+            });
+        }
+    }
     let mut cameras: Vec<(u32, PathBuf)> = Vec::new();
     for entry in list_dir(&raw)? {
         let name = entry.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        if heldout.iter().any(|h| h == name) {
+            continue;
+        }
         match camera_number(name) {
             Some(n) if entry.is_dir() => cameras.push((n, entry.clone())),
             _ => return Err(LayoutError::UnexpectedEntry(entry)),
@@ -216,36 +260,17 @@ pub fn validate(root: &Path, expected_cameras: usize) -> Result<Capture, LayoutE
             expected: expected_cameras,
             found: cameras.len(),
             names: cameras.iter().map(|(n, _)| format!("cam{n}")).collect(),
+            heldout: heldout.to_vec(),
         });
     }
-    let mut folders = Vec::new();
-    for (_, dir) in cameras {
-        let mut videos = Vec::new();
-        for file in list_dir(&dir)? {
-            let ext = extension(&file);
-            if IGNORED_EXTENSIONS.contains(&ext.as_str()) {
-                continue;
-            }
-            if file.is_dir() || !VIDEO_EXTENSIONS.contains(&ext.as_str()) {
-                return Err(LayoutError::NotAVideo {
-                    path: file,
-                    detail: " (unexpected file type)".into(),
-                });
-            }
-            sniff_video(&file)?;
-            videos.push(file);
-        }
-        if videos.is_empty() {
-            return Err(LayoutError::EmptyCameraDir(dir));
-        }
-        videos.sort_by_key(|p| recording_order_key(p));
-        let name = dir
-            .file_name()
-            .and_then(|n| n.to_str())
-            .unwrap_or("")
-            .to_string();
-        folders.push(CameraFolder { name, dir, videos });
-    }
+    let folders = cameras
+        .into_iter()
+        .map(|(_, dir)| camera_folder(dir))
+        .collect::<Result<Vec<_>, _>>()?;
+    let heldout = heldout
+        .iter()
+        .map(|name| camera_folder(raw.join(name)))
+        .collect::<Result<Vec<_>, _>>()?;
     let stills_dir = root.join("stills");
     let mut stills = Vec::new();
     if stills_dir.exists() {
@@ -263,9 +288,39 @@ pub fn validate(root: &Path, expected_cameras: usize) -> Result<Capture, LayoutE
     Ok(Capture {
         root: root.to_path_buf(),
         cameras: folders,
+        heldout,
         stills,
         calibration,
     })
+}
+
+/// A camera folder's videos in recording order (at least one; sidecar files skipped).
+fn camera_folder(dir: PathBuf) -> Result<CameraFolder, LayoutError> {
+    let mut videos = Vec::new();
+    for file in list_dir(&dir)? {
+        let ext = extension(&file);
+        if IGNORED_EXTENSIONS.contains(&ext.as_str()) {
+            continue;
+        }
+        if file.is_dir() || !VIDEO_EXTENSIONS.contains(&ext.as_str()) {
+            return Err(LayoutError::NotAVideo {
+                path: file,
+                detail: " (unexpected file type)".into(),
+            });
+        }
+        sniff_video(&file)?;
+        videos.push(file);
+    }
+    if videos.is_empty() {
+        return Err(LayoutError::EmptyCameraDir(dir));
+    }
+    videos.sort_by_key(|p| recording_order_key(p));
+    let name = dir
+        .file_name()
+        .and_then(|n| n.to_str())
+        .unwrap_or("")
+        .to_string();
+    Ok(CameraFolder { name, dir, videos })
 }
 
 #[cfg(test)]
@@ -303,5 +358,86 @@ mod tests {
         assert_eq!(camera_number("cam"), None);
         assert_eq!(camera_number("camera1"), None);
         assert_eq!(camera_number("cam-1"), None);
+    }
+
+    /// `raw/<name>/` folders with one (MP4-signed) video each.
+    fn capture_with(names: &[&str]) -> tempfile::TempDir {
+        let tmp = tempfile::tempdir().unwrap();
+        for name in names {
+            let dir = tmp.path().join("raw").join(name);
+            fs::create_dir_all(&dir).unwrap();
+            fs::write(
+                dir.join("GX010001.MP4"),
+                b"\x00\x00\x00\x18ftypmp42\x00\x00\x00\x00mp42isom",
+            )
+            .unwrap();
+        }
+        tmp
+    }
+
+    fn heldout(names: &[&str]) -> Vec<String> {
+        names.iter().map(|n| n.to_string()).collect()
+    }
+
+    #[test]
+    fn heldout_folders_are_separated_from_the_training_cameras() {
+        let tmp = capture_with(&["cam0", "cam1", "cam2", "cam3", "cam4", "cam5"]);
+        let capture = validate_rig(tmp.path(), 4, &heldout(&["cam5", "cam4"])).unwrap();
+        let names = |c: &[CameraFolder]| c.iter().map(|c| c.name.clone()).collect::<Vec<_>>();
+        assert_eq!(names(&capture.cameras), ["cam0", "cam1", "cam2", "cam3"]);
+        assert_eq!(names(&capture.heldout), ["cam5", "cam4"]);
+        assert_eq!(capture.all_cameras().count(), 6);
+        // Any camera may be held out; the others train. A held-out name need not be camN.
+        let capture = validate_rig(tmp.path(), 5, &heldout(&["cam2"])).unwrap();
+        assert_eq!(
+            names(&capture.cameras),
+            ["cam0", "cam1", "cam3", "cam4", "cam5"]
+        );
+        let tmp = capture_with(&["cam0", "cam1", "cam2", "cam3", "judge"]);
+        let capture = validate_rig(tmp.path(), 4, &heldout(&["judge"])).unwrap();
+        assert_eq!(names(&capture.heldout), ["judge"]);
+    }
+
+    #[test]
+    fn heldout_layout_errors_name_the_key_to_set() {
+        let tmp = capture_with(&["cam0", "cam1", "cam2", "cam3", "cam4", "cam5"]);
+        // Extra folders that are not listed: set `cameras` or `heldout`.
+        let err = validate_rig(tmp.path(), 4, &[]).unwrap_err().to_string();
+        assert!(
+            err.contains("found 6") && err.contains("cameras = 6") && err.contains("heldout"),
+            "{err}"
+        );
+        let err = validate_rig(tmp.path(), 4, &heldout(&["cam4"]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("found 5") && err.contains("held-out cam4") && err.contains("cam5"),
+            "{err}"
+        );
+        // A listed folder that is missing.
+        let err = validate_rig(tmp.path(), 4, &heldout(&["cam4", "cam5", "cam6"]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("cam6") && err.contains("is missing") && err.contains("heldout"),
+            "{err}"
+        );
+        // An unlisted folder that is not camN.
+        let tmp = capture_with(&["cam0", "cam1", "cam2", "cam3", "judge"]);
+        let err = validate_rig(tmp.path(), 4, &[]).unwrap_err().to_string();
+        assert!(
+            err.contains("judge") && err.contains("does not belong") && err.contains("heldout"),
+            "{err}"
+        );
+        // A held-out folder without videos.
+        let tmp = capture_with(&["cam0", "cam1", "cam2", "cam3"]);
+        fs::create_dir_all(tmp.path().join("raw/cam4")).unwrap();
+        let err = validate_rig(tmp.path(), 4, &heldout(&["cam4"]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("cam4") && err.contains("holds no video"),
+            "{err}"
+        );
     }
 }

@@ -11,6 +11,7 @@ pub mod cli;
 pub mod config;
 pub mod evaluation;
 pub mod exporting;
+pub mod heldout;
 pub mod initial_points;
 pub mod layout;
 pub mod lock;
@@ -38,7 +39,7 @@ pub fn open_capture(dir: &Path) -> anyhow::Result<(Capture, CaptureConfig)> {
         return Err(layout::LayoutError::NotADirectory(dir.to_path_buf()).into());
     }
     let config = CaptureConfig::load(dir)?;
-    let capture = layout::validate(dir, config.capture.cameras)?;
+    let capture = layout::validate_rig(dir, config.capture.cameras, &config.capture.heldout)?;
     Ok((capture, config))
 }
 

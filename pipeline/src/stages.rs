@@ -2,7 +2,7 @@
 //! its own `capture.toml` section; its inputs are the capture files it reads plus the
 //! outputs of the stages named in `after`.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use rig::frames::FramesIndex;
@@ -13,11 +13,10 @@ use crate::layout::Capture;
 use crate::runner::Pipeline;
 use crate::stage::{StageContext, StageDef};
 
-/// Every camera's video files.
+/// Every camera's video files (training and held-out cameras).
 fn raw_videos(capture: &Capture) -> Vec<PathBuf> {
     capture
-        .cameras
-        .iter()
+        .all_cameras()
         .flat_map(|c| c.videos.iter().cloned())
         .collect()
 }
@@ -31,8 +30,7 @@ fn read_streams(ctx: &StageContext) -> anyhow::Result<Streams> {
 fn ingest(ctx: &StageContext) -> anyhow::Result<()> {
     let cameras: Vec<(String, PathBuf)> = ctx
         .capture
-        .cameras
-        .iter()
+        .all_cameras()
         .map(|c| (c.name.clone(), c.dir.clone()))
         .collect();
     let streams = rig::ingest::ingest(&cameras, ctx.progress)?;
@@ -72,11 +70,19 @@ fn frames(ctx: &StageContext) -> anyhow::Result<()> {
         index.frames.len(),
         index.fps
     );
+    let heldout_names = &ctx.config.capture.heldout;
+    if !heldout_names.is_empty() {
+        let (train, heldout) = crate::heldout::split_frames(&index, heldout_names)?;
+        train.write_json(&ctx.output("frames.json"))?;
+        heldout.write_json(&ctx.output(crate::heldout::HELDOUT_FILE))?;
+        tracing::info!("held out from training: {}", heldout_names.join(", "));
+    }
     Ok(())
 }
 
 fn poses(ctx: &StageContext) -> anyhow::Result<()> {
     let config = &ctx.config.poses;
+    let heldout = &ctx.config.capture.heldout;
     let frames_dir = ctx.stage_dir("frames");
     let index = FramesIndex::read_json(&frames_dir.join("frames.json"))?;
     if let Some(calibration) = &ctx.capture.calibration {
@@ -89,18 +95,18 @@ fn poses(ctx: &StageContext) -> anyhow::Result<()> {
         // The calibration is for the recorded size; the engine sees the working size.
         let working_size = index.cameras.first().map(|c| (c.width, c.height));
         calib::poses::write_imported(&set, calibration, &ctx.out_dir, working_size, config.radius)?;
-        return Ok(());
+        return crate::heldout::split_poses(
+            &ctx.out_dir,
+            heldout,
+            &format!("the calibration {}", calibration.display()),
+        );
     }
-    let first = index
-        .frames
-        .first()
-        .context("the frames stage wrote no frames")?;
-    let video_frames = index
-        .cameras
-        .iter()
-        .zip(&first.views)
-        .map(|(cam, view)| (cam.name.clone(), frames_dir.join(&view.file)))
-        .collect();
+    // Held-out cameras are posed with the training cameras, from their first frame too.
+    let mut video_frames = first_frames(&index, &frames_dir)?;
+    if !heldout.is_empty() {
+        let held = FramesIndex::read_json(&frames_dir.join(crate::heldout::HELDOUT_FILE))?;
+        video_frames.extend(first_frames(&held, &frames_dir)?);
+    }
     let inputs = calib::poses::PosesInputs {
         video_frames,
         stills: ctx.capture.stills.clone(),
@@ -109,7 +115,37 @@ fn poses(ctx: &StageContext) -> anyhow::Result<()> {
     };
     let out = calib::poses::solve(&inputs, &ctx.out_dir, ctx.progress)?;
     tracing::info!("poses solved: {} sparse points", out.points.len());
-    Ok(())
+    crate::heldout::split_poses(&ctx.out_dir, heldout, "the COLMAP model")
+}
+
+/// (camera name, its first aligned frame) of every camera of a frames index.
+fn first_frames(index: &FramesIndex, frames_dir: &Path) -> anyhow::Result<Vec<(String, PathBuf)>> {
+    let first = index
+        .frames
+        .first()
+        .context("the frames stage wrote no frames")?;
+    Ok(index
+        .cameras
+        .iter()
+        .zip(&first.views)
+        .map(|(cam, view)| (cam.name.clone(), frames_dir.join(&view.file)))
+        .collect())
+}
+
+/// A stage's parameters: its own section, plus `heldout` (the held-out camera names) when
+/// the capture has held-out cameras, so that listing them reruns the stage.
+fn with_heldout(
+    stage: &'static str,
+) -> impl Fn(&crate::config::CaptureConfig) -> serde_json::Value {
+    move |config| {
+        let mut params = config.section(stage);
+        if !config.capture.heldout.is_empty()
+            && let Some(map) = params.as_object_mut()
+        {
+            map.insert("heldout".into(), config.capture.heldout.clone().into());
+        }
+        params
+    }
 }
 
 /// The train stage's parameters: `[train]`, with `[decay]` under the key `decay`
@@ -147,6 +183,7 @@ pub fn pipeline() -> Pipeline {
             )
             .after(&["ingest", "sync"])
             .inputs(raw_videos)
+            .params(with_heldout("frames"))
             .outputs(&["frames.json"])
             .run(frames),
             StageDef::new(
@@ -154,6 +191,7 @@ pub fn pipeline() -> Pipeline {
                 "solve camera poses with COLMAP (4 views + stills) or import a calibration",
             )
             .after(&["frames"])
+            .params(with_heldout("poses"))
             .inputs(|c| {
                 let mut inputs = c.stills.clone();
                 inputs.extend(c.calibration.clone());
@@ -183,6 +221,7 @@ pub fn pipeline() -> Pipeline {
             )
             .after(&["sync", "frames", "poses", "train"])
             .inputs(|c| vec![c.root.join("groundtruth")])
+            .params(with_heldout("eval"))
             .outputs(&["metrics.json", "per_frame.csv"])
             .run(crate::evaluation::run),
             StageDef::new("export", "PLY / .splatv exports and a browser viewer")
