@@ -224,6 +224,21 @@ fn write_undistorted(
     Ok(out)
 }
 
+/// `n` (frame, camera) picks spread evenly over the frames of every camera in turn, so
+/// that each camera is measured (all pairs when `n` ≥ frames × cameras).
+fn train_picks(frames: usize, cameras: usize, n: usize) -> Vec<(usize, usize)> {
+    if n == 0 || cameras == 0 {
+        return Vec::new();
+    }
+    let per_camera = spread(frames, n.div_ceil(cameras));
+    let mut picks: Vec<(usize, usize)> = (0..per_camera.len())
+        .flat_map(|k| (0..cameras).map(move |c| (k, c)))
+        .map(|(k, c)| (per_camera[k], c))
+        .collect();
+    picks.truncate(n);
+    picks
+}
+
 /// A spread of the training views (undistorted copies in `gt_dir` where needed).
 fn train_views(
     ctx: &StageContext,
@@ -234,15 +249,12 @@ fn train_views(
 ) -> anyhow::Result<Vec<EvalView>> {
     let frames_dir = ctx.stage_dir("frames");
     let cameras = pinhole_cameras(index, poses, &ctx.stage_dir("poses").join("cameras.json"))?;
-    let all: Vec<(usize, usize)> = (0..index.frames.len())
-        .flat_map(|f| (0..index.cameras.len()).map(move |c| (f, c)))
-        .collect();
     let mut views = Vec::new();
-    for k in spread(all.len(), ctx.config.eval.train_views.max(1)) {
-        if ctx.config.eval.train_views == 0 {
-            break;
-        }
-        let (f, c) = all[k];
+    for (f, c) in train_picks(
+        index.frames.len(),
+        index.cameras.len(),
+        ctx.config.eval.train_views,
+    ) {
         let view = &index.frames[f].views[c];
         let (camera, map) = &cameras[c];
         let source = frames_dir.join(&view.file);
@@ -328,4 +340,23 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
     show("held-out", &report.heldout);
     show("training", &report.train);
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn training_views_cover_every_camera() {
+        // 32 frames × 4 cameras, 16 views: 4 frames of each camera, spread over time.
+        let picks = train_picks(32, 4, 16);
+        assert_eq!(picks.len(), 16);
+        for c in 0..4 {
+            let frames: Vec<usize> = picks.iter().filter(|p| p.1 == c).map(|p| p.0).collect();
+            assert_eq!(frames, [0, 8, 16, 24], "camera {c}");
+        }
+        assert_eq!(train_picks(3, 4, 100).len(), 12);
+        assert_eq!(train_picks(10, 4, 6).len(), 6);
+        assert!(train_picks(10, 4, 0).is_empty());
+    }
 }
