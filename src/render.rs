@@ -456,81 +456,63 @@ impl<F: Real> Rendered<F> {
         let ctx = &self.ctx;
         let bins = &ctx.bins;
 
-        // Blend backward per tile; gradients per (tile, splat) entry, in one buffer laid
-        // out like `bins.entries`.
-        let mut entry_grads = vec![SplatGrad::<F>::default(); bins.entries.len()];
-        let mut per_tile: Vec<(usize, &mut [SplatGrad<F>])> = Vec::with_capacity(bins.tile_count());
-        let mut rest: &mut [SplatGrad<F>] = &mut entry_grads;
-        for tile in 0..bins.tile_count() {
-            let (head, tail) = rest.split_at_mut(bins.offsets[tile + 1] - bins.offsets[tile]);
-            per_tile.push((tile, head));
-            rest = tail;
-        }
-        per_tile.into_par_iter().for_each_init(
-            || {
-                (
-                    Vec::new(),
-                    Vec::new(),
-                    Vec::new(),
-                    Vec::new(),
-                    Vec::new(),
-                    Vec::new(),
-                )
-            },
-            |(local, ft, nc, ur, ua, ud), (tile, grads)| {
-                let ids = bins.tile(tile);
-                if ids.is_empty() {
-                    return;
-                }
-                local.clear();
-                local.extend(ids.iter().map(|&k| ctx.splats[k as usize]));
-                let r = tile_rect(bins, tile, width, height);
-                let w = (r.x1 - r.x0) as usize;
-                for v in [&mut *ft, &mut *ua, &mut *ud] {
-                    v.clear();
-                }
-                nc.clear();
-                ur.clear();
-                for y in r.y0..r.y1 {
-                    let s = y as usize * width as usize + r.x0 as usize;
-                    ft.extend_from_slice(&ctx.final_t[s..s + w]);
-                    nc.extend_from_slice(&ctx.n_contrib[s..s + w]);
-                    ur.extend_from_slice(&up.rgb[3 * s..3 * (s + w)]);
-                    match up.alpha {
-                        Some(a) => ua.extend_from_slice(&a[s..s + w]),
-                        None => ua.resize(ua.len() + w, F::zero()),
+        // Blend backward per tile; gradients per (tile, splat) entry.
+        let per_tile: Vec<Vec<SplatGrad<F>>> = (0..bins.tile_count())
+            .into_par_iter()
+            .map_init(
+                || {
+                    (
+                        Vec::new(),
+                        Vec::new(),
+                        Vec::new(),
+                        Vec::new(),
+                        Vec::new(),
+                        Vec::new(),
+                    )
+                },
+                |(local, ft, nc, ur, ua, ud), tile| {
+                    let ids = bins.tile(tile);
+                    let mut grads = vec![SplatGrad::default(); ids.len()];
+                    if ids.is_empty() {
+                        return grads;
                     }
-                    match up.depth {
-                        Some(d) => ud.extend_from_slice(&d[s..s + w]),
-                        None => ud.resize(ud.len() + w, F::zero()),
+                    local.clear();
+                    local.extend(ids.iter().map(|&k| ctx.splats[k as usize]));
+                    let r = tile_rect(bins, tile, width, height);
+                    let w = (r.x1 - r.x0) as usize;
+                    for v in [&mut *ft, &mut *ua, &mut *ud] {
+                        v.clear();
                     }
-                }
-                let upstream = TileUpstream {
-                    rgb: ur,
-                    alpha: ua,
-                    depth: ud,
-                };
-                blend_tile_backward(r, local, ctx.background, ft, nc, &upstream, grads);
-            },
-        );
-        // Sum each splat's entries in tile order. Parallel over ranges of splats: every
-        // task scans all entries and adds those of its own range.
+                    nc.clear();
+                    ur.clear();
+                    for y in r.y0..r.y1 {
+                        let s = y as usize * width as usize + r.x0 as usize;
+                        ft.extend_from_slice(&ctx.final_t[s..s + w]);
+                        nc.extend_from_slice(&ctx.n_contrib[s..s + w]);
+                        ur.extend_from_slice(&up.rgb[3 * s..3 * (s + w)]);
+                        match up.alpha {
+                            Some(a) => ua.extend_from_slice(&a[s..s + w]),
+                            None => ua.resize(ua.len() + w, F::zero()),
+                        }
+                        match up.depth {
+                            Some(d) => ud.extend_from_slice(&d[s..s + w]),
+                            None => ud.resize(ud.len() + w, F::zero()),
+                        }
+                    }
+                    let upstream = TileUpstream {
+                        rgb: ur,
+                        alpha: ua,
+                        depth: ud,
+                    };
+                    blend_tile_backward(r, local, ctx.background, ft, nc, &upstream, &mut grads);
+                    grads
+                },
+            )
+            .collect();
         let mut splat_grads = vec![SplatGrad::<F>::default(); ctx.splats.len()];
-        let range = splat_grads
-            .len()
-            .div_ceil(rayon::current_num_threads().max(1))
-            .max(1);
-        splat_grads
-            .par_chunks_mut(range)
-            .enumerate()
-            .for_each(|(c, mine)| {
-                let lo = c * range;
-                for (&k, g) in bins.entries.iter().zip(&entry_grads) {
-                    if let Some(dst) = (k as usize).checked_sub(lo).and_then(|j| mine.get_mut(j)) {
-                        dst.add(g);
-                    }
-                }
-            });
+        for (&k, g) in bins.entries.iter().zip(per_tile.iter().flatten()) {
+            splat_grads[k as usize].add(g);
+        }
         let mut visible_of = vec![u32::MAX; n];
         for (k, &i) in ctx.ids.iter().enumerate() {
             visible_of[i as usize] = k as u32;
