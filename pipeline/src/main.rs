@@ -123,13 +123,7 @@ fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     let (capture, _) = open_capture(&args.capture_dir)?;
     let work = capture.work_dir();
     let model = pipeline::training::load_trained_model(&work)?;
-    let cameras_file = work.join("poses/cameras.json");
-    let poses = calib::poses::PosesFile::read(&cameras_file)?;
-    let index = rig::frames::FramesIndex::read_json(&work.join("frames/frames.json"))?;
-    let cameras: Vec<_> = pipeline::training::pinhole_cameras(&index, &poses.set, &cameras_file)?
-        .into_iter()
-        .map(|(c, _)| c)
-        .collect();
+    let (index, cameras, heldout) = pipeline::rendering::path_cameras(&work)?;
     let video = args
         .out
         .extension()
@@ -157,6 +151,7 @@ fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     let frames = pipeline::rendering::render(
         &model,
         &cameras,
+        &heldout,
         &settings,
         index.frames.len(),
         index.fps,

@@ -50,11 +50,29 @@ impl Default for RenderSettings {
     }
 }
 
+/// The frames index and the pinhole cameras a path can follow: the training cameras and
+/// the held-out ones of a real capture (`[capture] heldout`; none otherwise).
+pub fn path_cameras(
+    work_dir: &Path,
+) -> anyhow::Result<(FramesIndex, Vec<splat4d::Camera>, Vec<splat4d::Camera>)> {
+    let cameras_file = work_dir.join("poses").join("cameras.json");
+    let poses = PosesFile::read(&cameras_file)?;
+    let index = FramesIndex::read_json(&work_dir.join("frames").join("frames.json"))?;
+    let train = pinhole_cameras(&index, &poses.set, &cameras_file)?
+        .into_iter()
+        .map(|(c, _)| c)
+        .collect();
+    let heldout = crate::heldout::pinhole_heldout_cameras(work_dir)?;
+    Ok((index, train, heldout))
+}
+
 /// Render `model` along the path of `settings` into `out_dir` (`render.mp4` and/or PNG
-/// folders). `cameras` are the pinhole training cameras.
+/// folders). `cameras` are the pinhole training cameras, `heldout` the held-out ones.
+#[allow(clippy::too_many_arguments)]
 pub fn render(
     model: &Gaussians<f32>,
     cameras: &[splat4d::Camera],
+    heldout: &[splat4d::Camera],
     settings: &RenderSettings,
     default_frames: usize,
     default_fps: f64,
@@ -67,7 +85,7 @@ pub fn render(
     let mut spec = PathSpec::new(kind, time, frames);
     spec.fps = settings.fps.unwrap_or(default_fps);
     spec.size = settings.size.map(|[w, h]| (w, h));
-    let path = camera_path(&spec, cameras, &[], &model.time)?;
+    let path = camera_path(&spec, cameras, heldout, &model.time)?;
     if path.is_empty() {
         bail!("the camera path is empty");
     }
@@ -108,17 +126,12 @@ pub fn render(
 /// The `render` stage.
 pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
     let model = crate::training::load_trained_model(&ctx.capture.work_dir())?;
-    let cameras_file = ctx.stage_dir("poses").join("cameras.json");
-    let poses = PosesFile::read(&cameras_file)?;
-    let index = FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
-    let cameras: Vec<_> = pinhole_cameras(&index, &poses.set, &cameras_file)?
-        .into_iter()
-        .map(|(c, _)| c)
-        .collect();
+    let (index, cameras, heldout) = path_cameras(&ctx.capture.work_dir())?;
     let settings = &ctx.config.render;
     let frames = render(
         &model,
         &cameras,
+        &heldout,
         settings,
         index.frames.len(),
         index.fps,

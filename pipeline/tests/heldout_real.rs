@@ -206,6 +206,13 @@ fn heldout_cameras_of_a_real_capture_are_posed_never_trained_and_measured() {
     assert_eq!(held_poses.normalisation, poses.normalisation);
     let pinholes = pipeline::heldout::pinhole_heldout_cameras(&work).unwrap();
     assert_eq!(names(&splat4d::CameraSet::new(pinholes)), ["cam4", "cam5"]);
+    // `pipeline render --path heldout` follows them.
+    let (_, train_cams, held_cams) = pipeline::rendering::path_cameras(&work).unwrap();
+    assert_eq!(
+        names(&splat4d::CameraSet::new(train_cams)),
+        ["cam0", "cam1", "cam2", "cam3"]
+    );
+    assert_eq!(names(&splat4d::CameraSet::new(held_cams)), ["cam4", "cam5"]);
 
     // Training never saw cam4/cam5.
     let dataset = training::load_dataset(
