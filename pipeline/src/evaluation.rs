@@ -186,21 +186,41 @@ pub fn capture_heldout_views(
         )
     })?;
     let cameras = pinhole_cameras(&index, &poses.set, &poses_path)?;
+    let picks = (0..cameras.len())
+        .flat_map(|c| {
+            spread(index.frames.len(), settings.heldout_per_camera)
+                .into_iter()
+                .map(move |f| (f, c))
+        })
+        .collect::<Vec<_>>();
+    frame_views(frames_dir, &index, &cameras, picks, mapping, gt_dir)
+}
+
+/// Eval views of the aligned frames `picks` (frame, camera index) of `index`, at the
+/// model time of each frame's exact timestamp; undistorted copies in `gt_dir` where the
+/// camera has a lens.
+fn frame_views(
+    frames_dir: &Path,
+    index: &FramesIndex,
+    cameras: &[(Camera, Option<calib::undistort::UndistortMap>)],
+    picks: Vec<(usize, usize)>,
+    mapping: &TimeMapping,
+    gt_dir: &Path,
+) -> anyhow::Result<Vec<EvalView>> {
     let mut views = Vec::new();
-    for (c, (camera, map)) in cameras.iter().enumerate() {
-        for f in spread(index.frames.len(), settings.heldout_per_camera) {
-            let view = &index.frames[f].views[c];
-            let source = frames_dir.join(&view.file);
-            let image_path = match map {
-                None => source,
-                Some(map) => write_undistorted(&source, map, gt_dir, &camera.name, f)?,
-            };
-            views.push(EvalView {
-                camera: camera.clone(),
-                time: mapping.model_time(view.timestamp_s),
-                image_path,
-            });
-        }
+    for (f, c) in picks {
+        let view = &index.frames[f].views[c];
+        let (camera, map) = &cameras[c];
+        let source = frames_dir.join(&view.file);
+        let image_path = match map {
+            None => source,
+            Some(map) => write_undistorted(&source, map, gt_dir, &camera.name, f)?,
+        };
+        views.push(EvalView {
+            camera: camera.clone(),
+            time: mapping.model_time(view.timestamp_s),
+            image_path,
+        });
     }
     Ok(views)
 }
@@ -247,28 +267,20 @@ fn train_views(
     mapping: &TimeMapping,
     gt_dir: &Path,
 ) -> anyhow::Result<Vec<EvalView>> {
-    let frames_dir = ctx.stage_dir("frames");
     let cameras = pinhole_cameras(index, poses, &ctx.stage_dir("poses").join("cameras.json"))?;
-    let mut views = Vec::new();
-    for (f, c) in train_picks(
+    let picks = train_picks(
         index.frames.len(),
         index.cameras.len(),
         ctx.config.eval.train_views,
-    ) {
-        let view = &index.frames[f].views[c];
-        let (camera, map) = &cameras[c];
-        let source = frames_dir.join(&view.file);
-        let image_path = match map {
-            None => source,
-            Some(map) => write_undistorted(&source, map, gt_dir, &camera.name, f)?,
-        };
-        views.push(EvalView {
-            camera: camera.clone(),
-            time: mapping.model_time(view.timestamp_s),
-            image_path,
-        });
-    }
-    Ok(views)
+    );
+    frame_views(
+        &ctx.stage_dir("frames"),
+        index,
+        &cameras,
+        picks,
+        mapping,
+        gt_dir,
+    )
 }
 
 /// The `eval` stage.

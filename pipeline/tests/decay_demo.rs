@@ -5,7 +5,8 @@
 //! PSNR and Gaussian count (numbers in BENCHMARKS.md, "4C4D decay"). Built like
 //! `train_demo.rs`. Long: ignored by default. Run:
 //! `DECAY_DEMO_ITERS=1500 DECAY_DEMO_SCALE=4 cargo test --release -p pipeline --test decay_demo -- --ignored --nocapture`
-//! (`DECAY_DEMO_ONLY=none,neural` picks variants by label prefix.)
+//! (`DECAY_DEMO_ONLY=none,neural` picks variants by label prefix;
+//! `DECAY_DEMO_MAX_GAUSSIANS=N` caps densification, for long stability runs.)
 
 use rig::sim::{Scene, render_clean};
 use splat4d::decay::{DecayConfig, DecayHooks};
@@ -151,6 +152,7 @@ fn decay_variants_on_the_demo_scene() {
     config.densify.until_iteration = (15_000.0 * s) as u64;
     config.densify.every = 100;
     config.densify.opacity_reset_every = 0;
+    config.densify.max_gaussians = env_or("DECAY_DEMO_MAX_GAUSSIANS", config.densify.max_gaussians);
     let v0 = &train_data.views[0].image;
     println!(
         "decay demo {}x{}: {} train views, {} held-out views, {} initial points, {iterations} iterations (batch {}), warm-up {warmup}",
@@ -189,6 +191,27 @@ fn decay_variants_on_the_demo_scene() {
             "| {label} | {held_psnr:.2} | {train_psnr:.2} | {} | {:.0} |",
             model.len(),
             summary.seconds
+        );
+        // Stability: the Gaussian count over the run (log.csv) and the last decay step.
+        let log = std::fs::read_to_string(dir.path().join("log.csv")).unwrap();
+        let counts: Vec<usize> = log
+            .lines()
+            .skip(1)
+            .filter_map(|l| l.split(',').nth(5)?.parse().ok())
+            .collect();
+        let opacity: Vec<f32> = model
+            .opacity_logits
+            .iter()
+            .map(|&o| 1.0 / (1.0 + (-o).exp()))
+            .collect();
+        println!(
+            "  {label}: Gaussians min {} max {} final {}; opacity mean {:.3} min {:.2e}; last decay step {:?}",
+            counts.iter().min().unwrap_or(&0),
+            counts.iter().max().unwrap_or(&0),
+            model.len(),
+            opacity.iter().sum::<f32>() / opacity.len().max(1) as f32,
+            opacity.iter().cloned().fold(f32::INFINITY, f32::min),
+            hooks.last_stats(),
         );
         std::io::stdout().flush().ok();
         assert!(model.opacity_logits.iter().all(|o| o.is_finite()));
