@@ -73,3 +73,25 @@ pub fn run_stages(
         )
         .unwrap()
 }
+
+/// Issue 8's pose accuracy bound: every solved camera within 0.5° and 1 % of the rig
+/// radius of the truth after a similarity alignment (errors printed).
+pub fn assert_poses_close(solved: &[splat4d::Camera], truth: &[splat4d::Camera]) {
+    let (_, errors, radius) = calib::align::compare(solved, truth).unwrap();
+    assert_eq!(errors.len(), solved.len());
+    for e in &errors {
+        eprintln!(
+            "{}: rotation {:.3}°, centre {:.3}% of the rig radius",
+            e.name,
+            e.rotation_deg,
+            100.0 * e.centre / radius
+        );
+        assert!(e.rotation_deg < 0.5, "{}: {}°", e.name, e.rotation_deg);
+        assert!(
+            e.centre < 0.01 * radius,
+            "{}: {} of radius {radius}",
+            e.name,
+            e.centre
+        );
+    }
+}
