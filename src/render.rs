@@ -253,7 +253,7 @@ pub fn render_with<F: Real>(
     // Per-Gaussian stages, in parallel; the visible splats keep the Gaussians' order.
     let (ids, (splats, (rects, (colour_mask, radius)))): (
         Vec<u32>,
-        (Vec<Splat<F>>, (Vec<Option<[u32; 4]>>, (Vec<u8>, Vec<F>))),
+        (Vec<Splat<F>>, (Vec<[u32; 4]>, (Vec<u8>, Vec<F>))),
     ) = (0..n)
         .into_par_iter()
         .with_min_len(1024)
@@ -276,7 +276,7 @@ pub fn render_with<F: Real>(
             let splat = Splat::new(pr.mean, pr.conic, opacity, rgb, pr.depth);
             let rect = pixel_rect(splat.rect, width, height)?;
             let radius = pr.extent[0].max(pr.extent[1]);
-            Some((i as u32, (splat, (Some(rect), (mask, radius)))))
+            Some((i as u32, (splat, (rect, (mask, radius)))))
         })
         .unzip();
     let mut radii = vec![F::zero(); n];

@@ -41,15 +41,10 @@ pub fn pixel_rect(rect: [i32; 4], width: u32, height: u32) -> Option<[u32; 4]> {
     Some([x0 as u32, x1 as u32, y0 as u32, y1 as u32])
 }
 
-/// Bin splats (given by pixel rectangle and depth) into tiles. Counting and filling run
-/// in parallel over chunks of splats; each tile's list is then sorted by (depth, index),
-/// so the result does not depend on the chunking.
-pub fn bin_tiles<F: Real>(
-    rects: &[Option<[u32; 4]>],
-    depths: &[F],
-    width: u32,
-    height: u32,
-) -> TileBins {
+/// Bin splats (given by their clipped pixel box `[x0, x1, y0, y1]`, inclusive, and depth)
+/// into tiles. Counting and filling run in parallel over chunks of splats; each tile's
+/// list is then sorted by (depth, index), so the result does not depend on the chunking.
+pub fn bin_tiles<F: Real>(rects: &[[u32; 4]], depths: &[F], width: u32, height: u32) -> TileBins {
     let tiles_x = width.div_ceil(TILE);
     let tiles_y = height.div_ceil(TILE);
     let n_tiles = (tiles_x * tiles_y) as usize;
@@ -67,7 +62,7 @@ pub fn bin_tiles<F: Real>(
         .par_chunks(chunk)
         .map(|rs| {
             let mut counts = vec![0usize; n_tiles];
-            for t in rs.iter().flatten().flat_map(tiles_of) {
+            for t in rs.iter().flat_map(tiles_of) {
                 counts[t] += 1;
             }
             counts
@@ -99,7 +94,6 @@ pub fn bin_tiles<F: Real>(
             .enumerate()
             .for_each(|(c, (rs, cursor))| {
                 for (j, r) in rs.iter().enumerate() {
-                    let Some(r) = r else { continue };
                     let i = c * chunk + j;
                     let depth_bits = (depths[i].f64() as f32).max(0.0).to_bits() as u64;
                     let key = (depth_bits << 32) | i as u64;
