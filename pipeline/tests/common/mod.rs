@@ -1,6 +1,8 @@
 //! Helpers shared by the pipeline's integration tests.
 #![allow(dead_code)]
 
+pub mod demo;
+
 use std::fs;
 use std::path::{Path, PathBuf};
 
