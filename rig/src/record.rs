@@ -9,6 +9,7 @@
 //! works for cameras on one machine. This module does not synchronise or decode files.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use ffmpeg_next as ffmpeg;
@@ -43,6 +44,14 @@ pub enum RecordError {
     /// A source failed.
     #[error(transparent)]
     Source(#[from] SourceError),
+    /// One camera of a concurrent recording failed (the others were stopped).
+    #[error("camera {camera}: {source}; the other cameras were stopped")]
+    Camera {
+        /// The camera's name.
+        camera: String,
+        /// What went wrong.
+        source: Box<RecordError>,
+    },
     /// Encoding or writing failed.
     #[error("writing {path}: {message}")]
     Write {
@@ -183,6 +192,10 @@ pub struct CaptureWriter {
     size: (u32, u32),
     csv: String,
     frames: usize,
+    /// Pts (µs) of the last frame written, and the interval before it: the last packet's
+    /// duration, which the muxer needs to keep the final frame inside the edit list.
+    last_pts: Option<i64>,
+    interval: i64,
 }
 
 const TIME_BASE: ffmpeg::Rational = ffmpeg::Rational(1, 1_000_000);
@@ -229,6 +242,9 @@ impl CaptureWriter {
         ost.set_time_base(TIME_BASE);
         let mut header_opts = ffmpeg::Dictionary::new();
         header_opts.set("video_track_timescale", "1000000");
+        // The edit list that carries a non-zero first timestamp is in the movie timescale
+        // (1/1000 s by default, which would round the start by up to 0.5 ms).
+        header_opts.set("movie_timescale", "1000000");
         output.write_header_with(header_opts).map_err(err)?;
         let stream_time_base = output.stream(0).map(|s| s.time_base()).unwrap_or(TIME_BASE);
         Ok(CaptureWriter {
@@ -240,6 +256,8 @@ impl CaptureWriter {
             size,
             csv: String::from("frame,timestamp_s\n"),
             frames: 0,
+            last_pts: None,
+            interval: 33_333,
         })
     }
 
@@ -293,6 +311,10 @@ impl CaptureWriter {
             s.run(&src, &mut yuv).map_err(err)?;
         }
         let pts = (frame.timestamp * 1e6).round() as i64;
+        if let Some(last) = self.last_pts {
+            self.interval = (pts - last).max(1);
+        }
+        self.last_pts = Some(pts);
         yuv.set_pts(Some(pts));
         self.encoder.send_frame(&yuv).map_err(err)?;
         self.drain()?;
@@ -307,6 +329,7 @@ impl CaptureWriter {
         let mut packet = ffmpeg::Packet::empty();
         while self.encoder.receive_packet(&mut packet).is_ok() {
             packet.set_stream(0);
+            packet.set_duration(self.interval);
             packet.rescale_ts(TIME_BASE, self.stream_time_base);
             packet
                 .write_interleaved(&mut self.output)
@@ -384,7 +407,7 @@ pub fn record_source(
     })
 }
 
-/// Records every device concurrently (one thread each) into `capture_dir/raw/camN/`.
+/// Records every device concurrently into `capture_dir/raw/camN/` (see [`record_sources`]).
 /// Fails cleanly with [`RecordError::NoDevice`] when a device is missing.
 pub fn record(
     devices: &[PathBuf],
@@ -411,40 +434,152 @@ pub fn record(
         return Err(RecordError::TooMany(devices.len()));
     }
     let origin = v4l2::monotonic_now();
-    let mut sources = Vec::new();
+    let mut sources: Vec<Box<dyn CameraSource>> = Vec::new();
     for (i, d) in devices.iter().enumerate() {
-        sources.push(v4l2::V4l2Source::open(
+        sources.push(Box::new(v4l2::V4l2Source::open(
             &format!("cam{i}"),
             d,
             config,
             origin,
-        )?);
+        )?));
     }
-    if config.flash_prompt {
-        tracing::info!(
-            "all {} cameras are recording: fire the flash (or clap) now",
-            sources.len()
-        );
+    let camera_count = sources.len();
+    let prompt = config.flash_prompt;
+    record_sources(
+        sources,
+        capture_dir,
+        config.duration_s,
+        stop,
+        progress,
+        &mut || {
+            if prompt {
+                tracing::info!(
+                    "all {camera_count} cameras are delivering frames: fire the flash (or clap) now"
+                );
+            }
+        },
+    )
+}
+
+/// What a camera task tells the coordinator.
+enum Event {
+    /// `n` more frames written by camera `camera`.
+    Frames { camera: usize, n: u64 },
+}
+
+/// Forwards a camera task's progress to the coordinator.
+struct ChannelProgress {
+    camera: usize,
+    events: tokio::sync::mpsc::UnboundedSender<Event>,
+}
+
+impl Progress for ChannelProgress {
+    fn start(&self, _total: u64, _unit: &str) {}
+    fn advance(&self, n: u64) {
+        // The coordinator outlives every camera task; a closed channel only means it has
+        // already given up, and the frames are on disk either way.
+        let _ = self.events.send(Event::Frames {
+            camera: self.camera,
+            n,
+        });
     }
+    fn message(&self, _msg: &str) {}
+    fn finish(&self) {}
+}
+
+/// Records `sources` concurrently, one tokio task per camera, into
+/// `capture_dir/raw/<source name>/`, each for at most `max_duration_s` of its own time.
+///
+/// Capture is blocking work (V4L2 dequeues are blocking ioctls), so each camera task runs
+/// on tokio's blocking pool; the coordinator, on the calling thread, counts frames into
+/// `progress`, calls `on_all_running` once every camera has written its first frame (the
+/// moment to fire the sync flash), forwards `stop`, and stops every camera as soon as one
+/// fails. Returns the cameras in the order given, or the first failure, naming the camera.
+pub fn record_sources(
+    sources: Vec<Box<dyn CameraSource>>,
+    capture_dir: &Path,
+    max_duration_s: Option<f64>,
+    stop: &AtomicBool,
+    progress: &dyn Progress,
+    on_all_running: &mut dyn FnMut(),
+) -> Result<Vec<RecordedCamera>, RecordError> {
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .build()
+        .map_err(|e| RecordError::Write {
+            path: capture_dir.into(),
+            message: format!("cannot start the recording runtime: {e}"),
+        })?;
+    let names: Vec<String> = sources.iter().map(|s| s.name().to_string()).collect();
+    let halt = Arc::new(AtomicBool::new(false));
+    let (tx, mut events) = tokio::sync::mpsc::unbounded_channel();
     progress.start(0, "frames");
-    let results: Vec<Result<RecordedCamera, RecordError>> = std::thread::scope(|scope| {
-        let handles: Vec<_> = sources
-            .into_iter()
-            .enumerate()
-            .map(|(i, mut s)| {
-                let dir = capture_dir.join("raw").join(format!("cam{i}"));
-                scope.spawn(move || record_source(&mut s, &dir, stop, config.duration_s, progress))
-            })
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| {
-                h.join().unwrap_or_else(|_| {
-                    Err(RecordError::NoDevice("a recording thread panicked".into()))
-                })
-            })
-            .collect()
+    let result = runtime.block_on(async {
+        let mut tasks = tokio::task::JoinSet::new();
+        for (camera, mut source) in sources.into_iter().enumerate() {
+            let dir = capture_dir.join("raw").join(source.name());
+            let halt = halt.clone();
+            let sink = ChannelProgress {
+                camera,
+                events: tx.clone(),
+            };
+            tasks.spawn_blocking(move || {
+                let r = record_source(source.as_mut(), &dir, &halt, max_duration_s, &sink);
+                (camera, r)
+            });
+        }
+        drop(tx);
+        let mut running = vec![false; names.len()];
+        let mut prompted = false;
+        let mut done: Vec<Option<RecordedCamera>> = vec![None; names.len()];
+        let mut failure: Option<RecordError> = None;
+        let mut poll = tokio::time::interval(std::time::Duration::from_millis(20));
+        loop {
+            tokio::select! {
+                Some(Event::Frames { camera, n }) = events.recv() => {
+                    progress.advance(n);
+                    running[camera] = true;
+                    if !prompted && running.iter().all(|&r| r) {
+                        prompted = true;
+                        on_all_running();
+                    }
+                }
+                joined = tasks.join_next() => {
+                    let Some(joined) = joined else { break };
+                    match joined {
+                        Ok((camera, Ok(rec))) => done[camera] = Some(rec),
+                        Ok((camera, Err(e))) => {
+                            halt.store(true, Ordering::Relaxed);
+                            failure.get_or_insert(RecordError::Camera {
+                                camera: names[camera].clone(),
+                                source: Box::new(e),
+                            });
+                        }
+                        Err(e) => {
+                            halt.store(true, Ordering::Relaxed);
+                            failure.get_or_insert(RecordError::Write {
+                                path: capture_dir.into(),
+                                message: format!("a camera task failed: {e}"),
+                            });
+                        }
+                    }
+                }
+                _ = poll.tick() => {
+                    if stop.load(Ordering::Relaxed) {
+                        halt.store(true, Ordering::Relaxed);
+                    }
+                }
+            }
+        }
+        // Frames counted after the last task ended.
+        while let Ok(Event::Frames { n, .. }) = events.try_recv() {
+            progress.advance(n);
+        }
+        match failure {
+            Some(e) => Err(e),
+            None => Ok(done.into_iter().flatten().collect()),
+        }
     });
     progress.finish();
-    results.into_iter().collect()
+    result
 }

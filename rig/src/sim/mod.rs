@@ -10,6 +10,7 @@
 pub mod audio;
 pub mod encode;
 mod error;
+mod live;
 pub(crate) mod lens;
 pub mod mesh;
 pub mod output;
@@ -18,6 +19,7 @@ mod scene;
 pub mod texture;
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 use glam::DVec3;
@@ -28,6 +30,7 @@ use serde::{Deserialize, Serialize};
 use splat4d::{CameraSet, Progress};
 
 pub use error::SimError;
+pub use live::SimSource;
 pub use scene::{CameraRole, DeformKind, DeformSpec, Keyframe, Scene, SimCamera, TextureSpec, VIDEO_CAMERAS};
 
 use lens::LensPlan;
@@ -146,13 +149,29 @@ pub struct HeldoutTimestamps {
 /// Everything a simulation needs, shared by the camera jobs.
 struct Context<'a> {
     scene: &'a Scene,
-    meshes: Vec<SceneMesh>,
-    light: Light,
+    world: World,
     dir: &'a Path,
     progress: &'a dyn Progress,
 }
 
-impl Context<'_> {
+/// The scene's geometry and light, built once and shared (cheaply cloned) by every camera,
+/// including the live [`SimSource`]s.
+#[derive(Clone)]
+pub(crate) struct World {
+    scene: Arc<Scene>,
+    meshes: Arc<Vec<SceneMesh>>,
+    light: Light,
+}
+
+impl World {
+    fn new(scene: &Scene) -> Self {
+        World {
+            scene: Arc::new(scene.clone()),
+            meshes: Arc::new(mesh::build_meshes(&scene.file, scene.file.render.texture_size)),
+            light: light_of(scene),
+        }
+    }
+
     fn render(&self, plan: &LensPlan, t: f64) -> Rendered {
         let world = mesh::world_positions(&self.scene.file, &self.meshes, t);
         let canvas = raster::render(&plan.view, &self.meshes, &world, &self.light);
@@ -224,13 +243,7 @@ pub fn simulate(scene: &Scene, capture_dir: &Path, progress: &dyn Progress) -> R
     refuse_existing(capture_dir)?;
     std::fs::create_dir_all(capture_dir).map_err(|e| SimError::write(capture_dir, e))?;
     encode::init();
-    let ctx = Context {
-        scene,
-        meshes: mesh::build_meshes(&scene.file, scene.file.render.texture_size),
-        light: light_of(scene),
-        dir: capture_dir,
-        progress,
-    };
+    let ctx = Context { scene, world: World::new(scene), dir: capture_dir, progress };
     let frames = scene.frames_per_camera() as u64;
     let heldout = scene.cameras.iter().filter(|c| c.role == CameraRole::Heldout).count() as u64;
     let stills = scene.cameras.iter().filter(|c| c.role == CameraRole::Still).count() as u64;
@@ -318,14 +331,14 @@ fn flash_of(scene: &Scene) -> Option<(&scene::FlashSection, f64)> {
 
 /// Sensor-side effects of a video frame taken at scene time `t` (exposure, flash, noise),
 /// then quantisation to RGB8. Each effect is skipped entirely when off.
-fn sensor(ctx: &Context, cam: &SimCamera, cam_index: usize, frame: u32, t: f64, img: &Rendered) -> Vec<u8> {
+fn sensor(scene: &Scene, cam: &SimCamera, cam_index: usize, frame: u32, t: f64, img: &Rendered) -> Vec<u8> {
     let (w, h) = (img.width, img.height);
     let mut px: Vec<[f32; 3]> = img.color.clone();
     let mut gains: Option<Vec<f32>> = None;
     if cam.exposure != 1.0 {
         gains = Some(vec![cam.exposure as f32; h]);
     }
-    if let Some((fl, shutter)) = flash_of(ctx.scene) {
+    if let Some((fl, shutter)) = flash_of(scene) {
         let rows: Vec<f32> = (0..h)
             .map(|r| {
                 // Row r starts exposing at t + readout·r/h and integrates for `shutter`.
@@ -348,8 +361,8 @@ fn sensor(ctx: &Context, cam: &SimCamera, cam_index: usize, frame: u32, t: f64, 
             }
         }
     }
-    if let Some(n) = ctx.scene.file.noise.as_ref().filter(|n| n.enabled && n.sigma > 0.0) {
-        let mut rng = ChaCha8Rng::seed_from_u64(hash(ctx.scene.seed(), 0x5E75_0000 + cam_index as u64, frame as u64));
+    if let Some(n) = scene.file.noise.as_ref().filter(|n| n.enabled && n.sigma > 0.0) {
+        let mut rng = ChaCha8Rng::seed_from_u64(hash(scene.seed(), 0x5E75_0000 + cam_index as u64, frame as u64));
         let sigma = n.sigma as f32;
         for p in &mut px {
             for v in p.iter_mut() {
@@ -375,9 +388,7 @@ fn video_camera(ctx: &Context, cam: &SimCamera, index: usize) -> Result<(CameraT
     let fps = scene.fps();
     let frames = scene.frames_per_camera();
     let name = &cam.camera.name;
-    let mut plan = LensPlan::new(&cam.camera, f.render.supersample)
-        .map_err(|m| SimError::invalid(&scene.origin, format!("camera {name}: {m}")))?;
-    plan.prepare(&cam.camera);
+    let source = SimSource::in_world(ctx.world.clone(), index)?;
     let k = cam.camera.intrinsics;
 
     let audio_cfg = f.audio.as_ref().filter(|a| a.enabled);
@@ -408,7 +419,7 @@ fn video_camera(ctx: &Context, cam: &SimCamera, index: usize) -> Result<(CameraT
     let mut chapters = Vec::new();
     let mut written_total = 0u64;
     let mask_dir = ctx.dir.join("groundtruth").join("masks").join(name);
-    let moving: Vec<u16> = ctx.meshes.iter().filter(|m| m.moving).map(|m| m.id).collect();
+    let moving: Vec<u16> = ctx.world.meshes.iter().filter(|m| m.moving).map(|m| m.id).collect();
     for (c, first) in (0..frames).step_by(per_chapter as usize).enumerate() {
         let last = (first + per_chapter).min(frames);
         let path = dir.join(format!("GX{:02}0001.MP4", c + 1));
@@ -417,10 +428,7 @@ fn video_camera(ctx: &Context, cam: &SimCamera, index: usize) -> Result<(CameraT
         let mut pushed = sample_at(first);
         let mut written = 0u32;
         for frame in first..last {
-            if !cam.dropped.contains(&frame) {
-                let t = cam.start_time + frame as f64 / fps;
-                let img = ctx.render(&plan, t);
-                let rgb = sensor(ctx, cam, index, frame, t, &img);
+            if let Some(live::Shot { img, rgb, .. }) = source.shot(frame) {
                 writer.push_video((frame - first) as i64, &rgb)?;
                 written += 1;
                 if frame == 0 {
@@ -478,7 +486,7 @@ fn heldout_camera(ctx: &Context, cam: &SimCamera) -> Result<u64, SimError> {
     let mut times = Vec::new();
     for frame in 0..scene.frames_per_camera() {
         let t = frame as f64 / scene.fps();
-        let img = ctx.render(&plan, t);
+        let img = ctx.world.render(&plan, t);
         output::write_rgb(&dir.join(format!("{frame:06}.png")), k.width, k.height, &to_rgb8(&img.color), None)?;
         times.push(t);
         ctx.progress.advance(1);
@@ -497,7 +505,7 @@ fn still(ctx: &Context, cam: &SimCamera) -> Result<PathBuf, SimError> {
     let mut plan = LensPlan::new(&cam.camera, scene.file.render.supersample)
         .map_err(|m| SimError::invalid(&scene.origin, format!("camera {name}: {m}")))?;
     plan.prepare(&cam.camera);
-    let img = ctx.render(&plan, scene.file.stills.time);
+    let img = ctx.world.render(&plan, scene.file.stills.time);
     let k = cam.camera.intrinsics;
     let path = ctx.dir.join("stills").join(format!("{name}.jpg"));
     output::write_rgb(&path, k.width, k.height, &to_rgb8(&img.color), Some(scene.file.stills.jpeg_quality))?;
