@@ -84,6 +84,10 @@ pub enum Command {
         /// pointmaps/ (use them with `[init] pointmaps = "pointmaps"`).
         #[arg(long)]
         truth_pointmaps: bool,
+        /// Also write the true video cameras as `calibration.json`, so the poses stage
+        /// imports them instead of running COLMAP (isolates later stages from pose errors).
+        #[arg(long)]
+        truth_calibration: bool,
     },
 }
 

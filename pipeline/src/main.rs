@@ -78,6 +78,7 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             scene,
             capture_dir,
             truth_pointmaps,
+            truth_calibration,
         } => {
             let scene = rig::sim::Scene::from_file(&scene)?;
             simulate::simulate_into(&scene, &capture_dir, reporter)?;
@@ -87,6 +88,12 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
                     "true point maps written to {} (set [init] pointmaps = \"pointmaps\" to use them)",
                     dir.display()
                 ));
+            }
+            if truth_calibration {
+                simulate::write_truth_calibration(&capture_dir)?;
+                reporter.say(
+                    "true video cameras written to calibration.json (the poses stage imports them)",
+                );
             }
             reporter.say(&format!(
                 "simulated capture written to {}",
