@@ -49,12 +49,7 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             if reporter.mode() == OutputMode::Json {
                 reporter.json(&rows);
             } else {
-                println!(
-                    "{} ({} cameras, {} stills)\n",
-                    capture.root.display(),
-                    capture.cameras.len(),
-                    capture.stills.len()
-                );
+                println!("{}\n", capture_summary(&capture));
                 print!("{}", status::format_table(&rows));
             }
             Ok(ExitCode::SUCCESS)
@@ -222,6 +217,21 @@ fn record(args: RecordArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
         args.capture_dir.display()
     ));
     Ok(ExitCode::SUCCESS)
+}
+
+/// `DIR (4 cameras, 2 held-out: cam4, cam5, 8 stills, calibration.json)` for `status`.
+fn capture_summary(capture: &pipeline::layout::Capture) -> String {
+    let mut parts = vec![format!("{} cameras", capture.cameras.len())];
+    if !capture.heldout.is_empty() {
+        let names: Vec<&str> = capture.heldout.iter().map(|c| c.name.as_str()).collect();
+        parts.push(format!("{} held-out: {}", names.len(), names.join(", ")));
+    }
+    parts.push(format!("{} stills", capture.stills.len()));
+    if let Some(calibration) = &capture.calibration {
+        let name = calibration.file_name().unwrap_or(calibration.as_os_str());
+        parts.push(format!("calibration {}", name.to_string_lossy()));
+    }
+    format!("{} ({})", capture.root.display(), parts.join(", "))
 }
 
 /// Simulate the built-in scene (once) and run every stage on it. Stages that are not

@@ -133,6 +133,30 @@ fn status_prints_a_table_of_every_stage() {
         rows.as_array().unwrap().len(),
         pipeline::stages::STAGE_NAMES.len()
     );
+    let first = text.lines().next().unwrap_or_default().to_string();
+    assert!(first.ends_with("(4 cameras, 8 stills)"), "{first}");
+
+    // A fifth camera listed as held-out is counted apart from the training cameras.
+    let root = make_capture(tmp.path(), 5, 8);
+    std::fs::write(
+        root.join("capture.toml"),
+        "[capture]\nheldout = [\"cam4\"]\n",
+    )
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .arg("status")
+        .arg(&root)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    assert!(
+        text.lines()
+            .next()
+            .unwrap_or_default()
+            .ends_with("(4 cameras, 1 held-out: cam4, 8 stills)"),
+        "{text}"
+    );
     assert_eq!(rows[0]["state"], "missing");
 }
 
