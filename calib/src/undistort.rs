@@ -2,20 +2,31 @@
 //! ever sees pinhole cameras. Happens exactly once, after the poses stage (see
 //! `docs/poses.md`): build one [`UndistortMap`] per video camera and apply it to every frame.
 //!
-//! Implemented in Rust (exact distortion models from `splat4d::Distortion`, bilinear
-//! sampling, rayon over rows) rather than with OpenCV's `initUndistortRectifyMap`/`remap`:
-//! the `opencv` crate's bindings add minutes of cold build time on a 2-core machine for two
-//! functions; the maths is the same (OpenCV's `getOptimalNewCameraMatrix` rectangles).
+//! Done by OpenCV (Debian's 4.6 through the `opencv` crate): the pinhole camera comes from
+//! `getOptimalNewCameraMatrix` (radial-tangential) or
+//! `fisheye::estimateNewCameraMatrixForUndistortRectify` (fisheye), the map from
+//! `initUndistortRectifyMap` / `fisheye::initUndistortRectifyMap` (float maps) and the
+//! resampling from `remap` (bilinear; black outside the lens's view, edge pixels replicated
+//! for [`Fit::ValidPixels`], whose OpenCV rectangle overshoots the source by up to ~0.2 px).
+//! `remap` runs on OpenCV's own pool (TBB) even inside rayon: measured, no oversubscription
+//! cost on 2 cores, so OpenCV's default thread count is kept.
 //!
-//! Pixel convention: a pixel's centre is at integer + 0.5 (COLMAP's and the engine's).
+//! Pixel convention: our cameras put a pixel's centre at integer + 0.5 (COLMAP's and the
+//! engine's); OpenCV puts it at the integer. The principal point is shifted by 0.5 on the way
+//! into OpenCV and back on the way out; the tests pin this to < 0.05 px.
+
+use std::ffi::c_void;
 
 use glam::DVec2;
 use image::{ImageBuffer, Pixel};
-use rayon::prelude::*;
+use opencv::calib3d;
+use opencv::core::{self as cv, Mat, Point2d, Size, Vector};
+use opencv::imgproc;
+use opencv::prelude::*;
 use serde::{Deserialize, Serialize};
 use splat4d::{Camera, Distortion, Intrinsics};
 
-/// How the pinhole camera's field of view is chosen (OpenCV's `alpha` 0 / 1).
+/// How the pinhole camera's field of view is chosen (OpenCV's `alpha` / `balance` 0 / 1).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Fit {
@@ -28,7 +39,7 @@ pub enum Fit {
     KeepFocal,
 }
 
-#[derive(Debug, thiserror::Error)]
+#[derive(Clone, Debug, thiserror::Error)]
 pub enum UndistortError {
     #[error(
         "image is {got_w}×{got_h} but camera {camera} is calibrated for {want_w}×{want_h}: resize the \
@@ -41,6 +52,22 @@ pub enum UndistortError {
         want_w: u32,
         want_h: u32,
     },
+    /// OpenCV refused the camera (or gave a degenerate result) while building its map.
+    #[error(
+        "cannot undistort camera {camera}: OpenCV {step} failed: {message}; check its intrinsics \
+         and distortion coefficients in the poses stage's cameras.json"
+    )]
+    OpenCv {
+        camera: String,
+        step: &'static str,
+        message: String,
+    },
+    /// Intrinsics or coefficients no lens has (zero size, non-positive focal, NaN, …).
+    #[error(
+        "cannot undistort camera {camera}: {reason}; check its intrinsics and distortion \
+         coefficients in the poses stage's cameras.json"
+    )]
+    InvalidCamera { camera: String, reason: String },
 }
 
 /// A precomputed remap from one distorted camera to its pinhole twin (same size).
@@ -48,142 +75,250 @@ pub enum UndistortError {
 pub struct UndistortMap {
     source: Camera,
     pinhole: Camera,
-    /// For each output pixel, row-major: where and how to sample the source.
-    map: Vec<Tap>,
+    /// OpenCV's float maps (row-major source x and y per output pixel, OpenCV's pixel
+    /// convention), or why they could not be built (reported by [`UndistortMap::apply`]).
+    maps: Result<Maps, UndistortError>,
 }
 
-/// A bilinear tap: the top-left source pixel index, the steps to its right and lower
-/// neighbours (0 at the image edge), and the weights of those neighbours.
-#[derive(Clone, Copy, Debug)]
-struct Tap {
-    /// `u32::MAX`: outside the source image.
-    index: u32,
-    right: u32,
-    down: u32,
-    wx: f32,
-    wy: f32,
+#[derive(Clone, Debug)]
+struct Maps {
+    x: Vec<f32>,
+    y: Vec<f32>,
+    /// `BORDER_REPLICATE` for [`Fit::ValidPixels`] (OpenCV's rectangle, from a 9×9 grid of
+    /// border points, overshoots the source by a fraction of a pixel at a few edge pixels,
+    /// which `BORDER_CONSTANT` would darken), else `BORDER_CONSTANT` (black outside).
+    border: i32,
 }
 
-impl Tap {
-    const OUTSIDE: Tap = Tap {
-        index: u32::MAX,
-        right: 0,
-        down: 0,
-        wx: 0.0,
-        wy: 0.0,
-    };
+/// Intrinsics → OpenCV's 3×3 camera matrix (pixel centre at the integer).
+fn to_cv_matrix(k: &Intrinsics) -> opencv::Result<Mat> {
+    Mat::from_slice_2d(&[
+        [k.fx, 0.0, k.cx - 0.5],
+        [0.0, k.fy, k.cy - 0.5],
+        [0.0, 0.0, 1.0],
+    ])
+}
 
-    /// The tap for source position `(sx, sy)` in index space (pixel centre at integer).
-    fn at(sx: f64, sy: f64, w: u32, h: u32) -> Tap {
-        let inside = sx >= -0.5 && sy >= -0.5 && sx <= w as f64 - 0.5 && sy <= h as f64 - 0.5;
-        if !inside || !sx.is_finite() || !sy.is_finite() {
-            return Tap::OUTSIDE;
+/// OpenCV's camera matrix → intrinsics of a `width × height` image (pixel centre at +0.5).
+fn from_cv_matrix(m: &Mat, width: u32, height: u32) -> opencv::Result<Intrinsics> {
+    let at = |r, c| m.at_2d::<f64>(r, c).copied();
+    Ok(Intrinsics {
+        width,
+        height,
+        fx: at(0, 0)?,
+        fy: at(1, 1)?,
+        cx: at(0, 2)? + 0.5,
+        cy: at(1, 2)? + 0.5,
+    })
+}
+
+/// The distortion coefficients in OpenCV's order (`[k1 k2 p1 p2 k3]` or fisheye `[k1..k4]`).
+fn to_cv_coefficients(d: &Distortion) -> opencv::Result<Mat> {
+    match *d {
+        Distortion::None => Mat::from_slice(&[0.0f64; 5]).and_then(|m| m.try_clone()),
+        Distortion::Opencv { k1, k2, p1, p2, k3 } => {
+            Mat::from_slice(&[k1, k2, p1, p2, k3]).and_then(|m| m.try_clone())
         }
-        let (xc, yc) = (sx.clamp(0.0, (w - 1) as f64), sy.clamp(0.0, (h - 1) as f64));
-        let (x0, y0) = (xc.floor() as u32, yc.floor() as u32);
-        Tap {
-            index: y0 * w + x0,
-            right: u32::from(x0 + 1 < w),
-            down: if y0 + 1 < h { w } else { 0 },
-            wx: (xc - x0 as f64) as f32,
-            wy: (yc - y0 as f64) as f32,
+        Distortion::Fisheye { k1, k2, k3, k4 } => {
+            Mat::from_slice(&[k1, k2, k3, k4]).and_then(|m| m.try_clone())
         }
     }
 }
 
-/// The pinhole camera [`UndistortMap::new`] would produce, without building the map.
-pub fn pinhole_for(camera: &Camera, fit: Fit) -> Camera {
-    let intr = camera.intrinsics;
-    let new_intr = match (fit, camera.distortion) {
-        (_, Distortion::None) | (Fit::KeepFocal, _) => intr,
-        (Fit::ValidPixels | Fit::AllPixels, d) => {
-            let (inner, outer) = undistorted_bounds(&intr, &d);
-            let [x0, y0, x1, y1] = if fit == Fit::ValidPixels {
-                inner
-            } else {
-                outer
+fn cv_size(k: &Intrinsics) -> Size {
+    Size::new(k.width as i32, k.height as i32)
+}
+
+/// The OpenCV call that failed, as a typed error naming the camera.
+fn cv_error(camera: &Camera, step: &'static str) -> impl FnOnce(opencv::Error) -> UndistortError {
+    let name = camera.name.clone();
+    move |e| UndistortError::OpenCv {
+        camera: name,
+        step,
+        message: e.message,
+    }
+}
+
+/// Refuse cameras no lens has before OpenCV sees them (it would return NaN maps).
+fn check_camera(camera: &Camera) -> Result<(), UndistortError> {
+    let k = &camera.intrinsics;
+    let coefficients: &[f64] = match &camera.distortion {
+        Distortion::None => &[],
+        Distortion::Opencv { k1, k2, p1, p2, k3 } => &[*k1, *k2, *p1, *p2, *k3],
+        Distortion::Fisheye { k1, k2, k3, k4 } => &[*k1, *k2, *k3, *k4],
+    };
+    let reason = if k.width < 2 || k.height < 2 {
+        format!("its image is {}×{} pixels", k.width, k.height)
+    } else if !(k.fx.is_finite() && k.fy.is_finite() && k.fx > 0.0 && k.fy > 0.0) {
+        format!("its focal length ({}, {}) is not positive", k.fx, k.fy)
+    } else if !(k.cx.is_finite() && k.cy.is_finite()) {
+        format!("its principal point ({}, {}) is not finite", k.cx, k.cy)
+    } else if !coefficients.iter().all(|c| c.is_finite()) {
+        format!("its distortion coefficients {coefficients:?} are not finite")
+    } else {
+        return Ok(());
+    };
+    Err(UndistortError::InvalidCamera {
+        camera: camera.name.clone(),
+        reason,
+    })
+}
+
+/// The pinhole intrinsics for `camera` and `fit` in OpenCV's convention.
+fn new_cv_matrix(camera: &Camera, fit: Fit) -> Result<Mat, UndistortError> {
+    check_camera(camera)?;
+    let intr = &camera.intrinsics;
+    let k = to_cv_matrix(intr).map_err(cv_error(camera, "camera matrix"))?;
+    let d = to_cv_coefficients(&camera.distortion).map_err(cv_error(camera, "coefficients"))?;
+    let size = cv_size(intr);
+    let new = match (fit, camera.distortion) {
+        (_, Distortion::None) | (Fit::KeepFocal, _) => k,
+        (_, Distortion::Opencv { .. }) => {
+            let alpha = if fit == Fit::ValidPixels { 0.0 } else { 1.0 };
+            calib3d::get_optimal_new_camera_matrix(&k, &d, size, alpha, size, None, false)
+                .map_err(cv_error(camera, "getOptimalNewCameraMatrix"))?
+        }
+        (_, Distortion::Fisheye { .. }) => {
+            let fisheye = |balance: f64, fov_scale: f64| -> opencv::Result<Mat> {
+                let mut p = Mat::default();
+                calib3d::estimate_new_camera_matrix_for_undistort_rectify(
+                    &k,
+                    &d,
+                    size,
+                    &Mat::eye(3, 3, cv::CV_64F)?,
+                    &mut p,
+                    balance,
+                    size,
+                    fov_scale,
+                )?;
+                Ok(p)
             };
-            let (w, h) = (intr.width as f64, intr.height as f64);
-            let fx = w / (x1 - x0);
-            let fy = h / (y1 - y0);
-            if fx.is_finite() && fy.is_finite() && fx > 0.0 && fy > 0.0 {
-                Intrinsics {
-                    fx,
-                    fy,
-                    cx: -x0 * fx,
-                    cy: -y0 * fy,
-                    ..intr
-                }
+            let step = "fisheye::estimateNewCameraMatrixForUndistortRectify";
+            if fit == Fit::ValidPixels {
+                // balance 0 maps the edges' midpoints onto the output's edges: no black border.
+                fisheye(0.0, 1.0).map_err(cv_error(camera, step))?
             } else {
-                intr
+                // balance 1 only looks at the edges' midpoints; widen it (fov_scale, which
+                // scales about the image centre) until the source's corners are inside too.
+                let p = fisheye(1.0, 1.0).map_err(cv_error(camera, step))?;
+                let scale = fisheye_corner_overflow(camera, &k, &d, &p)
+                    .map_err(cv_error(camera, "fisheye::undistortPoints"))?;
+                if scale > 1.0 {
+                    fisheye(1.0, scale).map_err(cv_error(camera, step))?
+                } else {
+                    p
+                }
             }
         }
     };
+    let finite =
+        (0..3).all(|r| (0..3).all(|c| new.at_2d::<f64>(r, c).is_ok_and(|v| v.is_finite())));
+    let positive = new.at_2d::<f64>(0, 0).is_ok_and(|v| *v > 0.0)
+        && new.at_2d::<f64>(1, 1).is_ok_and(|v| *v > 0.0);
+    if !(finite && positive) {
+        return Err(UndistortError::OpenCv {
+            camera: camera.name.clone(),
+            step: "new camera matrix",
+            message: format!("degenerate result {:?}", new.data_typed::<f64>().ok()),
+        });
+    }
+    Ok(new)
+}
+
+/// How far (as a factor ≥ 0 of the half-size) the source's corner pixels land from the
+/// centre of the pinhole image `p`: > 1 means some corner is outside.
+fn fisheye_corner_overflow(camera: &Camera, k: &Mat, d: &Mat, p: &Mat) -> opencv::Result<f64> {
+    let (w, h) = (
+        camera.intrinsics.width as f64,
+        camera.intrinsics.height as f64,
+    );
+    let corners: Vector<Point2d> = [
+        (0.0, 0.0),
+        (w - 1.0, 0.0),
+        (0.0, h - 1.0),
+        (w - 1.0, h - 1.0),
+    ]
+    .into_iter()
+    .map(|(x, y)| Point2d::new(x, y))
+    .collect();
+    let mut out: Vector<Point2d> = Vector::new();
+    let eye = Mat::eye(3, 3, cv::CV_64F)?.to_mat()?;
+    // OpenCV 4.6's default criteria, tightened.
+    let criteria = cv::TermCriteria::new(cv::TermCriteria_COUNT + cv::TermCriteria_EPS, 50, 1e-12)?;
+    calib3d::fisheye_undistort_points(&corners, &mut out, k, d, &eye, p, criteria)?;
+    // OpenCV's estimate centres the pinhole image at (w/2, h/2) and fov_scale scales about it.
+    let (hw, hh) = (0.5 * w, 0.5 * h);
+    Ok(out.iter().fold(0.0f64, |m, q| {
+        m.max((q.x - hw).abs() / (hw - 0.5))
+            .max((q.y - hh).abs() / (hh - 0.5))
+    }))
+}
+
+/// The pinhole camera [`UndistortMap::new`] would produce, without building the map
+/// (the distorted camera's own intrinsics if OpenCV refuses it).
+pub fn pinhole_for(camera: &Camera, fit: Fit) -> Camera {
+    let intrinsics = new_cv_matrix(camera, fit)
+        .and_then(|m| {
+            from_cv_matrix(&m, camera.intrinsics.width, camera.intrinsics.height)
+                .map_err(cv_error(camera, "camera matrix"))
+        })
+        .unwrap_or(camera.intrinsics);
     Camera {
-        intrinsics: new_intr,
+        intrinsics,
         distortion: Distortion::None,
         ..camera.clone()
     }
 }
 
-/// Inner and outer rectangles `[x0, y0, x1, y1]` (normalised coordinates) of the image
-/// border after removing distortion.
-fn undistorted_bounds(intr: &Intrinsics, d: &Distortion) -> ([f64; 4], [f64; 4]) {
-    let (w, h) = (intr.width as f64, intr.height as f64);
-    let n = 64;
-    let undist = |x: f64, y: f64| d.undistort(intr.to_normalised(DVec2::new(x, y)));
-    let mut inner = [
-        f64::NEG_INFINITY,
-        f64::NEG_INFINITY,
-        f64::INFINITY,
-        f64::INFINITY,
-    ];
-    let mut outer = [
-        f64::INFINITY,
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-        f64::NEG_INFINITY,
-    ];
-    for i in 0..=n {
-        let t = i as f64 / n as f64;
-        let (left, right) = (undist(0.0, t * h), undist(w, t * h));
-        let (top, bottom) = (undist(t * w, 0.0), undist(t * w, h));
-        inner[0] = inner[0].max(left.x);
-        inner[2] = inner[2].min(right.x);
-        inner[1] = inner[1].max(top.y);
-        inner[3] = inner[3].min(bottom.y);
-        for p in [left, right, top, bottom] {
-            outer[0] = outer[0].min(p.x);
-            outer[1] = outer[1].min(p.y);
-            outer[2] = outer[2].max(p.x);
-            outer[3] = outer[3].max(p.y);
-        }
+/// OpenCV's float maps from `camera` to the pinhole camera matrix `new`.
+fn build_maps(camera: &Camera, new: &Mat, fit: Fit) -> Result<Maps, UndistortError> {
+    let intr = &camera.intrinsics;
+    let k = to_cv_matrix(intr).map_err(cv_error(camera, "camera matrix"))?;
+    let d = to_cv_coefficients(&camera.distortion).map_err(cv_error(camera, "coefficients"))?;
+    let r = Mat::default();
+    let (mut mx, mut my) = (Mat::default(), Mat::default());
+    let size = cv_size(intr);
+    let m1type = cv::CV_32FC1;
+    if let Distortion::Fisheye { .. } = camera.distortion {
+        calib3d::fisheye_init_undistort_rectify_map(
+            &k, &d, &r, new, size, m1type, &mut mx, &mut my,
+        )
+        .map_err(cv_error(camera, "fisheye::initUndistortRectifyMap"))?;
+    } else {
+        calib3d::init_undistort_rectify_map(&k, &d, &r, new, size, m1type, &mut mx, &mut my)
+            .map_err(cv_error(camera, "initUndistortRectifyMap"))?;
     }
-    (inner, outer)
+    let take = |m: &Mat| m.data_typed::<f32>().map(<[f32]>::to_vec);
+    Ok(Maps {
+        x: take(&mx).map_err(cv_error(camera, "map x"))?,
+        y: take(&my).map_err(cv_error(camera, "map y"))?,
+        border: if fit == Fit::ValidPixels {
+            cv::BORDER_REPLICATE
+        } else {
+            cv::BORDER_CONSTANT
+        },
+    })
 }
 
 impl UndistortMap {
-    /// Build the map for `camera` (its intrinsics must match the frames' size).
+    /// Build the map for `camera` (its intrinsics must match the frames' size). An OpenCV
+    /// failure is kept and returned by [`UndistortMap::apply`].
     pub fn new(camera: &Camera, fit: Fit) -> Self {
-        let pinhole = pinhole_for(camera, fit);
-        let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
-        let src = camera.intrinsics;
-        let dst = pinhole.intrinsics;
-        let d = camera.distortion;
-        let mut map = vec![Tap::OUTSIDE; w as usize * h as usize];
-        map.par_chunks_mut(w.max(1) as usize)
-            .enumerate()
-            .for_each(|(y, row)| {
-                for (x, m) in row.iter_mut().enumerate() {
-                    let n = dst.to_normalised(DVec2::new(x as f64 + 0.5, y as f64 + 0.5));
-                    let p = src.to_pixels(d.distort(n)) - DVec2::splat(0.5);
-                    *m = Tap::at(p.x, p.y, w, h);
-                }
-            });
+        let new = new_cv_matrix(camera, fit);
+        let pinhole_intr = new
+            .as_ref()
+            .ok()
+            .and_then(|m| from_cv_matrix(m, camera.intrinsics.width, camera.intrinsics.height).ok())
+            .unwrap_or(camera.intrinsics);
+        let maps = new.and_then(|m| build_maps(camera, &m, fit));
         Self {
             source: camera.clone(),
-            pinhole,
-            map,
+            pinhole: Camera {
+                intrinsics: pinhole_intr,
+                distortion: Distortion::None,
+                ..camera.clone()
+            },
+            maps,
         }
     }
 
@@ -197,7 +332,8 @@ impl UndistortMap {
         &self.pinhole
     }
 
-    /// Source position (pixel-centre convention) of output pixel position `p`.
+    /// Source position (pixel-centre convention) of output pixel position `p`, from the
+    /// camera models (`splat4d::Distortion::distort`); the map agrees to OpenCV's 1/32 px.
     pub fn source_position(&self, p: DVec2) -> DVec2 {
         let n = self.pinhole.intrinsics.to_normalised(p);
         self.source
@@ -205,8 +341,8 @@ impl UndistortMap {
             .to_pixels(self.source.distortion.distort(n))
     }
 
-    /// Undistort one image (any `u8` or `f32` pixel type) by bilinear sampling; pixels the
-    /// lens did not see are 0.
+    /// Undistort one image (`u8`, `u16` or `f32` samples, 1–4 channels) with OpenCV's
+    /// bilinear `remap`; pixels the lens did not see are 0 (none with [`Fit::ValidPixels`]).
     pub fn apply<P, S>(
         &self,
         image: &ImageBuffer<P, Vec<S>>,
@@ -225,33 +361,57 @@ impl UndistortMap {
                 want_h: h,
             });
         }
-        let c = P::CHANNEL_COUNT as usize;
-        let src = image.as_raw();
-        let mut out = vec![S::from_f32(0.0); src.len()];
-        let row_len = w as usize * c;
-        out.par_chunks_mut(row_len.max(1))
-            .enumerate()
-            .for_each(|(y, row)| {
-                let taps = &self.map[y * w as usize..(y + 1) * w as usize];
-                for (out_px, tap) in row.chunks_exact_mut(c).zip(taps) {
-                    if tap.index == u32::MAX {
-                        continue;
-                    }
-                    let i00 = tap.index as usize * c;
-                    let i01 = i00 + tap.right as usize * c;
-                    let i10 = i00 + tap.down as usize * c;
-                    let i11 = i10 + tap.right as usize * c;
-                    let (wx, wy) = (tap.wx, tap.wy);
-                    let (p00, p01) = (&src[i00..i00 + c], &src[i01..i01 + c]);
-                    let (p10, p11) = (&src[i10..i10 + c], &src[i11..i11 + c]);
-                    for k in 0..c {
-                        let top = p00[k].to_f32() + (p01[k].to_f32() - p00[k].to_f32()) * wx;
-                        let bottom = p10[k].to_f32() + (p11[k].to_f32() - p10[k].to_f32()) * wx;
-                        out_px[k] = S::from_f32(top + (bottom - top) * wy);
-                    }
-                }
-            });
+        let maps = self.maps.as_ref().map_err(Clone::clone)?;
+        let mut out = vec![S::ZERO; image.as_raw().len()];
+        if !out.is_empty() {
+            self.remap(image.as_raw(), &mut out, P::CHANNEL_COUNT, maps)
+                .map_err(cv_error(&self.source, "remap"))?;
+        }
         Ok(ImageBuffer::from_raw(w, h, out).expect("same size as the input"))
+    }
+
+    /// `remap` of the `channels`-channel image `src` into `dst` (both `width × height`).
+    fn remap<S: Sample>(
+        &self,
+        src: &[S],
+        dst: &mut [S],
+        channels: u8,
+        maps: &Maps,
+    ) -> opencv::Result<()> {
+        let (w, h) = (
+            self.source.intrinsics.width as i32,
+            self.source.intrinsics.height as i32,
+        );
+        let typ = cv::CV_MAKETYPE(S::CV_DEPTH, channels as i32);
+        let step = w as usize * channels as usize * std::mem::size_of::<S>();
+        // SAFETY: both buffers hold exactly `h` rows of `step` bytes of `typ` pixels and
+        // outlive the Mats that borrow them (dropped at the end of this function); `src` is
+        // only read (remap's input).
+        let src_mat = unsafe {
+            Mat::new_rows_cols_with_data_unsafe(h, w, typ, src.as_ptr() as *mut c_void, step)?
+        };
+        let mut dst_mat = unsafe {
+            Mat::new_rows_cols_with_data_unsafe(h, w, typ, dst.as_mut_ptr() as *mut c_void, step)?
+        };
+        let map_x = Mat::new_rows_cols_with_data(h, w, &maps.x)?;
+        let map_y = Mat::new_rows_cols_with_data(h, w, &maps.y)?;
+        imgproc::remap(
+            &src_mat,
+            &mut dst_mat,
+            &map_x,
+            &map_y,
+            imgproc::INTER_LINEAR,
+            maps.border,
+            cv::Scalar::all(0.0),
+        )?;
+        // remap writes in place when the output already has the right size and type.
+        if dst_mat.data() != dst.as_ptr().cast() {
+            return Err(opencv::Error::new(
+                cv::StsError,
+                "remap reallocated its output",
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -270,37 +430,28 @@ where
     Ok((map.pinhole, out))
 }
 
-/// Pixel sample types [`UndistortMap::apply`] handles: `u8` (rounded, clamped) and `f32`.
+/// Pixel sample types [`UndistortMap::apply`] handles (`u8`, `u16`, `f32`), with their
+/// OpenCV depth.
 pub trait Sample: image::Primitive + Send + Sync {
-    fn to_f32(self) -> f32;
-    fn from_f32(v: f32) -> Self;
+    /// OpenCV's depth constant (`CV_8U`, …).
+    const CV_DEPTH: i32;
+    /// Black.
+    const ZERO: Self;
 }
 
 impl Sample for u8 {
-    fn to_f32(self) -> f32 {
-        self as f32
-    }
-    fn from_f32(v: f32) -> Self {
-        v.round().clamp(0.0, 255.0) as u8
-    }
+    const ZERO: Self = 0;
+    const CV_DEPTH: i32 = cv::CV_8U;
 }
 
 impl Sample for u16 {
-    fn to_f32(self) -> f32 {
-        self as f32
-    }
-    fn from_f32(v: f32) -> Self {
-        v.round().clamp(0.0, 65535.0) as u16
-    }
+    const ZERO: Self = 0;
+    const CV_DEPTH: i32 = cv::CV_16U;
 }
 
 impl Sample for f32 {
-    fn to_f32(self) -> f32 {
-        self
-    }
-    fn from_f32(v: f32) -> Self {
-        v
-    }
+    const ZERO: Self = 0.0;
+    const CV_DEPTH: i32 = cv::CV_32F;
 }
 
 #[cfg(test)]
@@ -344,6 +495,7 @@ mod tests {
                 let c = cam(d);
                 let map = UndistortMap::new(&c, fit);
                 assert!(map.pinhole().distortion.is_none());
+                assert_eq!(map.pinhole(), &pinhole_for(&c, fit));
                 for p in [
                     DVec3::new(0.3, 0.2, 0.5),
                     DVec3::new(-0.8, 0.5, 1.2),
@@ -378,10 +530,9 @@ mod tests {
         // Barrel distortion: the "all pixels" pinhole is wider (shorter focal length).
         assert!(pin.intrinsics.fx < c.intrinsics.fx);
         let wrong = image::RgbImage::new(100, 100);
-        assert!(
-            UndistortMap::new(&c, Fit::ValidPixels)
-                .apply(&wrong)
-                .is_err()
-        );
+        assert!(matches!(
+            UndistortMap::new(&c, Fit::ValidPixels).apply(&wrong),
+            Err(UndistortError::SizeMismatch { .. })
+        ));
     }
 }
