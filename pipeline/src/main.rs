@@ -247,9 +247,10 @@ fn demo(out_dir: &std::path::Path, reporter: &Reporter) -> anyhow::Result<ExitCo
             "simulating the demo capture into {} …",
             out_dir.display()
         ));
-        simulate::simulate_into(&simulate::demo_scene()?, out_dir, reporter)?;
+        let scene = simulate::demo_scene()?;
+        simulate::simulate_into(&scene, out_dir, reporter)?;
         let settings = out_dir.join(pipeline::config::CONFIG_FILE);
-        pipeline::atomic::write_atomic(&settings, simulate::DEMO_SETTINGS.as_bytes())
+        pipeline::atomic::write_atomic(&settings, simulate::demo_settings(&scene).as_bytes())
             .with_context(|| format!("cannot write {}", settings.display()))?;
     }
     let (capture, config) = open_capture(out_dir)?;

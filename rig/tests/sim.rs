@@ -505,3 +505,39 @@ fn inline_meshes_and_a_dome_render_where_declared() {
     assert!(r.id.iter().filter(|&&i| i == 1).count() > r.id.len() / 3, "the dome fills the background");
     assert!(r.id.iter().all(|&i| i != 0), "the dome closes the view");
 }
+
+#[test]
+fn heldout_cameras_can_be_filmed_as_videos() {
+    let scene = Scene::from_file(&fixture("heldout-real.toml")).unwrap().with_heldout_videos(true);
+    let dir = tempfile::tempdir().unwrap();
+    let summary = simulate(&scene, dir.path(), &NoProgress).unwrap();
+    let frames = scene.frames_per_camera() as usize;
+    assert_eq!(summary.video_frames as usize, 6 * frames, "4 rig cameras + 2 filmed held-out cameras");
+    let offsets: OffsetsFile =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("groundtruth/offsets.json")).unwrap()).unwrap();
+    let names: Vec<&str> = offsets.cameras.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["cam0", "cam1", "cam2", "cam3", "heldout0", "heldout1"]);
+    for name in ["heldout0", "heldout1"] {
+        let video = dir.path().join("raw").join(name).join("GX010001.MP4");
+        let decoded = video_frames(&video);
+        assert_eq!(decoded.len(), frames, "{name}");
+        for (k, (t, _)) in decoded.iter().enumerate() {
+            assert!((t - k as f64 / scene.fps()).abs() < 1e-6, "{name} frame {k} at {t}");
+        }
+        // The filmed frame 0 shows what the clean ground-truth frame 0 shows (sensor noise,
+        // H.264 and the tone of the rig's exposure aside).
+        let truth = image::open(dir.path().join("groundtruth/heldout").join(name).join("000000.png"))
+            .unwrap()
+            .to_rgb8();
+        let (_, rgb) = &decoded[0];
+        assert_eq!(rgb.len(), truth.as_raw().len());
+        let mse = rgb.iter().zip(truth.as_raw()).map(|(&a, &b)| (a as f64 - b as f64).powi(2)).sum::<f64>()
+            / rgb.len() as f64;
+        let psnr = 10.0 * (255.0f64 * 255.0 / mse).log10();
+        assert!(psnr > 25.0, "{name}: filmed vs truth frame 0 {psnr:.1} dB");
+    }
+    // Without the option, held-out cameras stay ground truth only.
+    let dir = tempfile::tempdir().unwrap();
+    simulate(&scene.with_heldout_videos(false), dir.path(), &NoProgress).unwrap();
+    assert!(!dir.path().join("raw/heldout0").exists());
+}

@@ -42,7 +42,7 @@ use texture::hash;
 #[derive(Clone, Debug, Serialize)]
 pub struct SimSummary {
     pub capture_dir: PathBuf,
-    /// Every video file, `raw/camN/GX….MP4`.
+    /// Every video file, `raw/camN/GX….MP4` (and `raw/heldoutN/…` with `heldout_videos`).
     pub videos: Vec<PathBuf>,
     /// Frames encoded into the videos (all cameras, dropped frames excluded).
     pub video_frames: u64,
@@ -67,6 +67,7 @@ pub struct OffsetsFile {
     pub audio: Option<AudioTruth>,
     /// Present when the scene has a flash.
     pub flash: Option<FlashTruth>,
+    /// Every camera filmed as video: cam0..cam3, then heldoutN when `heldout_videos` is on.
     pub cameras: Vec<CameraTiming>,
 }
 
@@ -247,11 +248,13 @@ pub fn simulate(scene: &Scene, capture_dir: &Path, progress: &dyn Progress) -> R
     let frames = scene.frames_per_camera() as u64;
     let heldout = scene.cameras.iter().filter(|c| c.role == CameraRole::Heldout).count() as u64;
     let stills = scene.cameras.iter().filter(|c| c.role == CameraRole::Still).count() as u64;
-    progress.start(frames * (VIDEO_CAMERAS as u64 + heldout) + stills, "frames");
+    let filmed_heldout = if scene.films_heldout() { heldout } else { 0 };
+    progress.start(frames * (VIDEO_CAMERAS as u64 + heldout + filmed_heldout) + stills, "frames");
 
+    type Filmed = (CameraTiming, Vec<PathBuf>, u64);
     enum Done {
-        Video(CameraTiming, Vec<PathBuf>, u64),
-        Heldout(u64),
+        Video(Filmed),
+        Heldout(u64, Option<Filmed>),
         Still(PathBuf),
     }
     let results: Vec<Result<Done, SimError>> = scene
@@ -259,8 +262,12 @@ pub fn simulate(scene: &Scene, capture_dir: &Path, progress: &dyn Progress) -> R
         .par_iter()
         .enumerate()
         .map(|(index, cam)| match cam.role {
-            CameraRole::Video => video_camera(&ctx, cam, index).map(|(t, f, n)| Done::Video(t, f, n)),
-            CameraRole::Heldout => heldout_camera(&ctx, cam).map(Done::Heldout),
+            CameraRole::Video => video_camera(&ctx, cam, index).map(Done::Video),
+            CameraRole::Heldout => {
+                let truth = heldout_camera(&ctx, cam)?;
+                let filmed = if scene.films_heldout() { Some(video_camera(&ctx, cam, index)?) } else { None };
+                Ok(Done::Heldout(truth, filmed))
+            }
             CameraRole::Still => still(&ctx, cam).map(Done::Still),
         })
         .collect();
@@ -277,12 +284,19 @@ pub fn simulate(scene: &Scene, capture_dir: &Path, progress: &dyn Progress) -> R
     let mut timings = Vec::new();
     for r in results {
         match r? {
-            Done::Video(t, files, n) => {
+            Done::Video((t, files, n)) => {
                 timings.push(t);
                 summary.videos.extend(files);
                 summary.video_frames += n;
             }
-            Done::Heldout(n) => summary.heldout_frames += n,
+            Done::Heldout(n, filmed) => {
+                summary.heldout_frames += n;
+                if let Some((t, files, n)) = filmed {
+                    timings.push(t);
+                    summary.videos.extend(files);
+                    summary.video_frames += n;
+                }
+            }
             Done::Still(p) => summary.stills.push(p),
         }
     }

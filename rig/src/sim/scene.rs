@@ -240,6 +240,9 @@ pub(crate) struct CamerasSection {
     pub video: Vec<CameraSpec>,
     #[serde(default)]
     pub heldout: Vec<CameraSpec>,
+    /// Also film every held-out camera as a video camera (`raw/heldoutN/`).
+    #[serde(default)]
+    pub heldout_videos: bool,
 }
 
 fn default_width() -> u32 {
@@ -470,6 +473,15 @@ impl Scene {
     }
     pub fn video_cameras(&self) -> impl Iterator<Item = &SimCamera> {
         self.cameras.iter().filter(|c| c.role == CameraRole::Video)
+    }
+    /// Whether the held-out cameras are also filmed as videos (`[cameras] heldout_videos`).
+    pub fn films_heldout(&self) -> bool {
+        self.file.cameras.heldout_videos
+    }
+    /// The same scene with its held-out cameras filmed as videos (`raw/heldoutN/`) or not.
+    pub fn with_heldout_videos(mut self, on: bool) -> Scene {
+        self.file.cameras.heldout_videos = on;
+        self
     }
     /// Whether the scene records audio (an `[audio]` table with `enabled = true`).
     pub fn audio_enabled(&self) -> bool {
