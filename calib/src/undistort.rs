@@ -112,17 +112,21 @@ fn from_cv_matrix(m: &Mat, width: u32, height: u32) -> opencv::Result<Intrinsics
     })
 }
 
-/// The distortion coefficients in OpenCV's order (`[k1 k2 p1 p2 k3]` or fisheye `[k1..k4]`).
-fn to_cv_coefficients(d: &Distortion) -> opencv::Result<Mat> {
+/// The distortion coefficients in OpenCV's order (`[k1 k2 p1 p2 k3]`, fisheye `[k1..k4]`,
+/// none for a pinhole).
+fn coefficients(d: &Distortion) -> Vec<f64> {
     match *d {
-        Distortion::None => Mat::from_slice(&[0.0f64; 5]).and_then(|m| m.try_clone()),
-        Distortion::Opencv { k1, k2, p1, p2, k3 } => {
-            Mat::from_slice(&[k1, k2, p1, p2, k3]).and_then(|m| m.try_clone())
-        }
-        Distortion::Fisheye { k1, k2, k3, k4 } => {
-            Mat::from_slice(&[k1, k2, k3, k4]).and_then(|m| m.try_clone())
-        }
+        Distortion::None => Vec::new(),
+        Distortion::Opencv { k1, k2, p1, p2, k3 } => vec![k1, k2, p1, p2, k3],
+        Distortion::Fisheye { k1, k2, k3, k4 } => vec![k1, k2, k3, k4],
     }
+}
+
+/// [`coefficients`] as an OpenCV vector (five zeros for a pinhole).
+fn to_cv_coefficients(d: &Distortion) -> opencv::Result<Mat> {
+    let c = coefficients(d);
+    let c = if c.is_empty() { vec![0.0; 5] } else { c };
+    Mat::from_slice(&c).and_then(|m| m.try_clone())
 }
 
 fn cv_size(k: &Intrinsics) -> Size {
@@ -142,11 +146,7 @@ fn cv_error(camera: &Camera, step: &'static str) -> impl FnOnce(opencv::Error) -
 /// Refuse cameras no lens has before OpenCV sees them (it would return NaN maps).
 fn check_camera(camera: &Camera) -> Result<(), UndistortError> {
     let k = &camera.intrinsics;
-    let coefficients: &[f64] = match &camera.distortion {
-        Distortion::None => &[],
-        Distortion::Opencv { k1, k2, p1, p2, k3 } => &[*k1, *k2, *p1, *p2, *k3],
-        Distortion::Fisheye { k1, k2, k3, k4 } => &[*k1, *k2, *k3, *k4],
-    };
+    let coefficients = coefficients(&camera.distortion);
     let reason = if k.width < 2 || k.height < 2 {
         format!("its image is {}×{} pixels", k.width, k.height)
     } else if !(k.fx.is_finite() && k.fy.is_finite() && k.fx > 0.0 && k.fy > 0.0) {
@@ -257,14 +257,16 @@ fn fisheye_corner_overflow(camera: &Camera, k: &Mat, d: &Mat, p: &Mat) -> opencv
 /// The pinhole camera [`UndistortMap::new`] would produce, without building the map
 /// (the distorted camera's own intrinsics if OpenCV refuses it).
 pub fn pinhole_for(camera: &Camera, fit: Fit) -> Camera {
-    let intrinsics = new_cv_matrix(camera, fit)
-        .and_then(|m| {
-            from_cv_matrix(&m, camera.intrinsics.width, camera.intrinsics.height)
-                .map_err(cv_error(camera, "camera matrix"))
-        })
-        .unwrap_or(camera.intrinsics);
+    pinhole_with(camera, new_cv_matrix(camera, fit).ok().as_ref())
+}
+
+/// `camera` made pinhole with the OpenCV camera matrix `new` (its own intrinsics without one).
+fn pinhole_with(camera: &Camera, new: Option<&Mat>) -> Camera {
+    let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
     Camera {
-        intrinsics,
+        intrinsics: new
+            .and_then(|m| from_cv_matrix(m, w, h).ok())
+            .unwrap_or(camera.intrinsics),
         distortion: Distortion::None,
         ..camera.clone()
     }
@@ -305,20 +307,10 @@ impl UndistortMap {
     /// failure is kept and returned by [`UndistortMap::apply`].
     pub fn new(camera: &Camera, fit: Fit) -> Self {
         let new = new_cv_matrix(camera, fit);
-        let pinhole_intr = new
-            .as_ref()
-            .ok()
-            .and_then(|m| from_cv_matrix(m, camera.intrinsics.width, camera.intrinsics.height).ok())
-            .unwrap_or(camera.intrinsics);
-        let maps = new.and_then(|m| build_maps(camera, &m, fit));
         Self {
             source: camera.clone(),
-            pinhole: Camera {
-                intrinsics: pinhole_intr,
-                distortion: Distortion::None,
-                ..camera.clone()
-            },
-            maps,
+            pinhole: pinhole_with(camera, new.as_ref().ok()),
+            maps: new.and_then(|m| build_maps(camera, &m, fit)),
         }
     }
 

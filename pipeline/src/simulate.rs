@@ -78,10 +78,10 @@ pub fn demo_settings(scene: &rig::sim::Scene) -> String {
     let names: Vec<String> = scene
         .cameras
         .iter()
-        .filter(|c| c.role == rig::sim::CameraRole::Heldout && scene.films_heldout())
+        .filter(|c| c.role == rig::sim::CameraRole::Heldout)
         .map(|c| format!("{:?}", c.camera.name))
         .collect();
-    if names.is_empty() {
+    if names.is_empty() || !scene.films_heldout() {
         return DEMO_SETTINGS.to_string();
     }
     format!(

@@ -6,7 +6,7 @@
 
 use super::lens::LensPlan;
 use super::raster::Rendered;
-use super::{CameraRole, Scene, SimError, World, sensor};
+use super::{CameraRole, Scene, SimError, World, lens_plan, sensor};
 use crate::source::{CameraSource, Frame, PixelLayout, SourceError};
 
 /// One video camera of a simulated scene, frame after frame (dropped frames are skipped).
@@ -19,17 +19,8 @@ pub struct SimSource {
     next: u32,
     /// Frames delivered so far.
     delivered: usize,
-}
-
-impl SimSource {
-    /// Scene time of the recording clock's zero: the earliest video camera's frame 0.
-    pub fn origin(scene: &Scene) -> f64 {
-        scene
-            .video_cameras()
-            .map(|c| c.start_time)
-            .fold(f64::INFINITY, f64::min)
-            .min(0.0)
-    }
+    /// [`SimSource::origin`] of the scene.
+    origin: f64,
 }
 
 /// One rendered video frame: scene time, the clean render (depth and mesh ids for the
@@ -41,6 +32,15 @@ pub(crate) struct Shot {
 }
 
 impl SimSource {
+    /// Scene time of the recording clock's zero: the earliest video camera's frame 0.
+    pub fn origin(scene: &Scene) -> f64 {
+        scene
+            .video_cameras()
+            .map(|c| c.start_time)
+            .fold(f64::INFINITY, f64::min)
+            .min(0.0)
+    }
+
     /// Every video camera of `scene`, in scene order, sharing one copy of its geometry.
     pub fn video_cameras(scene: &Scene) -> Result<Vec<SimSource>, SimError> {
         let world = World::new(scene);
@@ -54,18 +54,15 @@ impl SimSource {
     }
 
     pub(crate) fn in_world(world: World, camera: usize) -> Result<SimSource, SimError> {
-        let scene = &world.scene;
-        let cam = &scene.cameras[camera];
-        let mut plan = LensPlan::new(&cam.camera, scene.file.render.supersample).map_err(|m| {
-            SimError::invalid(&scene.origin, format!("camera {}: {m}", cam.camera.name))
-        })?;
-        plan.prepare(&cam.camera);
+        let plan = lens_plan(&world.scene, &world.scene.cameras[camera])?;
+        let origin = SimSource::origin(&world.scene);
         Ok(SimSource {
             world,
             camera,
             plan,
             next: 0,
             delivered: 0,
+            origin,
         })
     }
 
@@ -107,7 +104,7 @@ impl CameraSource for SimSource {
                 self.delivered += 1;
                 return Ok(Some(Frame {
                     index: self.delivered - 1,
-                    timestamp: shot.t - SimSource::origin(&self.world.scene),
+                    timestamp: shot.t - self.origin,
                     width,
                     height,
                     layout: PixelLayout::Rgb8,

@@ -190,6 +190,14 @@ fn light_of(scene: &Scene) -> Light {
     }
 }
 
+/// The prepared lens of one of the scene's cameras, at the scene's supersampling.
+fn lens_plan(scene: &Scene, cam: &SimCamera) -> Result<LensPlan, SimError> {
+    let mut plan = LensPlan::new(&cam.camera, scene.file.render.supersample)
+        .map_err(|m| SimError::invalid(&scene.origin, format!("camera {}: {m}", cam.camera.name)))?;
+    plan.prepare(&cam.camera);
+    Ok(plan)
+}
+
 /// Every camera must see some geometry, and its lens must have a canvas (called by
 /// `Scene::from_toml_str`).
 pub(crate) fn check_views(scene: &Scene) -> Result<(), SimError> {
@@ -492,9 +500,7 @@ fn video_camera(ctx: &Context, cam: &SimCamera, index: usize) -> Result<(CameraT
 fn heldout_camera(ctx: &Context, cam: &SimCamera) -> Result<u64, SimError> {
     let scene = ctx.scene;
     let name = &cam.camera.name;
-    let mut plan = LensPlan::new(&cam.camera, scene.file.render.supersample)
-        .map_err(|m| SimError::invalid(&scene.origin, format!("camera {name}: {m}")))?;
-    plan.prepare(&cam.camera);
+    let plan = lens_plan(scene, cam)?;
     let dir = ctx.dir.join("groundtruth").join("heldout").join(name);
     let k = cam.camera.intrinsics;
     let mut times = Vec::new();
@@ -516,9 +522,7 @@ fn heldout_camera(ctx: &Context, cam: &SimCamera) -> Result<u64, SimError> {
 fn still(ctx: &Context, cam: &SimCamera) -> Result<PathBuf, SimError> {
     let scene = ctx.scene;
     let name = &cam.camera.name;
-    let mut plan = LensPlan::new(&cam.camera, scene.file.render.supersample)
-        .map_err(|m| SimError::invalid(&scene.origin, format!("camera {name}: {m}")))?;
-    plan.prepare(&cam.camera);
+    let plan = lens_plan(scene, cam)?;
     let img = ctx.world.render(&plan, scene.file.stills.time);
     let k = cam.camera.intrinsics;
     let path = ctx.dir.join("stills").join(format!("{name}.jpg"));
