@@ -7,14 +7,7 @@ use crate::numerics::logit;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use std::num::NonZero;
 
-/// Points with colour and optional model time (`work/init/points.ply`).
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct PointCloud {
-    pub xyz: Vec<[f32; 3]>,
-    pub rgb: Vec<[u8; 3]>,
-    /// Model time of each point, when the points come from per-frame point maps.
-    pub time: Option<Vec<f32>>,
-}
+pub use shared_types::PointCloud;
 
 /// Why a point cloud cannot seed a model.
 #[derive(Debug, thiserror::Error)]

@@ -8,9 +8,7 @@
 // culled. Index loops mirror the matrix formulas they implement.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 
-pub mod atomic;
-pub mod camera;
-pub mod progress;
+pub use shared_types::{atomic, camera, progress};
 
 pub mod blend;
 pub mod model;
@@ -38,7 +36,6 @@ pub mod export;
 pub mod init;
 pub mod loss;
 pub mod optim;
-pub mod ply;
 pub mod ssim;
 pub mod train;
 

@@ -9,7 +9,7 @@ use std::time::Instant;
 use calib::colmap::{ColmapModel, ModelFormat};
 use calib::undistort::{Fit, UndistortMap};
 use rayon::prelude::*;
-use splat4d::{Camera, Distortion, Intrinsics, WorldToCamera};
+use shared_types::{Camera, Distortion, Intrinsics, WorldToCamera};
 
 fn best_of<T>(n: usize, mut f: impl FnMut() -> T) -> f64 {
     (0..n)

@@ -3,7 +3,7 @@
 //! centre errors that remain after it.
 
 use glam::{DMat3, DVec3};
-use splat4d::Camera;
+use shared_types::Camera;
 
 /// `x_ref ≈ scale · rotation · x + translation`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -116,7 +116,7 @@ pub fn compare(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use splat4d::{Intrinsics, WorldToCamera};
+    use shared_types::{Intrinsics, WorldToCamera};
 
     #[test]
     fn recovers_a_known_similarity_and_zero_errors() {

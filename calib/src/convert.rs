@@ -6,7 +6,7 @@
 //! θ = atan r exactly like OpenCV's fisheye model). FOV and the thin-prism models have no
 //! engine equivalent: solve with OPENCV or OPENCV_FISHEYE instead.
 
-use splat4d::{Distortion, Intrinsics};
+use shared_types::{Distortion, Intrinsics};
 
 use crate::colmap::{CameraModel, ColmapCamera};
 

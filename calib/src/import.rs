@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 
 use glam::{DMat3, DVec3};
 use serde_json::Value;
-use splat4d::{Camera, CameraSet, Distortion, Intrinsics, WorldToCamera};
+use shared_types::{Camera, CameraSet, Distortion, Intrinsics, WorldToCamera};
 
 use crate::colmap::ColmapModel;
 use crate::convert;

@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 
 use glam::{DMat3, DVec3};
 use serde::{Deserialize, Serialize};
-use splat4d::{Camera, CameraSet, Progress, WorldToCamera};
+use shared_types::{Camera, CameraSet, Progress, WorldToCamera};
 
 use crate::colmap::ColmapModel;
 use crate::colmap_runner::diagnose::Diagnosis;
@@ -438,9 +438,9 @@ pub fn write_imported(
 /// Intrinsics for the working size; refuses a change of aspect ratio (a crop, not a resize).
 pub fn scale_intrinsics(
     camera: &str,
-    intr: &splat4d::Intrinsics,
+    intr: &shared_types::Intrinsics,
     working_size: Option<(u32, u32)>,
-) -> Result<splat4d::Intrinsics, PosesError> {
+) -> Result<shared_types::Intrinsics, PosesError> {
     let Some((w, h)) = working_size else {
         return Ok(*intr);
     };
@@ -757,7 +757,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("calib_poses_file_{}", std::process::id()));
         let cam = Camera {
             name: "cam0".into(),
-            intrinsics: splat4d::Intrinsics::from_hfov(64, 48, 60.0),
+            intrinsics: shared_types::Intrinsics::from_hfov(64, 48, 60.0),
             distortion: Default::default(),
             world_to_camera: WorldToCamera::IDENTITY,
         };
@@ -852,7 +852,7 @@ mod tests {
     #[test]
     fn normalisation_puts_cameras_at_the_radius_and_keeps_projections() {
         use glam::DVec3;
-        let intr = splat4d::Intrinsics::from_hfov(64, 48, 60.0);
+        let intr = shared_types::Intrinsics::from_hfov(64, 48, 60.0);
         let cams: Vec<Camera> = [
             DVec3::new(5.0, 1.0, 2.0),
             DVec3::new(1.0, 6.0, 2.0),

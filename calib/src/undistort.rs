@@ -24,7 +24,7 @@ use opencv::core::{self as cv, Mat, Point2d, Size, Vector};
 use opencv::imgproc;
 use opencv::prelude::*;
 use serde::{Deserialize, Serialize};
-use splat4d::{Camera, Distortion, Intrinsics};
+use shared_types::{Camera, Distortion, Intrinsics};
 
 /// How the pinhole camera's field of view is chosen (OpenCV's `alpha` / `balance` 0 / 1).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -325,7 +325,7 @@ impl UndistortMap {
     }
 
     /// Source position (pixel-centre convention) of output pixel position `p`, from the
-    /// camera models (`splat4d::Distortion::distort`); the map agrees to OpenCV's 1/32 px.
+    /// camera models (`shared_types::Distortion::distort`); the map agrees to OpenCV's 1/32 px.
     pub fn source_position(&self, p: DVec2) -> DVec2 {
         let n = self.pinhole.intrinsics.to_normalised(p);
         self.source
@@ -450,7 +450,7 @@ impl Sample for f32 {
 mod tests {
     use super::*;
     use glam::DVec3;
-    use splat4d::WorldToCamera;
+    use shared_types::WorldToCamera;
 
     fn cam(d: Distortion) -> Camera {
         Camera {

@@ -6,7 +6,7 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use calib::poses::{self, PosesConfig, PosesError, PosesInputs};
-use splat4d::NoProgress;
+use shared_types::NoProgress;
 
 fn noise_set(dir: &Path, n: usize, seed0: u64, size: (u32, u32)) -> Vec<PathBuf> {
     std::fs::create_dir_all(dir).unwrap();

@@ -279,7 +279,7 @@ fn regenerate_fixture() {
         ..Default::default()
     };
     let bin = calib::colmap_runner::find_colmap(None).unwrap();
-    let run = ws.run(&bin, &config, &splat4d::NoProgress).unwrap();
+    let run = ws.run(&bin, &config, &shared_types::NoProgress).unwrap();
     let (model_dir, _) = &run.models[0];
     let dst = fixture_dir();
     let _ = std::fs::remove_dir_all(&dst);

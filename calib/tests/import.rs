@@ -7,7 +7,7 @@ use calib::import::{
     ImportOptions, Units, find_calibration, import_calibration, import_calibration_with,
 };
 use glam::DVec3;
-use splat4d::Distortion;
+use shared_types::Distortion;
 
 fn write(dir: &Path, name: &str, text: &str) -> std::path::PathBuf {
     let p = dir.join(name);

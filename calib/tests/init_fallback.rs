@@ -4,7 +4,7 @@ use calib::init::{
     InitConfig, InitError, InitInputs, Pairs, PairsKeyword, Source, UsedSource, run_init,
 };
 use glam::DVec3;
-use splat4d::{Camera, CameraSet, Intrinsics, NoProgress, WorldToCamera};
+use shared_types::{Camera, CameraSet, Intrinsics, NoProgress, WorldToCamera};
 
 fn rig() -> CameraSet {
     let cams = [
@@ -65,12 +65,12 @@ fn config_reads_from_toml() {
 fn without_point_maps_the_sparse_points_are_used_then_a_random_cloud() {
     let tmp = tempfile::tempdir().unwrap();
     let sparse = tmp.path().join("points3d.ply");
-    let cloud = splat4d::init::PointCloud {
+    let cloud = shared_types::PointCloud {
         xyz: vec![[0.0, 0.0, 0.5], [0.2, 0.1, 0.7], [-0.3, 0.2, 0.4]],
         rgb: vec![[10, 20, 30]; 3],
         time: None,
     };
-    splat4d::ply::write_points_ply(&cloud, &sparse).unwrap();
+    shared_types::points::write_points_ply(&cloud, &sparse).unwrap();
     let mut inputs = InitInputs {
         cameras: rig(),
         images: vec![],
@@ -80,7 +80,7 @@ fn without_point_maps_the_sparse_points_are_used_then_a_random_cloud() {
     let report = run_init(&inputs, &InitConfig::default(), &out, &NoProgress).unwrap();
     assert_eq!(report.source, UsedSource::Sparse);
     assert_eq!(report.fallbacks.len(), 1);
-    let got = splat4d::ply::read_points_ply(&out.join("points.ply")).unwrap();
+    let got = shared_types::points::read_points_ply(&out.join("points.ply")).unwrap();
     assert_eq!((got.xyz, got.rgb), (cloud.xyz, cloud.rgb));
 
     inputs.sparse = None;
@@ -92,7 +92,7 @@ fn without_point_maps_the_sparse_points_are_used_then_a_random_cloud() {
     let report = run_init(&inputs, &config, &out, &NoProgress).unwrap();
     assert_eq!(report.source, UsedSource::Random);
     assert_eq!(report.fallbacks.len(), 2, "{:?}", report.fallbacks);
-    let got = splat4d::ply::read_points_ply(&out.join("points.ply")).unwrap();
+    let got = shared_types::points::read_points_ply(&out.join("points.ply")).unwrap();
     assert_eq!(got.xyz.len(), 2000);
     for p in &got.xyz {
         let p = DVec3::from_array(p.map(f64::from));

@@ -8,7 +8,7 @@ use calib::init::onnx::{ModelConfig, OnnxError, PointMapModel};
 use calib::init::{InitConfig, InitError, InitInputs, Source, UsedSource, ViewImage, run_init};
 use glam::{DMat3, DVec2, DVec3};
 use image::RgbImage;
-use splat4d::{Camera, CameraSet, Intrinsics, NoProgress, WorldToCamera};
+use shared_types::{Camera, CameraSet, Intrinsics, NoProgress, WorldToCamera};
 
 const W: u32 = 32;
 const H: u32 = 24;
@@ -142,7 +142,7 @@ fn the_whole_path_recovers_the_scale_and_the_predicted_points() {
     assert!(pair.accepted, "{pair:?}");
     assert!((pair.scale.unwrap() / scale - 1.0).abs() < 1e-5, "{pair:?}");
     assert!(pair.residual.unwrap() < 1e-4);
-    let cloud = splat4d::ply::read_points_ply(&out.join("points.ply")).unwrap();
+    let cloud = shared_types::points::read_points_ply(&out.join("points.ply")).unwrap();
     let n = (W * H) as usize;
     assert_eq!(cloud.xyz.len(), 2 * n);
     let times = cloud.time.unwrap();

@@ -9,7 +9,7 @@ use calib::init::npy::{self, OutputNames, PairMaps};
 use calib::init::{InitConfig, InitInputs, Source, UsedSource, ViewImage, run_init};
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
-use splat4d::{Camera, CameraSet, NoProgress};
+use shared_types::{Camera, CameraSet, NoProgress};
 
 struct Truth {
     dir: PathBuf,
@@ -49,7 +49,7 @@ fn truth() -> &'static Truth {
         let mut images = Vec::new();
         let mut lo = DVec3::splat(f64::INFINITY);
         let mut hi = DVec3::splat(f64::NEG_INFINITY);
-        let mut sparse = splat4d::init::PointCloud {
+        let mut sparse = shared_types::PointCloud {
             xyz: vec![],
             rgb: vec![],
             time: None,
@@ -89,7 +89,7 @@ fn truth() -> &'static Truth {
             });
         }
         let sparse_path = dir.join("points3d.ply");
-        splat4d::ply::write_points_ply(&sparse, &sparse_path).unwrap();
+        shared_types::points::write_points_ply(&sparse, &sparse_path).unwrap();
         Truth {
             dir,
             cameras,
@@ -235,7 +235,7 @@ fn ground_truth_point_maps_fuse_onto_the_true_surfaces() {
         assert!((s / pair_scale(k) - 1.0).abs() < 1e-3, "pair {k}: {s}");
         assert!(p.sparse_matches >= 20, "{p:?}");
     }
-    let cloud = splat4d::ply::read_points_ply(&out.join("points.ply")).unwrap();
+    let cloud = shared_types::points::read_points_ply(&out.join("points.ply")).unwrap();
     assert_eq!(cloud.xyz.len(), report.points_written);
     assert!(cloud.xyz.len() > 5_000, "{}", cloud.xyz.len());
     let times = cloud.time.as_ref().unwrap();
@@ -309,7 +309,7 @@ fn inconsistent_scales_and_nans_are_rejected_and_counted() {
     assert!(!p[3].accepted && p[3].reason.as_ref().unwrap().contains("no exported"));
     assert_eq!(report.source, UsedSource::Npy);
     // Only the good pair's points are in the cloud, and they lie on the surfaces.
-    let cloud = splat4d::ply::read_points_ply(&out.join("points.ply")).unwrap();
+    let cloud = shared_types::points::read_points_ply(&out.join("points.ply")).unwrap();
     let d = surface_distances(t, &cloud.xyz);
     assert!(quantile(d, 0.5) < 0.005 * t.scene_size);
 }
@@ -337,8 +337,8 @@ fn all_pairs_rejected_falls_back_to_the_sparse_points() {
     assert_eq!(report.pairs.len(), 1);
     assert!(!report.pairs[0].accepted);
     assert_eq!(report.fallbacks.len(), 1, "{:?}", report.fallbacks);
-    let sparse = splat4d::ply::read_points_ply(&t.sparse).unwrap();
-    let cloud = splat4d::ply::read_points_ply(&out.join("points.ply")).unwrap();
+    let sparse = shared_types::points::read_points_ply(&t.sparse).unwrap();
+    let cloud = shared_types::points::read_points_ply(&out.join("points.ply")).unwrap();
     assert_eq!(cloud.xyz, sparse.xyz);
     // Sparse points carry the mean time of the first frames.
     assert!(cloud.time.unwrap().iter().all(|t| (t - 0.15).abs() < 1e-6));

@@ -1,4 +1,4 @@
-//! f64 reference check of our camera models: `splat4d::Distortion::distort` followed by the
+//! f64 reference check of our camera models: `shared_types::Distortion::distort` followed by the
 //! intrinsics projection agrees with OpenCV's `projectPoints` (radial-tangential with k3) and
 //! `fisheye::projectPoints` to < 1e-6 px over a grid of points reaching the image corners.
 
@@ -6,7 +6,7 @@ use glam::DVec2;
 use opencv::calib3d;
 use opencv::core::{Mat, Point2d, Point3d, Vector};
 use opencv::prelude::*;
-use splat4d::{Distortion, Intrinsics};
+use shared_types::{Distortion, Intrinsics};
 
 /// Realistic lenses at 1920×1080: GoPro-like fisheye, mild and strong radial-tangential.
 fn lenses() -> Vec<(&'static str, Intrinsics, Distortion)> {

@@ -3,7 +3,7 @@
 mod common;
 
 use calib::poses::{self, PosesConfig, PosesError, PosesInputs};
-use splat4d::{CameraSet, Distortion, NoProgress};
+use shared_types::{CameraSet, Distortion, NoProgress};
 
 #[test]
 fn solves_the_rendered_rig_within_half_a_degree() {

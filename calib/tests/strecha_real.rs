@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use calib::poses::{self, PoseSource, PosesConfig, PosesInputs};
 use glam::{DMat3, DVec3};
-use splat4d::{Camera, Intrinsics, NoProgress, WorldToCamera};
+use shared_types::{Camera, Intrinsics, NoProgress, WorldToCamera};
 
 /// Working size: 3072×2048 downscaled (at 640 px wide the principal point refinement becomes unstable: 1.6° errors).
 const SIZE: (u32, u32) = (768, 512);

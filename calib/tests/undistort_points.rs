@@ -8,7 +8,7 @@
 use calib::undistort::{Fit, UndistortError, UndistortMap};
 use glam::{DVec2, DVec3};
 use image::{Rgb, Rgb32FImage, RgbImage};
-use splat4d::{Camera, Distortion, Intrinsics, WorldToCamera};
+use shared_types::{Camera, Distortion, Intrinsics, WorldToCamera};
 
 fn camera(d: Distortion) -> Camera {
     Camera {

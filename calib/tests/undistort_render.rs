@@ -5,7 +5,7 @@ mod common;
 
 use calib::undistort::{Fit, UndistortMap};
 use glam::DVec3;
-use splat4d::{Distortion, Intrinsics};
+use shared_types::{Distortion, Intrinsics};
 
 fn psnr(a: &image::RgbImage, b: &image::RgbImage, margin: u32) -> f64 {
     let (w, h) = a.dimensions();

@@ -8,7 +8,7 @@ fn main() {
         std::process::exit(2);
     }
     let result = rig::sim::Scene::from_file(std::path::Path::new(&args[1]))
-        .and_then(|scene| rig::sim::simulate(&scene, std::path::Path::new(&args[2]), &splat4d::NoProgress));
+        .and_then(|scene| rig::sim::simulate(&scene, std::path::Path::new(&args[2]), &shared_types::NoProgress));
     match result {
         Ok(summary) => println!("{}", serde_json::to_string_pretty(&summary).unwrap_or_default()),
         Err(e) => {

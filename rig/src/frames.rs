@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 use crate::ingest::{IngestError, Streams, write_json_atomic};
 use crate::source::{CameraSource, PixelLayout, SourceError};
 use crate::sync::SyncResult;
-use splat4d::progress::Progress;
+use shared_types::progress::Progress;
 
 /// The `[frames]` section of `capture.toml`.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]

@@ -13,7 +13,7 @@ use ffmpeg_next as ffmpeg;
 use serde::{Deserialize, Serialize};
 
 use crate::source::{FileSource, PixelLayout, SourceError, decode_err, init_ffmpeg};
-use splat4d::progress::Progress;
+use shared_types::progress::Progress;
 
 /// Errors from ingesting camera folders.
 #[derive(Debug, thiserror::Error)]

@@ -16,7 +16,7 @@ use ffmpeg_next as ffmpeg;
 use serde::{Deserialize, Serialize};
 
 use crate::source::{CameraSource, Frame, PixelLayout, SourceError, init_ffmpeg};
-use splat4d::progress::Progress;
+use shared_types::progress::Progress;
 
 pub mod v4l2;
 

@@ -6,7 +6,7 @@ mod sync_support;
 use rig::frames::{FramesConfig, extract, plan, working_size};
 use rig::ingest::ingest;
 use rig::sync::{SyncConfig, synchronise};
-use splat4d::progress::NoProgress;
+use shared_types::progress::NoProgress;
 use sync_support::{FLASH_T, TestCamera, ffmpeg_available, write_capture};
 
 #[test]

@@ -7,7 +7,7 @@ mod sync_support;
 use std::path::{Path, PathBuf};
 
 use rig::ingest::{IngestError, Streams, camera_files, decode_audio, ingest};
-use splat4d::progress::NoProgress;
+use shared_types::progress::NoProgress;
 use sync_support::{ffmpeg, ffmpeg_available};
 
 /// testsrc2 + a 440 Hz sine, `seconds` long, at `fps` and `size`.

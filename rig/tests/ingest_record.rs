@@ -17,7 +17,7 @@ use rig::record::{
 };
 use rig::sim::{Scene, SimSource};
 use rig::source::{CameraSource, Frame, PixelLayout, SourceError};
-use splat4d::progress::NoProgress;
+use shared_types::progress::NoProgress;
 
 /// A camera that films a moving bar at ~30 fps with timestamp jitter and one dropped frame.
 struct TestCamera {
@@ -180,7 +180,7 @@ fn recording_without_a_device_fails_cleanly() {
 #[derive(Default)]
 struct Counted(AtomicU64);
 
-impl splat4d::Progress for Counted {
+impl shared_types::Progress for Counted {
     fn start(&self, _: u64, _: &str) {}
     fn advance(&self, n: u64) {
         self.0.fetch_add(n, Ordering::SeqCst);

@@ -6,7 +6,7 @@ mod common;
 use common::*;
 use glam::DVec3;
 use rig::sim::{OffsetsFile, Scene, SimError, simulate};
-use splat4d::{CameraSet, Distortion, NoProgress};
+use shared_types::{CameraSet, Distortion, NoProgress};
 
 fn offsets(dir: &std::path::Path) -> OffsetsFile {
     serde_json::from_slice(&std::fs::read(dir.join("groundtruth/offsets.json")).unwrap()).unwrap()
@@ -16,7 +16,7 @@ fn offsets(dir: &std::path::Path) -> OffsetsFile {
 #[derive(Default)]
 struct Count(std::sync::atomic::AtomicU64, std::sync::atomic::AtomicU64);
 
-impl splat4d::Progress for Count {
+impl shared_types::Progress for Count {
     fn start(&self, total: u64, _unit: &str) {
         self.0.store(total, std::sync::atomic::Ordering::SeqCst);
     }
@@ -284,7 +284,7 @@ fn the_flash_lights_the_frames_and_rows_the_offsets_predict() {
 /// A red ball in a grey room, seen by a held-out camera with strong lens distortion.
 fn marker_scene(distortion: &str) -> (Scene, DVec3) {
     // Put the ball where the held-out camera sees it far off-centre (normalised (0.6, −0.4)).
-    let w2c = splat4d::WorldToCamera::look_at(DVec3::new(2.0, -1.0, 1.0), DVec3::new(0.0, 0.0, 0.8), DVec3::Z).unwrap();
+    let w2c = shared_types::WorldToCamera::look_at(DVec3::new(2.0, -1.0, 1.0), DVec3::new(0.0, 0.0, 0.8), DVec3::Z).unwrap();
     let ball = w2c.inverse_apply(DVec3::new(0.6, -0.4, 1.0) * 2.0);
     let text = format!(
         r#"
@@ -349,7 +349,7 @@ fn a_point_projected_by_the_ground_truth_camera_lands_on_its_rendered_pixel() {
         let (p, _) = cam.project(ball).unwrap();
         // The ball sits far off-centre, where the distortion moves it by many pixels.
         if let Distortion::Opencv { .. } = cam.distortion {
-            let pinhole = splat4d::Camera { distortion: Distortion::None, ..cam.clone() };
+            let pinhole = shared_types::Camera { distortion: Distortion::None, ..cam.clone() };
             assert!((pinhole.project(ball).unwrap().0 - p).length() > 5.0);
         }
         let img = image::open(tmp.path().join("groundtruth/heldout/heldout0/000000.png")).unwrap().to_rgb8();

@@ -10,7 +10,7 @@ use std::time::Instant;
 use rig::frames::{FramesConfig, extract};
 use rig::ingest::ingest;
 use rig::sync::{SyncConfig, SyncMethod, synchronise};
-use splat4d::progress::NoProgress;
+use shared_types::progress::NoProgress;
 use sync_support::{ffmpeg, ffmpeg_available};
 
 #[test]

@@ -5,7 +5,7 @@ mod sync_support;
 
 use rig::ingest::ingest;
 use rig::sync::{SyncConfig, SyncError, SyncMethod, synchronise};
-use splat4d::progress::NoProgress;
+use shared_types::progress::NoProgress;
 use sync_support::{Mic, TestCamera, ffmpeg_available, write_capture};
 
 const STARTS: [f64; 4] = [0.0123, 0.2137, 0.4511, 0.0789];

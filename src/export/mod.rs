@@ -7,7 +7,6 @@
 pub mod bake;
 pub mod ply3d;
 pub mod ply4d;
-pub mod ply_table;
 pub mod splatv;
 pub mod viewer;
 

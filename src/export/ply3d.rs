@@ -5,7 +5,7 @@
 //! opacity is a logit, scales are logs, the quaternion is `w, x, y, z`.
 
 use super::bake::{Frame3d, SH_COEFFS, Splat3d};
-use super::ply_table::PlyTable;
+use shared_types::ply::PlyTable;
 use super::{ExportError, write_atomic};
 use std::path::Path;
 
@@ -37,15 +37,15 @@ pub fn frame_table(frame: &Frame3d) -> PlyTable {
         data.extend_from_slice(&s.log_scale);
         data.extend_from_slice(&s.rotation);
     }
-    PlyTable {
-        comments: vec![
+    PlyTable::floats(
+        vec![
             "splat4d 3dgs frame".into(),
             format!("model_time {}", frame.t),
             format!("sh_degree {}", frame.sh_degree),
         ],
         names,
         data,
-    }
+    )
 }
 
 /// Write a baked frame as a 3DGS PLY, atomically.
@@ -64,7 +64,7 @@ pub fn read_frame_ply(path: &Path) -> Result<Vec<Splat3d>, ExportError> {
         path: path.into(),
         reason,
     };
-    let table = PlyTable::decode(&bytes).map_err(bad)?;
+    let table = PlyTable::decode(&bytes).map_err(|e| bad(e.to_string()))?;
     let col = |name: &str| {
         table
             .column(name)

@@ -14,7 +14,7 @@
 //! - header comments `colour_capacity S T`, `colour_active S T` and
 //!   `time_mapping START_SECONDS UNITS_PER_SECOND DURATION` carry the rest.
 
-use super::ply_table::PlyTable;
+use shared_types::ply::PlyTable;
 use super::{ExportError, write_atomic};
 use crate::model::{ColourDegrees, Gaussians, TimeMapping};
 use std::path::Path;
@@ -53,8 +53,8 @@ pub fn model_table(model: &Gaussians<f32>) -> PlyTable {
         data.extend_from_slice(&model.rot_right[i]);
     }
     let (cap, act, tm) = (model.capacity, model.active, model.time);
-    PlyTable {
-        comments: vec![
+    PlyTable::floats(
+        vec![
             "splat4d model4d 1".into(),
             format!("colour_capacity {} {}", cap.spatial, cap.temporal),
             format!("colour_active {} {}", act.spatial, act.temporal),
@@ -65,7 +65,7 @@ pub fn model_table(model: &Gaussians<f32>) -> PlyTable {
         ],
         names,
         data,
-    }
+    )
 }
 
 /// Write the 4D model as PLY, atomically.
@@ -83,7 +83,7 @@ pub fn read_model_ply(path: &Path) -> Result<Gaussians<f32>, ExportError> {
         path: path.into(),
         reason,
     };
-    let table = PlyTable::decode(&bytes).map_err(bad)?;
+    let table = PlyTable::decode(&bytes).map_err(|e| bad(e.to_string()))?;
     let degrees = |key: &str| -> Result<ColourDegrees, ExportError> {
         let v = table
             .comment_value(key)

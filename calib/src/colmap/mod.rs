@@ -212,5 +212,5 @@ impl ColmapModel {
 
 /// Write `bytes` to `path` through a temporary file in the same folder, then rename.
 pub(crate) fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    splat4d::atomic::write_atomic(path, bytes)
+    shared_types::atomic::write_atomic(path, bytes)
 }

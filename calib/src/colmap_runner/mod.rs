@@ -26,7 +26,7 @@ use std::sync::mpsc;
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
-use splat4d::Progress;
+use shared_types::Progress;
 
 use crate::colmap::{CameraModel, ColmapModel, ModelError};
 pub use database::{DatabaseError, MatchGraph};

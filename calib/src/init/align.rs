@@ -13,7 +13,7 @@
 //! whose scale is rejected, is decided by the caller.
 
 use glam::{DMat3, DVec2, DVec3};
-use splat4d::Camera;
+use shared_types::Camera;
 
 use super::npy::PointMap;
 
@@ -197,7 +197,7 @@ pub fn sparse_scale(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use splat4d::{Intrinsics, WorldToCamera};
+    use shared_types::{Intrinsics, WorldToCamera};
 
     fn camera(name: &str, eye: DVec3) -> Camera {
         Camera {

@@ -8,8 +8,8 @@ use glam::{DVec2, DVec3};
 use image::RgbImage;
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use splat4d::Camera;
-use splat4d::init::PointCloud;
+use shared_types::Camera;
+use shared_types::PointCloud;
 
 /// One point of the fused cloud (world frame).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -206,7 +206,7 @@ pub fn random_cloud(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use splat4d::{Intrinsics, WorldToCamera};
+    use shared_types::{Intrinsics, WorldToCamera};
 
     fn cam(eye: DVec3) -> Camera {
         Camera {

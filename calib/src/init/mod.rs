@@ -20,8 +20,8 @@ use std::time::Instant;
 use glam::DVec3;
 use image::RgbImage;
 use serde::{Deserialize, Serialize};
-use splat4d::ply::{PlyError, read_points_ply, write_points_ply};
-use splat4d::{Camera, CameraSet, Progress};
+use shared_types::points::{PlyError, read_points_ply, write_points_ply};
+use shared_types::{Camera, CameraSet, Progress};
 
 use crate::undistort::{Fit, UndistortMap};
 use align::{Relative, pixel_centre, ray_scale, sparse_scale};
@@ -281,7 +281,7 @@ pub fn run_init(
     }
     let sparse = match &inputs.sparse {
         Some(p) if p.is_file() => read_points_ply(p)?,
-        _ => splat4d::init::PointCloud {
+        _ => shared_types::PointCloud {
             xyz: vec![],
             rgb: vec![],
             time: None,

@@ -358,12 +358,12 @@ pub fn write_pair_npz(
 /// confidence 5. Both cameras must be pinhole (depth from a distortion-free render).
 /// Used to benchmark and test the init stage with the simulator's true depth.
 pub fn pair_maps_from_depth(
-    first: (&splat4d::Camera, &[f32]),
-    second: (&splat4d::Camera, &[f32]),
+    first: (&shared_types::Camera, &[f32]),
+    second: (&shared_types::Camera, &[f32]),
     scale: f64,
 ) -> PairMaps {
     let to_first = first.0.world_to_camera;
-    let view = |(cam, depth): (&splat4d::Camera, &[f32])| {
+    let view = |(cam, depth): (&shared_types::Camera, &[f32])| {
         let w = cam.intrinsics.width as usize;
         let (points, confidence) = depth
             .iter()

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use glam::{DVec2, DVec3};
 use image::{Rgb, RgbImage};
-use splat4d::{Camera, Distortion, Intrinsics, WorldToCamera};
+use shared_types::{Camera, Distortion, Intrinsics, WorldToCamera};
 
 /// Whether the real `colmap` binary is available; tests that need it skip (with a message)
 /// when it is not.
@@ -261,14 +261,14 @@ pub fn render_rig_with_lens(
     }
 }
 
-/// A [`splat4d::Progress`] that records every call, to check what a stage reports.
+/// A [`shared_types::Progress`] that records every call, to check what a stage reports.
 #[derive(Default)]
 pub struct RecordingProgress {
     pub messages: std::sync::Mutex<Vec<String>>,
     pub advanced: std::sync::atomic::AtomicU64,
 }
 
-impl splat4d::Progress for RecordingProgress {
+impl shared_types::Progress for RecordingProgress {
     fn start(&self, total: u64, unit: &str) {
         self.messages
             .lock()

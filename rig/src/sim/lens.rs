@@ -1,11 +1,11 @@
 //! From the rasteriser's pinhole canvas to the camera's pixels: supersampling and lens
 //! distortion by inverse mapping (for each output sample: undistort → sample the canvas),
-//! using `splat4d::Distortion` so the ground-truth cameras describe the images exactly.
+//! using `shared_types::Distortion` so the ground-truth cameras describe the images exactly.
 //! Without distortion and supersampling the canvas *is* the image (no resampling at all).
 
 use glam::{DVec2, Mat3, Vec3};
 use rayon::prelude::*;
-use splat4d::Camera;
+use shared_types::Camera;
 
 use super::raster::{Rendered, View};
 
@@ -220,7 +220,7 @@ fn bilinear(c: &Rendered, x: f32, y: f32) -> [f32; 3] {
 mod tests {
 
     use glam::DVec2;
-    use splat4d::Distortion;
+    use shared_types::Distortion;
 
     /// OpenCV's `projectPoints` radial-tangential model written out independently
     /// (docs.opencv.org, calib3d): x'' = x'(1 + k1 r² + k2 r⁴ + k3 r⁶) + 2 p1 x'y' + p2 (r² + 2x'²).

@@ -27,7 +27,7 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use splat4d::{CameraSet, Progress};
+use shared_types::{CameraSet, Progress};
 
 pub use error::SimError;
 pub use live::SimSource;

@@ -7,9 +7,9 @@ use serde::Serialize;
 
 use super::error::SimError;
 
-/// Write `bytes` to `path` atomically (`splat4d::atomic`).
+/// Write `bytes` to `path` atomically (`shared_types::atomic`).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), SimError> {
-    splat4d::atomic::write_atomic(path, bytes).map_err(|e| SimError::write(path, e))
+    shared_types::atomic::write_atomic(path, bytes).map_err(|e| SimError::write(path, e))
 }
 
 pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), SimError> {

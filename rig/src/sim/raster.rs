@@ -3,7 +3,7 @@
 //! Renders an ideal pinhole image; lens distortion is applied afterwards by `lens`.
 //!
 //! Pixel convention: pixel `(i, j)` covers `[i, i+1) × [j, j+1)` and is sampled at its
-//! centre `(i + 0.5, j + 0.5)`, matching `splat4d::Intrinsics`.
+//! centre `(i + 0.5, j + 0.5)`, matching `shared_types::Intrinsics`.
 //! It must stay independent of the Gaussian engine: the model is never tested on data
 //! made by itself.
 

@@ -2,7 +2,7 @@
 //! validation that turns it into a [`Scene`] ready to simulate. The format is documented
 //! key by key in `docs/simulator.md`; keep the two in step.
 //!
-//! World convention: metres, z up, cameras in the OpenCV convention of `splat4d::camera`.
+//! World convention: metres, z up, cameras in the OpenCV convention of `shared_types::camera`.
 // `!(x > 0.0)` is deliberate below: it also rejects NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::nonminimal_bool)]
 
@@ -10,7 +10,7 @@ use std::path::Path;
 
 use glam::{DQuat, DVec2, DVec3};
 use serde::Deserialize;
-use splat4d::{Camera, Distortion, Intrinsics, WorldToCamera};
+use shared_types::{Camera, Distortion, Intrinsics, WorldToCamera};
 
 use super::error::SimError;
 

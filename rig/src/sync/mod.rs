@@ -21,7 +21,7 @@ use crate::ingest::{CameraStream, IngestError, Streams, decode_audio, write_json
 use crate::source::{CameraSource, PixelLayout, SourceError};
 use audio::{AcousticConfig, AudioSyncConfig, audio_offsets};
 use flash::{FrameBrightness, detect_flash};
-use splat4d::progress::Progress;
+use shared_types::progress::Progress;
 
 /// How cameras are synchronised.
 #[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]

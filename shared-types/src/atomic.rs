@@ -6,26 +6,43 @@ use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-/// A temporary sibling name for `path` (same folder, so the rename is atomic; hidden, and
-/// unique to this process).
+/// A temporary sibling name for `path` (same folder, so the rename is atomic; hidden,
+/// unique to this process, and keeping the extension so encoders that pick a format by
+/// name still see it): `dir/out.mp4` → `dir/.out.tmp-<pid>.mp4`.
 pub fn temp_sibling(path: &Path) -> PathBuf {
-    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("file");
-    path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
+    let stem = path.file_stem().and_then(|n| n.to_str()).unwrap_or("file");
+    let name = match path.extension().and_then(|e| e.to_str()) {
+        Some(ext) => format!(".{stem}.tmp-{}.{ext}", std::process::id()),
+        None => format!(".{stem}.tmp-{}", std::process::id()),
+    };
+    path.with_file_name(name)
 }
 
 /// Write `bytes` to `path` atomically, creating its folder if needed. On failure the
 /// target is untouched and the temporary file removed.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    write_with(path, |tmp| {
+        let mut f = fs::File::create(tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()
+    })
+}
+
+/// Let `write` create the file at a temporary sibling path (for writers that open the
+/// file themselves: encoders, streaming writers), then rename it over `path`. The folder
+/// is created first; on any error the temporary file is removed and `path` untouched.
+pub fn write_with<T, E: From<std::io::Error>>(
+    path: &Path,
+    write: impl FnOnce(&Path) -> Result<T, E>,
+) -> Result<T, E> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         fs::create_dir_all(dir)?;
     }
     let tmp = temp_sibling(path);
-    let result = (|| {
-        let mut f = fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        fs::rename(&tmp, path)
-    })();
+    let result = write(&tmp).and_then(|v| {
+        fs::rename(&tmp, path)?;
+        Ok(v)
+    });
     if result.is_err() {
         let _ = fs::remove_file(&tmp);
     }
@@ -56,5 +73,17 @@ mod tests {
         fs::create_dir(temp_sibling(&path)).unwrap();
         assert!(write_atomic(&path, b"new").is_err());
         assert_eq!(fs::read(&path).unwrap(), b"old");
+    }
+
+    #[test]
+    fn a_failing_writer_leaves_no_file_behind() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("out.bin");
+        let r: std::io::Result<()> = write_with(&path, |tmp| {
+            fs::write(tmp, b"half")?;
+            Err(std::io::Error::other("encoder failed"))
+        });
+        assert!(r.is_err());
+        assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 0);
     }
 }
