@@ -10,7 +10,8 @@
 
 mod common;
 
-use splat4d::{Gradients, ImageGradients, RenderOptions, render_with};
+use splat4d::render::cpu::{self, render_with};
+use splat4d::{Gradients, ImageGradients, RenderOptions};
 use std::time::Instant;
 
 fn cpu_seconds() -> f64 {
@@ -46,30 +47,31 @@ fn main() {
                 alpha: None,
                 depth: None,
             };
-            r.backward_into(&model, &up, &mut grads).unwrap();
+            cpu::backward_into(&r, &model, &up, &mut grads).unwrap();
             std::hint::black_box(&grads);
         }
         return;
     }
     let r = render_with(&model, &cam, 0.5, &opts).unwrap();
-    let evals = r.blend_evaluations();
-    let _ = r
-        .backward(
-            &model,
-            &ImageGradients {
-                rgb: &d_rgb,
-                alpha: None,
-                depth: None,
-            },
-        )
-        .unwrap();
+    let evals = r.stats.blend_evaluations;
+    let _ = cpu::backward(
+        &r,
+        &model,
+        &ImageGradients {
+            rgb: &d_rgb,
+            alpha: None,
+            depth: None,
+        },
+    )
+    .unwrap();
     let mut grads = Gradients::zeros_like(&model, false);
     let mut measure = |backward: bool| {
         let (w0, c0) = (Instant::now(), cpu_seconds());
         for _ in 0..iters {
             let r = render_with(&model, &cam, 0.5, &opts).unwrap();
             if backward {
-                r.backward_into(
+                cpu::backward_into(
+                    &r,
                     &model,
                     &ImageGradients {
                         rgb: &d_rgb,

@@ -4,7 +4,8 @@
 //! Run: `cargo bench -p splat4d --bench render`.
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use splat4d::{Gradients, ImageGradients, RenderOptions, render_with};
+use splat4d::render::cpu::{self, render_with};
+use splat4d::{Gradients, ImageGradients, RenderOptions};
 use std::hint::black_box;
 
 mod common;
@@ -31,9 +32,9 @@ fn bench(c: &mut Criterion) {
                 let r = render_with(&m, &cam, 0.5, &opts).unwrap();
                 eprintln!(
                     "n={n}: visible {}, tile pairs {}, blend evaluations {}, mean alpha {:.3}",
-                    r.visible_count(),
-                    r.tile_pairs(),
-                    r.blend_evaluations(),
+                    r.stats.visible,
+                    r.stats.tile_pairs,
+                    r.stats.blend_evaluations,
                     r.alpha.iter().sum::<f32>() / r.alpha.len() as f32
                 );
                 m
@@ -49,7 +50,8 @@ fn bench(c: &mut Criterion) {
             let mut grads = Gradients::zeros_like(m, false);
             b.iter(|| {
                 let r = render_with(m, &cam, 0.5, &opts).unwrap();
-                r.backward_into(
+                cpu::backward_into(
+                    &r,
                     m,
                     &ImageGradients {
                         rgb: &d_rgb,

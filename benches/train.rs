@@ -7,9 +7,10 @@
 mod train_scene;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use splat4d::loss::image_loss;
+use splat4d::CpuBackend;
 use splat4d::model::ColourDegrees;
-use splat4d::optim::{Adam, LearningRates};
+use splat4d::train::loss::image_loss;
+use splat4d::train::optim::{Adam, LearningRates};
 use splat4d::train::{NoHooks, TrainConfig, train};
 use splat4d::{Gaussians, Gradients, NoProgress, TimeMapping};
 use std::hint::black_box;
@@ -60,6 +61,7 @@ fn iterations(c: &mut Criterion) {
     group.bench_function("20_iterations_batch4_128x96_1296_gaussians", |bench| {
         bench.iter(|| {
             train(
+                &CpuBackend,
                 &config,
                 &data,
                 &init,

@@ -5,6 +5,7 @@
 #[path = "../tests/train_scene/mod.rs"]
 mod train_scene;
 
+use splat4d::CpuBackend;
 use splat4d::train::{NoHooks, TrainConfig, evaluate_psnr, train};
 use splat4d::{NoProgress, load_model};
 
@@ -46,6 +47,7 @@ fn main() {
     config.densify.opacity_reset_every = 0;
     let dir = tempfile::tempdir().expect("temp dir");
     let s = train(
+        &CpuBackend,
         &config,
         &train_data,
         &init,
@@ -57,8 +59,10 @@ fn main() {
     .expect("training");
     let model = load_model(&s.model_path).expect("model");
     let mean = |v: Vec<f64>| v.iter().sum::<f64>() / v.len() as f64;
-    let train_psnr = mean(evaluate_psnr(&model, &train_data, config.background).expect("eval"));
-    let held_psnr = mean(evaluate_psnr(&model, &held, config.background).expect("eval"));
+    let train_psnr =
+        mean(evaluate_psnr(&CpuBackend, &model, &train_data, config.background).expect("eval"));
+    let held_psnr =
+        mean(evaluate_psnr(&CpuBackend, &model, &held, config.background).expect("eval"));
     println!(
         "{width}x{height}, {} train views, {} held-out views, {iterations} iterations (batch {}): {:.1} s, {:.2} it/s, \
          {} Gaussians (from {}), train PSNR {train_psnr:.2} dB, held-out PSNR {held_psnr:.2} dB, peak RSS {:.0} MiB",

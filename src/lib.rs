@@ -1,8 +1,19 @@
 //! `splat4d`: the 4D Gaussian engine of the 4C4D pipeline.
 //!
-//! Holds the model, slicing at time t, colour, the differentiable rasteriser, training,
-//! metrics and model files, plus the small shared types (cameras, progress) that the
-//! `rig`, `calib` and `pipeline` crates use. See `ARCHITECTURE.md` for the map.
+//! Laid out by what things are:
+//! - [`math`]: the per-Gaussian math every render backend follows (4D rotations, slicing
+//!   at time t, spherical + spherindrical colour, EWA projection, numerics);
+//! - [`render`]: the [`RenderBackend`] trait and its backends (`render::cpu`, with the
+//!   `f64` oracle `render::reference`);
+//! - [`model`]: the Gaussians, their file format and their initialisation from points;
+//! - [`train`]: loss, optimiser, densification and the training loop; [`decay`]: the 4C4D
+//!   Neural Decaying Function that plugs into it;
+//! - [`metrics`], [`eval`]: image metrics and evaluation of a model on views;
+//! - [`export`]: 3DGS PLY frames, the 4D PLY, `.splatv` and the browser viewer;
+//! - [`trajectories`]: camera paths (orbit, spiral, interpolation) for rendering.
+//!
+//! The small types shared with the capture side (cameras, progress, atomic writes, point
+//! clouds) live in the `shared-types` crate and are re-exported here.
 
 // `!(x > y)` is deliberate throughout the numerics: it is true for NaN, which must be
 // culled. Index loops mirror the matrix formulas they implement.
@@ -10,36 +21,21 @@
 
 pub use shared_types::{atomic, camera, progress};
 
-pub mod blend;
+pub mod decay;
+pub mod eval;
+pub mod export;
+pub mod math;
+pub mod metrics;
 pub mod model;
-pub mod model_file;
-pub mod numerics;
-pub mod project;
-pub mod reference;
 pub mod render;
-pub mod rotation4d;
-pub mod sh;
-pub mod slice;
-pub mod tiles;
+pub mod train;
+pub mod trajectories;
 
 pub use camera::{Camera, CameraSet, Distortion, Intrinsics, WorldToCamera};
+pub use model::file::{ModelFileError, load_model, save_model};
 pub use model::{ColourDegrees, Gaussians, TimeMapping};
-pub use model_file::{ModelFileError, load_model, save_model};
 pub use progress::{NoProgress, Progress};
 pub use render::{
-    Gradients, ImageGradients, RenderError, RenderOptions, Rendered, render, render_with,
+    CpuBackend, Gradients, ImageGradients, RenderBackend, RenderError, RenderOptions, Rendered,
+    ViewRequest,
 };
-
-pub mod decay;
-pub mod densify;
-pub mod export;
-pub mod init;
-pub mod loss;
-pub mod optim;
-pub mod ssim;
-pub mod train;
-
-pub mod eval;
-pub mod lpips;
-pub mod metrics;
-pub mod paths;

@@ -7,7 +7,8 @@ use common::{SceneSpec, camera, dot, random_scene, rel_err, weights};
 use splat4d::decay::DecayInputs;
 use splat4d::decay::inputs::input_rows;
 use splat4d::decay::mlp::Mlp;
-use splat4d::{ImageGradients, RenderOptions, render_with};
+use splat4d::render::cpu::{self, render_with};
+use splat4d::{ImageGradients, RenderOptions};
 
 const H: f64 = 1e-6;
 
@@ -144,16 +145,16 @@ fn tau_factor_gradient_reaches_the_mlp_weights() {
             ..Default::default()
         };
         let r = render_with(&model, &cam, t, &opts).unwrap();
-        let g = r
-            .backward(
-                &model,
-                &ImageGradients {
-                    rgb: &w,
-                    alpha: None,
-                    depth: None,
-                },
-            )
-            .unwrap();
+        let g = cpu::backward(
+            &r,
+            &model,
+            &ImageGradients {
+                rgb: &w,
+                alpha: None,
+                depth: None,
+            },
+        )
+        .unwrap();
         assert!(g.opacity_factor.iter().any(|v| v.abs() > 1e-6));
         let d_z: Vec<f64> = g
             .opacity_factor

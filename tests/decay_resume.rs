@@ -4,6 +4,7 @@
 
 mod train_scene;
 
+use splat4d::CpuBackend;
 use splat4d::decay::{DecayConfig, DecayHooks};
 use splat4d::train::{NoHooks, TrainConfig, TrainError, TrainHooks, View, train};
 use splat4d::{Gaussians, NoProgress, load_model};
@@ -67,6 +68,7 @@ fn resumed_neural_decay_run_is_bit_identical() {
     let mut hooks = DecayHooks::new(&decay()).unwrap();
     let initial_mlp = hooks.mlp().clone();
     train(
+        &CpuBackend,
         &config(24),
         &data,
         &init,
@@ -87,6 +89,7 @@ fn resumed_neural_decay_run_is_bit_identical() {
         stop_at: 13,
     };
     let e = train(
+        &CpuBackend,
         &config(24),
         &data,
         &init,
@@ -102,6 +105,7 @@ fn resumed_neural_decay_run_is_bit_identical() {
     );
     let mut second = DecayHooks::new(&decay()).unwrap();
     train(
+        &CpuBackend,
         &config(24),
         &data,
         &init,
@@ -121,6 +125,7 @@ fn resumed_neural_decay_run_is_bit_identical() {
     // The same run without decay keeps more opacity.
     let plain = tempfile::tempdir().unwrap();
     train(
+        &CpuBackend,
         &config(24),
         &data,
         &init,

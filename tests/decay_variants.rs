@@ -8,7 +8,7 @@ mod common;
 use common::camera;
 use splat4d::decay::variants::{decayed_logit, exp_factor, pow_factor};
 use splat4d::decay::{DecayConfig, DecayHooks, DecayInputs, DecayVariant, VisibilityMode};
-use splat4d::numerics::sigmoid;
+use splat4d::math::numerics::sigmoid;
 use splat4d::train::{ImageU8, TrainHooks, View};
 use splat4d::{ColourDegrees, Gaussians, TimeMapping};
 

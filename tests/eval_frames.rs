@@ -5,9 +5,10 @@
 mod eval_support;
 
 use eval_support::*;
+use splat4d::CpuBackend;
 use splat4d::NoProgress;
 use splat4d::eval::{EvalError, FrameOutputs, render_path};
-use splat4d::paths::{PathKind, PathSpec, TimeMode, camera_path};
+use splat4d::trajectories::{PathKind, PathSpec, TimeMode, camera_path};
 
 #[test]
 fn an_orbit_renders_to_colour_depth_and_alpha_frames() {
@@ -22,6 +23,7 @@ fn an_orbit_renders_to_colour_depth_and_alpha_frames() {
         Ok(())
     };
     let out = render_path(
+        &CpuBackend,
         &model,
         &path,
         dir.path(),
@@ -88,6 +90,7 @@ fn a_failing_sink_stops_the_render() {
         }
     };
     let e = render_path(
+        &CpuBackend,
         &model,
         &path,
         dir.path(),

@@ -2,7 +2,7 @@
 //! a known function (mean absolute difference, fixtures/onnx/lpips_tiny) gives that
 //! function's value at any image size; wrong interfaces and broken files are typed errors.
 
-use splat4d::lpips::{Lpips, LpipsError};
+use splat4d::metrics::lpips::{Lpips, LpipsError};
 
 fn fixture(name: &str) -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -7,9 +7,10 @@ use std::time::Instant;
 
 use eval_support::*;
 use glam::DVec3;
+use splat4d::CpuBackend;
 use splat4d::eval::{EvalView, FrameOutputs, evaluate, render_path};
-use splat4d::lpips::Lpips;
-use splat4d::paths::{PathKind, PathSpec, TimeMode, camera_path};
+use splat4d::metrics::lpips::Lpips;
+use splat4d::trajectories::{PathKind, PathSpec, TimeMode, camera_path};
 use splat4d::{ColourDegrees, Gaussians, NoProgress, TimeMapping};
 
 /// ~63k Gaussians (the demo's trained size) in a 3×3×2 box, spread over 1.2 model units
@@ -62,6 +63,7 @@ fn render_and_eval_timing() {
         ] {
             let start = Instant::now();
             render_path(
+                &CpuBackend,
                 &model,
                 &path,
                 &dir.path().join(format!("r{w}{label}")),
@@ -78,7 +80,7 @@ fn render_and_eval_timing() {
         }
         let start = Instant::now();
         for (cam, t) in &path {
-            splat4d::render(&model, cam, *t as f32).unwrap();
+            splat4d::render::cpu::render(&model, cam, *t as f32).unwrap();
         }
         let s = start.elapsed().as_secs_f64();
         println!(
@@ -114,6 +116,7 @@ fn render_and_eval_timing() {
     }
     let start = Instant::now();
     let report = evaluate(
+        &CpuBackend,
         &model,
         &views,
         &[],
@@ -135,6 +138,7 @@ fn render_and_eval_timing() {
     .unwrap();
     let start = Instant::now();
     evaluate(
+        &CpuBackend,
         &model,
         &views,
         &[],

@@ -13,9 +13,10 @@ use splat4d::export::{
     ExportError, ExportOptions, Splat3d, bake_frame, export_all, read_frame_ply, read_model_ply,
     write_frame_ply, write_model_ply,
 };
-use splat4d::render::{RenderOptions, render_with};
-use splat4d::rotation4d::rotation;
-use splat4d::slice::slice;
+use splat4d::math::rotation4d::rotation;
+use splat4d::math::slice::slice;
+use splat4d::render::RenderOptions;
+use splat4d::render::cpu::render_with;
 use splat4d::{CameraSet, ColourDegrees, Gaussians, NoProgress, TimeMapping};
 
 fn model(seed: u64, count: usize) -> Gaussians<f32> {
@@ -263,7 +264,7 @@ fn export_all_writes_the_documented_tree() {
     );
     let leftovers: Vec<_> = walk(dir.path())
         .into_iter()
-        .filter(|p| p.extension().is_some_and(|e| e == "tmp"))
+        .filter(|p| p.file_name().is_some_and(|n| n.to_string_lossy().contains(".tmp")))
         .collect();
     assert!(leftovers.is_empty(), "{leftovers:?}");
 

@@ -4,14 +4,15 @@
 mod common;
 
 use common::{Rng, SceneSpec, camera, dot, random_scene, rel_err, weights};
-use splat4d::blend::{
+use splat4d::math::project::{PinholeCamera, project, project_backward};
+use splat4d::math::sh::{ColourInput, colour, colour_backward};
+use splat4d::math::slice::{slice, slice_backward};
+use splat4d::model::ColourDegrees;
+use splat4d::render::cpu::blend::{
     PixelRect, Splat, SplatGrad, TileOut, TileUpstream, blend_tile_backward, blend_tile_forward,
 };
-use splat4d::model::ColourDegrees;
-use splat4d::project::{PinholeCamera, project, project_backward};
-use splat4d::sh::{ColourInput, colour, colour_backward};
-use splat4d::slice::{slice, slice_backward};
-use splat4d::{Gaussians, ImageGradients, RenderOptions, render_with};
+use splat4d::render::cpu::{self, render_with};
+use splat4d::{Gaussians, ImageGradients, RenderOptions};
 
 const H: f64 = 1e-6;
 const TOL: f64 = 1e-3;
@@ -362,14 +363,14 @@ fn render_gradients_match_finite_differences_per_parameter_group() {
             near_plane: 0.01,
         };
         let r = render_with(&model, &cam, t, &opts).unwrap();
-        assert!(r.visible_count() >= n - 1, "scene should be visible");
+        assert!(r.stats.visible >= n - 1, "scene should be visible");
         let wd_scaled: Vec<f64> = wd.iter().map(|w| 0.1 * w).collect();
         let up = ImageGradients {
             rgb: &wr,
             alpha: Some(&wa),
             depth: Some(&wd_scaled),
         };
-        let g = r.backward(&model, &up).unwrap();
+        let g = cpu::backward(&r, &model, &up).unwrap();
         let flat = |v: &Vec<[f64; 4]>| v.iter().flatten().copied().collect::<Vec<_>>();
         let analytic = [
             flat(&g.means),

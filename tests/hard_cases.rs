@@ -7,10 +7,10 @@ mod common;
 use common::{camera, weights};
 use glam::DVec3;
 use splat4d::model::ColourDegrees;
-use splat4d::reference::render_reference;
+use splat4d::render::cpu::{self, render_with};
+use splat4d::render::reference::render_reference;
 use splat4d::{
     Camera, Distortion, Gaussians, ImageGradients, RenderError, RenderOptions, TimeMapping,
-    render_with,
 };
 
 fn model() -> Gaussians<f64> {
@@ -77,16 +77,16 @@ fn check(model: &Gaussians<f64>, cam: &Camera, t: f64) -> Outcome {
     let w = weights(7, 3 * npix);
     let w32: Vec<f32> = w.iter().map(|&x| x as f32).collect();
     let wa: Vec<f32> = w32[..npix].to_vec();
-    let g32 = r32
-        .backward(
-            &m32,
-            &ImageGradients {
-                rgb: &w32,
-                alpha: Some(&wa),
-                depth: Some(&wa),
-            },
-        )
-        .unwrap();
+    let g32 = cpu::backward(
+        &r32,
+        &m32,
+        &ImageGradients {
+            rgb: &w32,
+            alpha: Some(&wa),
+            depth: Some(&wa),
+        },
+    )
+    .unwrap();
     let all32 = g32
         .means
         .iter()
@@ -101,16 +101,16 @@ fn check(model: &Gaussians<f64>, cam: &Camera, t: f64) -> Outcome {
         assert!(x.is_finite(), "non-finite f32 gradient");
     }
     let wa64: Vec<f64> = w[..npix].to_vec();
-    let g64 = r64
-        .backward(
-            model,
-            &ImageGradients {
-                rgb: &w,
-                alpha: Some(&wa64),
-                depth: Some(&wa64),
-            },
-        )
-        .unwrap();
+    let g64 = cpu::backward(
+        &r64,
+        model,
+        &ImageGradients {
+            rgb: &w,
+            alpha: Some(&wa64),
+            depth: Some(&wa64),
+        },
+    )
+    .unwrap();
     assert!(
         g64.means
             .iter()
@@ -127,7 +127,7 @@ fn check(model: &Gaussians<f64>, cam: &Camera, t: f64) -> Outcome {
     Outcome {
         mean_err: diffs.iter().sum::<f64>() / diffs.len() as f64,
         max_err: diffs.iter().copied().fold(0.0, f64::max),
-        visible: r32.visible_count(),
+        visible: r32.stats.visible,
     }
 }
 
@@ -298,16 +298,16 @@ fn ten_thousand_splats_stacked_on_one_pixel() {
     };
     let r64 = render_with(&g, &cam, 0.5, &opts).unwrap();
     let w = vec![1.0; 3 * 32 * 32];
-    let g64 = r64
-        .backward(
-            &g,
-            &ImageGradients {
-                rgb: &w,
-                alpha: None,
-                depth: None,
-            },
-        )
-        .unwrap();
+    let g64 = cpu::backward(
+        &r64,
+        &g,
+        &ImageGradients {
+            rgb: &w,
+            alpha: None,
+            depth: None,
+        },
+    )
+    .unwrap();
     let m32 = g.cast::<f32>();
     let opts32 = RenderOptions {
         background: [0.0f32; 3],
@@ -316,16 +316,16 @@ fn ten_thousand_splats_stacked_on_one_pixel() {
     };
     let r32 = render_with(&m32, &cam, 0.5, &opts32).unwrap();
     let w32 = vec![1.0f32; 3 * 32 * 32];
-    let g32 = r32
-        .backward(
-            &m32,
-            &ImageGradients {
-                rgb: &w32,
-                alpha: None,
-                depth: None,
-            },
-        )
-        .unwrap();
+    let g32 = cpu::backward(
+        &r32,
+        &m32,
+        &ImageGradients {
+            rgb: &w32,
+            alpha: None,
+            depth: None,
+        },
+    )
+    .unwrap();
     let a: Vec<f64> = g64.opacity_logits.clone();
     let b: Vec<f64> = g32.opacity_logits.iter().map(|&x| x as f64).collect();
     let e = common::rel_err(&a, &b, 1e-12);
@@ -389,16 +389,16 @@ fn empty_scene_tiny_image_and_huge_image() {
         "the big Gaussian covers much of the big image ({covered} px)"
     );
     let w = vec![1.0f32; 3 * 4000 * 3000];
-    let grads = r
-        .backward(
-            &m32,
-            &ImageGradients {
-                rgb: &w,
-                alpha: None,
-                depth: None,
-            },
-        )
-        .unwrap();
+    let grads = cpu::backward(
+        &r,
+        &m32,
+        &ImageGradients {
+            rgb: &w,
+            alpha: None,
+            depth: None,
+        },
+    )
+    .unwrap();
     assert!(grads.means.iter().flatten().all(|x| x.is_finite()));
 }
 
@@ -441,16 +441,16 @@ fn refuses_bad_inputs_with_typed_errors() {
 
     let r = render_with(&g, &cam, 0.5, &RenderOptions::default()).unwrap();
     let short = vec![0.0; 5];
-    let err = r
-        .backward(
-            &g,
-            &ImageGradients {
-                rgb: &short,
-                alpha: None,
-                depth: None,
-            },
-        )
-        .unwrap_err();
+    let err = cpu::backward(
+        &r,
+        &g,
+        &ImageGradients {
+            rgb: &short,
+            alpha: None,
+            depth: None,
+        },
+    )
+    .unwrap_err();
     assert!(matches!(
         err,
         RenderError::GradientLength { what: "rgb", .. }
@@ -458,16 +458,16 @@ fn refuses_bad_inputs_with_typed_errors() {
     let mut bigger = g.clone();
     bigger.push([0.0; 4], [0.0; 4], 0.0, [0.0; 3]);
     let full = vec![0.0; 3 * 256];
-    let err = r
-        .backward(
-            &bigger,
-            &ImageGradients {
-                rgb: &full,
-                alpha: None,
-                depth: None,
-            },
-        )
-        .unwrap_err();
+    let err = cpu::backward(
+        &r,
+        &bigger,
+        &ImageGradients {
+            rgb: &full,
+            alpha: None,
+            depth: None,
+        },
+    )
+    .unwrap_err();
     assert!(matches!(err, RenderError::ModelMismatch { .. }));
 
     let mut broken = g.clone();

@@ -118,3 +118,9 @@ fn mismatched_images_are_refused_not_panicked_on() {
         Err(MetricsError::Empty { .. })
     ));
 }
+
+#[test]
+fn psnr_of_known_mse() {
+    assert!((splat4d::metrics::psnr_from_mse(1e-3) - 30.0).abs() < 1e-12);
+    assert_eq!(splat4d::metrics::psnr_from_mse(0.0), f64::INFINITY);
+}

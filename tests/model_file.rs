@@ -4,7 +4,7 @@ mod common;
 
 use common::{SceneSpec, random_scene};
 use splat4d::model::ColourDegrees;
-use splat4d::model_file::{HEADER_LEN, ModelFileError, parse_model};
+use splat4d::model::file::{HEADER_LEN, ModelFileError, parse_model};
 use splat4d::{Gaussians, TimeMapping, load_model, save_model};
 use std::path::Path;
 
@@ -35,10 +35,11 @@ fn save_and_load_round_trip_exactly() {
     let path = dir.path().join("model.s4d");
     let m = sample();
     save_model(&m, &path).unwrap();
-    assert!(
-        !dir.path().join("model.s4d.tmp").exists(),
-        "temporary file renamed away"
-    );
+    let names: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(names, ["model.s4d"], "temporary file renamed away");
     let back = load_model(&path).unwrap();
     assert_eq!(back, m);
     assert_eq!(back.time.model_time(12.5 + 1.0), 2.0);

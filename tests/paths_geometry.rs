@@ -3,7 +3,7 @@
 //! the time modes map frames to the right model times.
 
 use glam::DVec3;
-use splat4d::paths::{PathError, PathKind, PathSpec, SceneFrame, TimeMode, camera_path};
+use splat4d::trajectories::{PathError, PathKind, PathSpec, SceneFrame, TimeMode, camera_path};
 use splat4d::{Camera, Distortion, Intrinsics, TimeMapping, WorldToCamera};
 
 const CENTRE: DVec3 = DVec3::new(1.0, 2.0, 0.5);

@@ -6,8 +6,9 @@ mod common;
 use common::{SceneSpec, camera, random_scene, rel_err, weights};
 use proptest::prelude::*;
 use splat4d::model::ColourDegrees;
-use splat4d::reference::render_reference;
-use splat4d::{ImageGradients, RenderOptions, render_with};
+use splat4d::render::cpu::{self, render_with};
+use splat4d::render::reference::render_reference;
+use splat4d::{ImageGradients, RenderOptions};
 
 fn max_abs(a: &[f64], b: &[f64]) -> f64 {
     a.iter()
@@ -86,16 +87,16 @@ fn f32_gradients_agree_with_f64_gradients() {
             near_plane: 0.01,
         };
         let r64 = render_with(&model, &cam, 0.5, &opts).unwrap();
-        let g64 = r64
-            .backward(
-                &model,
-                &ImageGradients {
-                    rgb: &wr,
-                    alpha: Some(&wa),
-                    depth: None,
-                },
-            )
-            .unwrap();
+        let g64 = cpu::backward(
+            &r64,
+            &model,
+            &ImageGradients {
+                rgb: &wr,
+                alpha: Some(&wa),
+                depth: None,
+            },
+        )
+        .unwrap();
         let m32 = model.cast::<f32>();
         let opts32 = RenderOptions {
             background: [0.2f32; 3],
@@ -105,16 +106,16 @@ fn f32_gradients_agree_with_f64_gradients() {
         let r32 = render_with(&m32, &cam, 0.5, &opts32).unwrap();
         let wr32: Vec<f32> = wr.iter().map(|&x| x as f32).collect();
         let wa32: Vec<f32> = wa.iter().map(|&x| x as f32).collect();
-        let g32 = r32
-            .backward(
-                &m32,
-                &ImageGradients {
-                    rgb: &wr32,
-                    alpha: Some(&wa32),
-                    depth: None,
-                },
-            )
-            .unwrap();
+        let g32 = cpu::backward(
+            &r32,
+            &m32,
+            &ImageGradients {
+                rgb: &wr32,
+                alpha: Some(&wa32),
+                depth: None,
+            },
+        )
+        .unwrap();
         let f4 = |v: &Vec<[f64; 4]>| v.iter().flatten().copied().collect::<Vec<_>>();
         let f4_32 = |v: &Vec<[f32; 4]>| v.iter().flatten().map(|&x| x as f64).collect::<Vec<_>>();
         let f1_32 = |v: &Vec<f32>| v.iter().map(|&x| x as f64).collect::<Vec<_>>();

@@ -3,6 +3,7 @@
 
 mod train_scene;
 
+use splat4d::CpuBackend;
 use splat4d::train::{NoHooks, TrainConfig, evaluate_psnr, train};
 use splat4d::{NoProgress, load_model};
 
@@ -22,6 +23,7 @@ fn small_dynamic_scene_fits_above_30_db() {
     config.densify.every = 100;
     config.densify.opacity_reset_every = 0;
     let summary = train(
+        &CpuBackend,
         &config,
         &data,
         &init,
@@ -32,7 +34,7 @@ fn small_dynamic_scene_fits_above_30_db() {
     )
     .unwrap();
     let model = load_model(&summary.model_path).unwrap();
-    let psnr = evaluate_psnr(&model, &data, config.background).unwrap();
+    let psnr = evaluate_psnr(&CpuBackend, &model, &data, config.background).unwrap();
     let mean = psnr.iter().sum::<f64>() / psnr.len() as f64;
     let min = psnr.iter().copied().fold(f64::INFINITY, f64::min);
     eprintln!(

@@ -3,6 +3,7 @@
 
 mod train_scene;
 
+use splat4d::CpuBackend;
 use splat4d::train::{TrainConfig, TrainHooks, View, train};
 use splat4d::{Gaussians, NoProgress};
 
@@ -57,6 +58,7 @@ fn decay_hooks_are_called_and_see_gradients() {
     config.densify.enabled = false;
     let mut hooks = Decay::default();
     train(
+        &CpuBackend,
         &config,
         &data,
         &init,
@@ -73,6 +75,7 @@ fn decay_hooks_are_called_and_see_gradients() {
     config.iterations = 8;
     let mut again = Decay::default();
     train(
+        &CpuBackend,
         &config,
         &data,
         &init,

@@ -3,6 +3,7 @@
 
 mod train_scene;
 
+use splat4d::CpuBackend;
 use splat4d::Gaussians;
 use splat4d::NoProgress;
 use splat4d::train::{NoHooks, TrainConfig, TrainError, TrainHooks, train};
@@ -30,6 +31,7 @@ fn resumed_run_is_bit_identical_to_a_straight_run() {
     let init = train_scene::points(12, 9, &[0.0, 1.0]);
     let straight = tempfile::tempdir().unwrap();
     train(
+        &CpuBackend,
         &config(40),
         &data,
         &init,
@@ -55,6 +57,7 @@ fn resumed_run_is_bit_identical_to_a_straight_run() {
     // Interrupted after 17 iterations (stop request: checkpoint 17), then resumed.
     let resumed = tempfile::tempdir().unwrap();
     let e = train(
+        &CpuBackend,
         &config(40),
         &data,
         &init,
@@ -70,6 +73,7 @@ fn resumed_run_is_bit_identical_to_a_straight_run() {
     );
     assert!(!resumed.path().join("model.bin").exists());
     let s = train(
+        &CpuBackend,
         &config(40),
         &data,
         &init,
@@ -92,6 +96,7 @@ fn resumed_run_is_bit_identical_to_a_straight_run() {
     // Killed hard after 25 (only the periodic checkpoint 20 survives): same result.
     let killed = tempfile::tempdir().unwrap();
     let e = train(
+        &CpuBackend,
         &config(40),
         &data,
         &init,
@@ -106,6 +111,7 @@ fn resumed_run_is_bit_identical_to_a_straight_run() {
     std::fs::remove_file(ckpt.join("000025.bin")).unwrap();
     std::fs::remove_file(ckpt.join("000025.state")).unwrap();
     let s = train(
+        &CpuBackend,
         &config(40),
         &data,
         &init,
@@ -142,6 +148,7 @@ fn nan_guard_stops_and_keeps_the_last_good_checkpoint() {
     let init = train_scene::points(12, 9, &[0.0, 1.0]);
     let dir = tempfile::tempdir().unwrap();
     let err = train(
+        &CpuBackend,
         &config(30),
         &data,
         &init,
@@ -187,6 +194,7 @@ fn mismatched_image_and_bad_config_are_errors() {
     };
     assert!(matches!(
         train(
+            &CpuBackend,
             &bad,
             &data,
             &init,
@@ -199,6 +207,7 @@ fn mismatched_image_and_bad_config_are_errors() {
     ));
     data.views[3].image.width = 16;
     let e = train(
+        &CpuBackend,
         &config(5),
         &data,
         &init,
@@ -229,6 +238,7 @@ fn corrupt_checkpoint_state_is_a_clear_error() {
     let mut c = config(10);
     c.densify.enabled = false;
     train(
+        &CpuBackend,
         &c,
         &data,
         &init,
@@ -243,6 +253,7 @@ fn corrupt_checkpoint_state_is_a_clear_error() {
     std::fs::write(&state, &bytes[..bytes.len() - 5]).unwrap();
     c.iterations = 12;
     let e = train(
+        &CpuBackend,
         &c,
         &data,
         &init,

@@ -65,7 +65,7 @@ pub fn run(
     let cameras_file = work.join("poses/cameras.json");
     let progress = reporter.progress("ablation");
     let dataset = crate::training::load_dataset(&work.join("frames"), &cameras_file, &progress)?;
-    let points = splat4d::ply::read_points_ply(&work.join("init/points.ply"))?;
+    let points = shared_types::points::read_points_ply(&work.join("init/points.ply"))?;
     let index = FramesIndex::read_json(&work.join("frames/frames.json"))?;
     let poses = PosesFile::read(&cameras_file)?;
     let bench = work.join("bench");
@@ -87,6 +87,7 @@ pub fn run(
         let dir = bench.join("ablation").join(label.replace([' ', '/'], "_"));
         let mut hooks = DecayHooks::new(&decay).map_err(|e| anyhow::anyhow!("{label}: {e}"))?;
         let summary = splat4d::train::train(
+            &splat4d::CpuBackend,
             &train_config,
             &dataset,
             &points,
@@ -98,7 +99,7 @@ pub fn run(
         .with_context(|| format!("training `{label}`"))?;
         let model = splat4d::load_model(&summary.model_path)?;
         let report =
-            splat4d::eval::evaluate(&model, &heldout, &[], &dir.join("eval"), None, &progress)?;
+            splat4d::eval::evaluate(&splat4d::CpuBackend, &model, &heldout, &[], &dir.join("eval"), None, &progress)?;
         let m = &report.heldout;
         rows.push(AblationRow {
             label,

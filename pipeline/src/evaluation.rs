@@ -320,7 +320,7 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
             } else {
                 ctx.capture.root.join(path)
             };
-            Some(splat4d::lpips::Lpips::load(&path).with_context(|| {
+            Some(splat4d::metrics::lpips::Lpips::load(&path).with_context(|| {
                 format!(
                     "[eval] lpips = {}: cannot load the LPIPS model",
                     path.display()
@@ -330,6 +330,7 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
         None => None,
     };
     let report = splat4d::eval::evaluate(
+        &splat4d::CpuBackend,
         &model,
         &heldout,
         &train,

@@ -1,7 +1,7 @@
 //! The `render` stage and the `pipeline render` command: the trained model along a camera
 //! path (orbit, spiral, interpolate, train, heldout) with time frozen, swept or real, as
 //! PNG frames (colour, colour-mapped depth, alpha) and an H.264 MP4
-//! (`splat4d::paths`, `splat4d::eval::render_path`, `rig::video`).
+//! (`splat4d::trajectories`, `splat4d::eval::render_path`, `rig::video`).
 
 use std::path::Path;
 
@@ -10,7 +10,7 @@ use calib::poses::PosesFile;
 use rig::frames::FramesIndex;
 use serde::{Deserialize, Serialize};
 use splat4d::eval::FrameOutputs;
-use splat4d::paths::{PathKind, PathSpec, TimeMode, camera_path};
+use splat4d::trajectories::{PathKind, PathSpec, TimeMode, camera_path};
 use splat4d::{Gaussians, Progress};
 
 use crate::stage::StageContext;
@@ -116,7 +116,7 @@ pub fn render(
         }
     };
     let rendered =
-        splat4d::eval::render_path(model, &path, out_dir, outputs, progress, Some(&mut sink))?;
+        splat4d::eval::render_path(&splat4d::CpuBackend, model, &path, out_dir, outputs, progress, Some(&mut sink))?;
     if let Some(v) = video {
         v.finish()?;
     }

@@ -218,7 +218,7 @@ fn initial_points(ctx: &StageContext) -> anyhow::Result<PointCloud> {
         );
         sparse
     };
-    splat4d::ply::read_points_ply(&path)
+    shared_types::points::read_points_ply(&path)
         .with_context(|| format!("cannot read the initial points {}", path.display()))
 }
 
@@ -241,6 +241,7 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
     let mut hooks = StageHooks { inner: &mut method };
     let _graceful = Graceful::enter();
     let summary = match splat4d::train::train(
+        &splat4d::CpuBackend,
         &ctx.config.train,
         &dataset,
         &points,

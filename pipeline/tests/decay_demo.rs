@@ -10,6 +10,7 @@
 
 mod common;
 
+use splat4d::CpuBackend;
 use splat4d::decay::{DecayConfig, DecayHooks};
 use splat4d::train::{evaluate_psnr, train};
 use splat4d::{NoProgress, load_model};
@@ -56,6 +57,7 @@ fn decay_variants_on_the_demo_scene() {
         let mut hooks = DecayHooks::new(&decay).unwrap();
         let dir = tempfile::tempdir().unwrap();
         let summary = train(
+            &CpuBackend,
             &config,
             &train_data,
             &init,
@@ -66,8 +68,8 @@ fn decay_variants_on_the_demo_scene() {
         )
         .unwrap();
         let model = load_model(&summary.model_path).unwrap();
-        let train_psnr = mean(evaluate_psnr(&model, &train_data, config.background).unwrap());
-        let held_psnr = mean(evaluate_psnr(&model, &held_data, config.background).unwrap());
+        let train_psnr = mean(evaluate_psnr(&CpuBackend, &model, &train_data, config.background).unwrap());
+        let held_psnr = mean(evaluate_psnr(&CpuBackend, &model, &held_data, config.background).unwrap());
         println!(
             "| {label} | {held_psnr:.2} | {train_psnr:.2} | {} | {:.0} |",
             model.len(),

@@ -292,6 +292,7 @@ fn heldout_cameras_of_a_real_capture_are_posed_never_trained_and_measured() {
     .unwrap();
     assert_eq!(views.len(), 2 * per_camera);
     let report = splat4d::eval::evaluate(
+        &splat4d::CpuBackend,
         &model,
         &views,
         &[],

@@ -8,6 +8,7 @@
 
 mod common;
 
+use splat4d::CpuBackend;
 use splat4d::train::{NoHooks, evaluate_psnr, train};
 use splat4d::{NoProgress, load_model};
 
@@ -40,6 +41,7 @@ fn demo_scene_trains_and_reports_held_out_psnr() {
     let config = common::demo::train_config(iterations);
     let dir = tempfile::tempdir().unwrap();
     let summary = train(
+        &CpuBackend,
         &config,
         &train_data,
         &init,
@@ -51,8 +53,8 @@ fn demo_scene_trains_and_reports_held_out_psnr() {
     .unwrap();
     let model = load_model(&summary.model_path).unwrap();
     let mean = |v: Vec<f64>| v.iter().sum::<f64>() / v.len() as f64;
-    let train_psnr = mean(evaluate_psnr(&model, &train_data, config.background).unwrap());
-    let held_psnr = mean(evaluate_psnr(&model, &held_data, config.background).unwrap());
+    let train_psnr = mean(evaluate_psnr(&CpuBackend, &model, &train_data, config.background).unwrap());
+    let held_psnr = mean(evaluate_psnr(&CpuBackend, &model, &held_data, config.background).unwrap());
     let v0 = &train_data.views[0].image;
     println!(
         "demo {}x{}: {} train views, {} held-out views, {} initial points, {iterations} iterations (batch {}): \

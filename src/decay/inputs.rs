@@ -9,7 +9,7 @@
 
 use super::DecayInputs;
 use crate::model::Gaussians;
-use crate::numerics::{Real, normalise_quat, sigmoid};
+use crate::math::numerics::{Real, normalise_quat, sigmoid};
 
 /// Smallest standard deviation used by the z-scoring (constant columns map to 0).
 const MIN_STD: f64 = 1e-6;

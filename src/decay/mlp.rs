@@ -6,7 +6,7 @@
 //! Parameters live in one flat vector: for each layer `W` (out × in, row-major) then `b`.
 //! The output `z` is mapped to `τ = f_min + (f_max − f_min)·sigmoid(z)` by [`Mlp::tau`].
 
-use crate::numerics::{Real, sigmoid};
+use crate::math::numerics::{Real, sigmoid};
 use rand_chacha::ChaCha8Rng;
 use rand_core::{Rng, SeedableRng};
 use rayon::prelude::*;

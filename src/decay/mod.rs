@@ -24,7 +24,7 @@ pub mod variants;
 pub mod visibility;
 
 use crate::model::Gaussians;
-use crate::numerics::sigmoid;
+use crate::math::numerics::sigmoid;
 use crate::train::{TrainHooks, View};
 use mlp::{Mlp, MlpAdam, MlpCache};
 use serde::{Deserialize, Serialize};

@@ -11,7 +11,7 @@
 //! once `o ≳ 3κ`.
 
 use super::DecayConfig;
-use crate::numerics::sigmoid;
+use crate::math::numerics::sigmoid;
 
 /// The decay never pushes a logit below this (`o ≈ 9e-14`), keeping it finite.
 pub const LOGIT_FLOOR: f64 = -30.0;

@@ -10,9 +10,9 @@
 use super::VisibilityMode;
 use crate::Camera;
 use crate::model::Gaussians;
-use crate::numerics::Real;
-use crate::project::PinholeCamera;
-use crate::slice::slice;
+use crate::math::numerics::Real;
+use crate::math::project::PinholeCamera;
+use crate::math::slice::slice;
 use rayon::prelude::*;
 
 /// `true` for each Gaussian of `model` visible from `camera` at model time `t`.
@@ -48,8 +48,7 @@ pub fn visible<F: Real>(
             if mode == VisibilityMode::NearPlane {
                 return true;
             }
-            let u = cam.fx * p[0] / p[2] + cam.cx;
-            let v = cam.fy * p[1] / p[2] + cam.cy;
+            let [u, v] = cam.to_pixel(p);
             u >= F::zero() && u < w && v >= F::zero() && v < h
         })
         .collect()

@@ -1,4 +1,4 @@
-//! Rendering a camera path (from `crate::paths`) to numbered PNG frames: colour, depth
+//! Rendering a camera path (from `crate::trajectories`) to numbered PNG frames: colour, depth
 //! through a colour map, alpha; optionally handing each colour frame to a sink (an MP4
 //! writer in the `pipeline` crate).
 
@@ -11,7 +11,7 @@ use super::images::{alpha8, depth_colour, depth_range, rgb8, write_png};
 use crate::camera::Camera;
 use crate::model::Gaussians;
 use crate::progress::Progress;
-use crate::render::{RenderOptions, render_with};
+use crate::render::{RenderBackend, RenderOptions};
 
 /// Which images to write for every frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -58,6 +58,7 @@ pub struct RenderedPath {
 /// (`rgb/`, `depth/`, `alpha/` as asked, frames `000000.png`, …), giving each colour
 /// frame to `sink` when there is one. Each PNG is written under a temporary name first.
 pub fn render_path(
+    backend: &dyn RenderBackend,
     model: &Gaussians<f32>,
     path: &[(Camera, f64)],
     out_dir: &Path,
@@ -83,12 +84,11 @@ pub fn render_path(
     progress.start(path.len() as u64, "frames");
     let mut range = None;
     for (i, (camera, t)) in path.iter().enumerate() {
-        let r =
-            render_with(model, camera, *t as f32, &RenderOptions::default()).map_err(|source| {
-                EvalError::Render {
-                    view: format!("frame {i} ({})", camera.name),
-                    source,
-                }
+        let r = backend
+            .render(model, camera, *t as f32, &RenderOptions::default())
+            .map_err(|source| EvalError::Render {
+                view: format!("frame {i} ({})", camera.name),
+                source,
             })?;
         let name = format!("{i:06}.png");
         let colour = rgb8(&r);

@@ -3,7 +3,8 @@
 //! PSNR, SSIM, DSSIM₁, DSSIM₂ and (with user-supplied weights) LPIPS per frame and mean,
 //! held-out and training views reported separately, written as `metrics.json`,
 //! `per_frame.csv` and side-by-side PNG grids. Every file is written under a temporary
-//! name and renamed. The metric maths is in `metrics`/`lpips`, the paths in `paths`.
+//! name and renamed. Every render goes through a [`RenderBackend`], in batches of its
+//! preferred size. The metric maths is in `metrics`, the camera paths in `trajectories`.
 
 mod frames;
 pub mod images;
@@ -14,11 +15,11 @@ use std::path::{Path, PathBuf};
 pub use frames::{FrameOutputs, FrameSink, RenderedPath, render_path};
 
 use crate::camera::Camera;
-use crate::lpips::{Lpips, LpipsError};
+use crate::metrics::lpips::{Lpips, LpipsError};
 use crate::metrics::{MetricsError, image_metrics};
 use crate::model::Gaussians;
 use crate::progress::Progress;
-use crate::render::{RenderError, RenderOptions, render_with};
+use crate::render::{RenderBackend, RenderError, RenderOptions, ViewRequest};
 use images::{error_heat_map, rgb8_from, side_by_side, write_atomic, write_png};
 
 /// Grids written per set (first, middle and last frame).
@@ -177,6 +178,7 @@ struct SetRun<'a> {
 /// render | error heat map) for a few frames of each set. LPIPS is computed only when
 /// `lpips` is given; otherwise it is reported as [`LPIPS_SKIPPED`].
 pub fn evaluate(
+    backend: &dyn RenderBackend,
     model: &Gaussians<f32>,
     heldout: &[EvalView],
     train: &[EvalView],
@@ -214,51 +216,79 @@ pub fn evaluate(
     for set in &sets {
         let wanted_grids = grid_indices(set.views.len());
         let mut frames = Vec::with_capacity(set.views.len());
-        for (i, view) in set.views.iter().enumerate() {
-            let label = || format!("{} view {i} ({})", set.name, view.camera.name);
-            let (truth, w, h) = load_truth(&view.image_path)?;
-            let mut camera = view.camera.clone();
-            if (camera.intrinsics.width, camera.intrinsics.height) != (w, h) {
-                camera.intrinsics = camera.intrinsics.scaled_to(w, h);
-            }
-            let r = render_with(model, &camera, view.time as f32, &RenderOptions::default())
-                .map_err(|source| EvalError::Render {
-                    view: label(),
-                    source,
-                })?;
-            let rendered: Vec<f32> = r.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect();
-            let m = image_metrics(&rendered, &truth, w as usize, h as usize).map_err(|source| {
-                EvalError::Metrics {
-                    view: label(),
-                    source,
+        let batch = backend.preferred_batch().max(1);
+        for (chunk_index, chunk) in set.views.chunks(batch).enumerate() {
+            let first = chunk_index * batch;
+            let label = |i: usize| format!("{} view {i} ({})", set.name, set.views[i].camera.name);
+            let mut truths = Vec::with_capacity(chunk.len());
+            let mut cameras = Vec::with_capacity(chunk.len());
+            for view in chunk {
+                let (truth, w, h) = load_truth(&view.image_path)?;
+                let mut camera = view.camera.clone();
+                if (camera.intrinsics.width, camera.intrinsics.height) != (w, h) {
+                    camera.intrinsics = camera.intrinsics.scaled_to(w, h);
                 }
-            })?;
-            let lp = match lpips {
-                Some(net) => Some(net.distance(&rendered, &truth, w as usize, h as usize)?),
-                None => None,
-            };
-            if wanted_grids.contains(&i) {
-                let grid = side_by_side(&[
-                    &rgb8_from(&truth, w, h),
-                    &rgb8_from(&rendered, w, h),
-                    &error_heat_map(&rendered, &truth, w, h),
-                ]);
-                let path = out_dir.join(format!("grid_{}_{i:04}.png", set.name));
-                write_png(&path, &grid)?;
-                grids.push(path);
+                truths.push((truth, w, h));
+                cameras.push(camera);
             }
-            progress.message(&format!("{} PSNR {:.2} dB", label(), m.psnr));
-            progress.advance(1);
-            frames.push(FrameMetrics {
-                camera: view.camera.name.clone(),
-                time: view.time,
-                image_path: view.image_path.clone(),
-                psnr: m.psnr,
-                ssim: m.ssim,
-                dssim1: m.dssim1,
-                dssim2: m.dssim2,
-                lpips: lp,
-            });
+            let requests: Vec<ViewRequest> = chunk
+                .iter()
+                .zip(&cameras)
+                .map(|(view, camera)| ViewRequest {
+                    camera,
+                    t: view.time as f32,
+                    options: RenderOptions::default(),
+                })
+                .collect();
+            let renders =
+                backend
+                    .render_batch(model, &requests)
+                    .map_err(|source| EvalError::Render {
+                        view: label(first),
+                        source,
+                    })?;
+            for (k, (view, (r, (truth, w, h)))) in chunk
+                .iter()
+                .zip(renders.into_iter().zip(truths))
+                .enumerate()
+            {
+                let i = first + k;
+                let label = || label(i);
+                let rendered: Vec<f32> = r.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect();
+                let m =
+                    image_metrics(&rendered, &truth, w as usize, h as usize).map_err(|source| {
+                        EvalError::Metrics {
+                            view: label(),
+                            source,
+                        }
+                    })?;
+                let lp = match lpips {
+                    Some(net) => Some(net.distance(&rendered, &truth, w as usize, h as usize)?),
+                    None => None,
+                };
+                if wanted_grids.contains(&i) {
+                    let grid = side_by_side(&[
+                        &rgb8_from(&truth, w, h),
+                        &rgb8_from(&rendered, w, h),
+                        &error_heat_map(&rendered, &truth, w, h),
+                    ]);
+                    let path = out_dir.join(format!("grid_{}_{i:04}.png", set.name));
+                    write_png(&path, &grid)?;
+                    grids.push(path);
+                }
+                progress.message(&format!("{} PSNR {:.2} dB", label(), m.psnr));
+                progress.advance(1);
+                frames.push(FrameMetrics {
+                    camera: view.camera.name.clone(),
+                    time: view.time,
+                    image_path: view.image_path.clone(),
+                    psnr: m.psnr,
+                    ssim: m.ssim,
+                    dssim1: m.dssim1,
+                    dssim2: m.dssim2,
+                    lpips: lp,
+                });
+            }
         }
         let summary = SetMetrics {
             psnr: mean(frames.iter().map(|f| f.psnr)),

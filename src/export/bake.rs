@@ -1,4 +1,4 @@
-//! Baking a 4D model into static 3D Gaussians at one time `t` (REFERENCE.md §1): the
+//! Baking a 4D model into static 3D Gaussians at one time `t`: the
 //! conditional mean and covariance of each slice, the covariance split into scale and
 //! rotation by eigen-decomposition, opacity × temporal weight, and the temporal cosine
 //! terms of the colour folded into the spatial SH coefficients. Gaussians that cannot
@@ -6,9 +6,9 @@
 //! dropped. Pure computation, no file IO.
 
 use crate::model::Gaussians;
-use crate::numerics::{MIN_TIME_VARIANCE, logit, scale_from_log, sigmoid};
-use crate::rotation4d::rotation;
-use crate::slice::slice;
+use crate::math::numerics::{MIN_TIME_VARIANCE, logit, scale_from_log, sigmoid};
+use crate::math::rotation4d::rotation;
+use crate::math::slice::slice;
 use glam::{DMat3, DQuat};
 use rayon::prelude::*;
 

@@ -1,4 +1,4 @@
-//! Per-timestep 3DGS PLY (REFERENCE.md §4): the property layout of the original 3DGS code,
+//! Per-timestep 3DGS PLY: the property layout of the original 3DGS code,
 //! `x y z nx ny nz f_dc_0..2 f_rest_0..44 opacity scale_0..2 rot_0..3`, binary
 //! little-endian float32, which SuperSplat, Brush and most 3DGS viewers open. `f_rest` is
 //! channel-major (all 15 higher-order coefficients of red, then green, then blue);

@@ -6,7 +6,7 @@
 //!
 //! - `t` is the temporal mean, `scale_t` the log temporal scale;
 //! - `rot_0..3` is the left quaternion `(a, b, c, d)` of the 4D rotation, `rot_r_0..3` the
-//!   right one `(p, q, r, s)` (REFERENCE.md §1), not normalised;
+//!   right one `(p, q, r, s)`, not normalised;
 //! - colour: `K = (spatial+1)²·(temporal+1)` coefficients per channel at the storage
 //!   capacity, coefficient `k = j·(spatial+1)² + s` for temporal basis `j` and spatial SH
 //!   basis `s`; `f_dc_c` is `k = 0`, `f_rest` is channel-major over `k = 1..K−1`

@@ -21,8 +21,8 @@
 use super::bake::{colour_period, folded_sh, linear_motion};
 use super::{ExportError, write_atomic};
 use crate::model::{ColourDegrees, Gaussians};
-use crate::numerics::sigmoid;
-use crate::sh::{ColourInput, colour};
+use crate::math::numerics::sigmoid;
+use crate::math::sh::{ColourInput, colour};
 use half::f16;
 use std::path::Path;
 

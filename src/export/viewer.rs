@@ -101,7 +101,7 @@ pub fn encode_splat(
     pad_to: usize,
 ) -> Vec<u8> {
     let mut out = Vec::with_capacity(frame.splats.len().max(pad_to) * 32);
-    let c0 = crate::model::SH_C0;
+    let c0 = crate::math::sh::SH_C0;
     let mut order: Vec<(f64, usize)> = frame
         .splats
         .iter()
@@ -131,7 +131,7 @@ pub fn encode_splat(
         for v in s.log_scale {
             out.extend_from_slice(&v.exp().to_le_bytes());
         }
-        let alpha = crate::numerics::sigmoid(s.opacity_logit as f64);
+        let alpha = crate::math::numerics::sigmoid(s.opacity_logit as f64);
         for v in [rgb[0], rgb[1], rgb[2], alpha] {
             out.push((v.clamp(0.0, 1.0) * 255.0).round() as u8);
         }
@@ -156,7 +156,7 @@ fn splat_colour(s: &super::bake::Splat3d, frame: &Frame3d, eye: [f64; 3]) -> [f6
     use crate::model::ColourDegrees;
     let flat: Vec<f64> = s.sh.iter().flat_map(|c| c.map(|v| v as f64)).collect();
     let m = s.position.map(|v| v as f64);
-    let rgb = crate::sh::colour(&crate::sh::ColourInput {
+    let rgb = crate::math::sh::colour(&crate::math::sh::ColourInput {
         mean: [m[0], m[1], m[2], frame.t],
         coeffs: &flat,
         capacity: ColourDegrees {

@@ -2,11 +2,11 @@
 //! Adam moments, densification statistics, hook state). Together with the per-iteration
 //! RNG streams (seeded from `(seed, iteration)`) they make a resumed run bit-identical.
 
-use crate::densify::DensifyStats;
+use crate::train::densify::DensifyStats;
 use crate::model::Gaussians;
-use crate::model_file::{ModelFileError, load_model, save_model};
-use crate::optim::{Adam, ParamBuffers};
-use std::io::Write;
+use crate::model::file::{ModelFileError, load_model, save_model};
+use crate::train::optim::{Adam, ParamBuffers};
+
 use std::path::{Path, PathBuf};
 
 const MAGIC: [u8; 8] = *b"S4DTRAIN";
@@ -87,11 +87,7 @@ pub fn save(dir: &Path, c: &Checkpoint) -> Result<PathBuf, CheckpointError> {
         .iter()
         .for_each(|v| buf.extend_from_slice(&v.to_le_bytes()));
     buf.extend_from_slice(&c.hook_state);
-    let tmp = state_path.with_extension("state.tmp");
-    let mut f = std::fs::File::create(&tmp).map_err(io(&tmp))?;
-    f.write_all(&buf).map_err(io(&tmp))?;
-    f.sync_all().map_err(io(&tmp))?;
-    std::fs::rename(&tmp, &state_path).map_err(io(&state_path))?;
+    crate::atomic::write_atomic(&state_path, &buf).map_err(io(&state_path))?;
     save_model(&c.model, &model_path)?;
     Ok(model_path)
 }

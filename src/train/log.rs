@@ -39,9 +39,7 @@ impl TrainLog {
                 }
             }
         }
-        let tmp = path.with_extension("csv.tmp");
-        std::fs::write(&tmp, format!("{HEADER}\n{kept}"))?;
-        std::fs::rename(&tmp, path)?;
+        crate::atomic::write_atomic(path, format!("{HEADER}\n{kept}").as_bytes())?;
         let out = BufWriter::new(OpenOptions::new().append(true).open(path)?);
         Ok(Self { out })
     }

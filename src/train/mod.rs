@@ -8,17 +8,21 @@
 
 pub mod checkpoint;
 pub mod dataset;
+pub mod densify;
 pub mod log;
+pub mod loss;
+pub mod optim;
 
-pub use crate::init::PointCloud;
+pub use crate::model::init::PointCloud;
 pub use dataset::{Dataset, FrameSource, ImageLoadError, ImageU8, View};
 
-use crate::densify::{DensifyConfig, DensifyStats, densify_and_prune, reset_opacity};
-use crate::init::{InitError, InitOptions, gaussians_from_points};
-use crate::loss::{image_loss, psnr};
+use crate::train::densify::{DensifyConfig, DensifyStats, densify_and_prune, reset_opacity};
+use crate::model::init::{InitError, InitOptions, gaussians_from_points};
+use crate::metrics::{mse, psnr_from_mse};
+use crate::train::loss::image_loss;
 use crate::model::{ColourDegrees, Gaussians};
-use crate::optim::{Adam, LearningRates, colour_degrees_at};
-use crate::render::{Gradients, ImageGradients, RenderError, RenderOptions, render_with};
+use crate::train::optim::{Adam, LearningRates, colour_degrees_at};
+use crate::render::{Gradients, ImageGradients, RenderBackend, RenderError, RenderOptions};
 use crate::{Progress, save_model};
 use checkpoint::{Checkpoint, CheckpointError};
 use log::{LogRow, TrainLog};
@@ -296,8 +300,10 @@ fn add_into(sum: &mut Gradients<f32>, g: &Gradients<f32>) {
 
 /// Train a model on `dataset` from `init`, writing `out_dir/{ckpt/, model.bin, log.csv}`.
 /// With `resume`, continue from the newest complete checkpoint in `out_dir/ckpt` (a fresh
-/// start when there is none).
+/// start when there is none). Every view is rendered and differentiated by `backend`.
+#[allow(clippy::too_many_arguments)]
 pub fn train(
+    backend: &dyn RenderBackend,
     config: &TrainConfig,
     dataset: &Dataset,
     init: &PointCloud,
@@ -384,6 +390,7 @@ pub fn train(
         model.active = colour_degrees_at(it, config.degree_every, model.capacity);
         let batch = sample_batch(&mut rng, dataset.views.len(), config.batch_size);
         let mut grads = Gradients::zeros_like(&model, false);
+        let mut g = Gradients::zeros_like(&model, false);
         let (mut loss_sum, mut l1_sum, mut ssim_sum, mut psnr_sum) = (0.0, 0.0, 0.0, 0.0);
         let scale = 1.0 / batch.len() as f32;
         for &vi in &batch {
@@ -394,7 +401,8 @@ pub fn train(
                 opacity_factor: factor.as_deref(),
                 ..Default::default()
             };
-            let r = render_with(&model, &view.camera, view.time, &options)
+            let r = backend
+                .render(&model, &view.camera, view.time, &options)
                 .map_err(|source| TrainError::Render { index: vi, source })?;
             view.image.to_f32_into(&mut target);
             d_image.clear();
@@ -409,15 +417,13 @@ pub fn train(
                 Some(&mut d_image),
             );
             d_image.iter_mut().for_each(|g| *g *= scale);
-            let g = r
-                .backward(
-                    &model,
-                    &ImageGradients {
-                        rgb: &d_image,
-                        alpha: None,
-                        depth: None,
-                    },
-                )
+            let up = ImageGradients {
+                rgb: &d_image,
+                alpha: None,
+                depth: None,
+            };
+            backend
+                .backward(&model, &r, &up, &mut g)
                 .map_err(|source| TrainError::Render { index: vi, source })?;
             if factor.is_some() {
                 hooks.factor_gradient(it, &model, &g.opacity_factor);
@@ -434,7 +440,7 @@ pub fn train(
             loss_sum += lv.total;
             l1_sum += lv.l1;
             ssim_sum += lv.ssim;
-            psnr_sum += psnr(lv.mse);
+            psnr_sum += psnr_from_mse(lv.mse);
         }
         let nb = batch.len() as f64;
         let rates = config.lr.at(it, config.iterations, extent as f64);
@@ -545,6 +551,7 @@ pub fn train(
 
 /// PSNR (dB) of `model` rendered at every view of `dataset` against its image.
 pub fn evaluate_psnr(
+    backend: &dyn RenderBackend,
     model: &Gaussians<f32>,
     dataset: &Dataset,
     background: [f32; 3],
@@ -559,17 +566,11 @@ pub fn evaluate_psnr(
                 background,
                 ..Default::default()
             };
-            let r = render_with(model, &v.camera, v.time, &options)
+            let r = backend
+                .render(model, &v.camera, v.time, &options)
                 .map_err(|source| TrainError::Render { index, source })?;
             v.image.to_f32_into(&mut target);
-            let mse = r
-                .rgb
-                .iter()
-                .zip(&target)
-                .map(|(a, b)| ((a - b) as f64).powi(2))
-                .sum::<f64>()
-                / target.len() as f64;
-            Ok(psnr(mse))
+            Ok(psnr_from_mse(mse(&r.rgb, &target)))
         })
         .collect()
 }

@@ -64,7 +64,7 @@ pub fn save_render(
     t: f64,
     path: &std::path::Path,
 ) -> Vec<f32> {
-    let r = splat4d::render(model, cam, t as f32).unwrap();
+    let r = splat4d::render::cpu::render(model, cam, t as f32).unwrap();
     let img = splat4d::eval::images::rgb8(&r);
     img.save(path).unwrap();
     img.into_raw().iter().map(|&v| v as f32 / 255.0).collect()

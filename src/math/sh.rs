@@ -1,12 +1,14 @@
-//! "Spherindrical" colour (REFERENCE.md §1): spatial spherical harmonics of the view
+//! "Spherindrical" colour: spatial spherical harmonics of the view
 //! direction (camera → canonical mean) times temporal cosines `1, cos(2πΔt/T),
 //! cos(4πΔt/T)` with `Δt = μt − t`. RGB = 0.5 + Σ coeff·Y·ψ, clamped at 0. Forward and
 //! backward; the direction gradient is the analytic gradient of the basis.
 
 use crate::model::ColourDegrees;
-use crate::numerics::{Real, normalise3, normalise3_backward};
+use crate::math::numerics::{Real, normalise3, normalise3_backward};
 
-const C0: f64 = 0.282_094_791_773_878_14;
+/// The degree-0 real spherical harmonic `1 / (2√π)`: a DC coefficient `c` gives colour
+/// `0.5 + SH_C0 · c`.
+pub const SH_C0: f64 = 0.282_094_791_773_878_14;
 const C1: f64 = 0.488_602_511_902_919_9;
 const C2: [f64; 5] = [
     1.092_548_430_592_079_2,
@@ -28,7 +30,7 @@ const C3: [f64; 7] = [
 /// The first `count` real SH basis functions (3DGS ordering and signs) at unit `(x,y,z)`.
 fn basis<F: Real>(x: F, y: F, z: F, count: usize, out: &mut [F; 16]) {
     let c = F::c;
-    out[0] = c(C0);
+    out[0] = c(SH_C0);
     if count > 1 {
         out[1] = y * c(-C1);
         out[2] = z * c(C1);

@@ -3,7 +3,7 @@
 //! uniform over the sequence when the cloud has none, opacity 0.1, DC colour from rgb.
 
 use crate::model::{ColourDegrees, Gaussians, TimeMapping};
-use crate::numerics::logit;
+use crate::math::numerics::logit;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use std::num::NonZero;
 
@@ -167,9 +167,9 @@ mod tests {
         let g = gaussians_from_points(&cloud, tm, &InitOptions::default()).unwrap();
         assert_eq!(g.len(), 100);
         assert!(g.means.iter().all(|m| (0.0..=2.0).contains(&m[3])));
-        assert!((crate::numerics::sigmoid(g.opacity_logits[0]) - 0.1).abs() < 1e-6);
+        assert!((crate::math::numerics::sigmoid(g.opacity_logits[0]) - 0.1).abs() < 1e-6);
         let dc = g.colour_of(0);
-        assert!((0.5 + crate::model::SH_C0 as f32 * dc[0] - 1.0).abs() < 1e-6);
+        assert!((0.5 + crate::math::sh::SH_C0 as f32 * dc[0] - 1.0).abs() < 1e-6);
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! LPIPS (learned perceptual image patch similarity) from a user-supplied ONNX model, run
 //! with `tract` (pure Rust). The model takes two images `1×3×H×W` with values in
 //! `[-1, 1]` and returns one number (any shape with a single element). No weights ship
-//! with this project (REFERENCE.md §3): without a model file the caller reports LPIPS as
+//! with this project: without a model file the caller reports LPIPS as
 //! skipped, never a number. docs/render-eval.md shows how to export one from the `lpips`
 //! Python package.
 

@@ -1,7 +1,12 @@
 //! The 4D Gaussian model in structure-of-arrays form, plus its time mapping and colour
-//! layout. Pure data: no rendering here (see `render`), no file IO (see `model_file`).
+//! layout. Pure data: no rendering here (see `render`); the file format is [`file`], the
+//! initialisation from a point cloud [`init`].
 
-use crate::numerics::Real;
+pub mod file;
+pub mod init;
+
+use crate::math::numerics::Real;
+use crate::math::sh::SH_C0;
 use serde::{Deserialize, Serialize};
 
 /// Highest spatial spherical-harmonic degree (16 basis functions).
@@ -126,8 +131,6 @@ pub struct Gaussians<F: Real = f32> {
     pub time: TimeMapping,
 }
 
-/// SH DC constant `Y00 = 1 / (2√π)`.
-pub const SH_C0: f64 = 0.282_094_791_773_878_14;
 
 impl<F: Real> Gaussians<F> {
     /// An empty model with room for colour of `capacity` degrees.

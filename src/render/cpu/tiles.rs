@@ -1,7 +1,7 @@
 //! 16×16 tile binning: which projected Gaussians touch which tile (by their 3σ box),
 //! and the per-tile front-to-back depth order. Knows nothing about colour or gradients.
 
-use crate::numerics::Real;
+use crate::math::numerics::Real;
 use rayon::prelude::*;
 
 /// Tile side in pixels.

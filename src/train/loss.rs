@@ -1,8 +1,8 @@
 //! The photometric training loss `(1 − λ)·L1 + λ·(1 − SSIM)` (λ = 0.2 by default) with its
 //! gradient w.r.t. the rendered image, and PSNR. Images are interleaved RGB in `[0, 1]`.
 
-use crate::numerics::Real;
-use crate::ssim::ssim;
+use crate::math::numerics::Real;
+use crate::metrics::ssim::ssim;
 
 /// Value and parts of one image loss.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -73,15 +73,6 @@ fn sign<F: Real>(x: F) -> F {
     }
 }
 
-/// PSNR in dB of a mean squared error on `[0, 1]` images (∞ for a perfect match).
-pub fn psnr(mse: f64) -> f64 {
-    if mse <= 0.0 {
-        f64::INFINITY
-    } else {
-        -10.0 * mse.log10()
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -110,10 +101,5 @@ mod tests {
                 g[i]
             );
         }
-    }
-
-    #[test]
-    fn psnr_of_known_mse() {
-        assert!((psnr(1e-3) - 30.0).abs() < 1e-12);
     }
 }

@@ -1,4 +1,4 @@
-//! 4D rotation from two quaternions, `R = Ml(ql) · Mr(qr)` (REFERENCE.md §1), forward and
+//! 4D rotation from two quaternions, `R = Ml(ql) · Mr(qr)`, forward and
 //! backward. Inputs are raw (unnormalised) quaternions; normalisation is part of the stage.
 //!
 //! Convention: `Ml·Mr` acts on quaternion coordinates `(1, i, j, k)`, which we identify
@@ -6,7 +6,7 @@
 //! With it, `ql = qr = q` is exactly the 3D rotation of unit quaternion `q = (w, x, y, z)`
 //! (as in 3DGS PLY files), leaving time alone; `(1,0,0,0)` twice is the identity.
 
-use crate::numerics::{Real, normalise_quat, normalise_quat_backward};
+use crate::math::numerics::{Real, normalise_quat, normalise_quat_backward};
 
 /// A 4×4 matrix, row-major.
 pub type Mat4<F> = [[F; 4]; 4];

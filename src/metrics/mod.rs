@@ -1,16 +1,19 @@
-//! Image quality metrics for evaluation (REFERENCE.md §3): PSNR, SSIM, and the two
+//! Image quality metrics: PSNR, SSIM, and the two
 //! structural dissimilarities DSSIM₁ and DSSIM₂. Images are interleaved RGB, row-major,
 //! values in `[0, 1]`; `f32` for renders, `f64` for reference checks.
 //!
-//! SSIM is the training loss's [`crate::ssim::ssim`] (11×11 Gaussian window, σ 1.5,
+//! SSIM is [`ssim::ssim`], shared with the training loss (11×11 Gaussian window, σ 1.5,
 //! zero-padded "same" filtering, mean over pixels and channels — the 3DGS convention).
 //! It is written for data range 1; SSIM with data range `L` equals SSIM with range 1 of
 //! the images divided by `L` (means scale by `1/L`, variances by `1/L²`, and the
 //! stabilisers `(k·L)²` by the same `1/L²`), which is how DSSIM₂ is computed here.
 //! No IO here (see `eval`).
 
-use crate::numerics::Real;
-use crate::ssim::ssim;
+pub mod lpips;
+pub mod ssim;
+
+use crate::math::numerics::Real;
+use crate::metrics::ssim::ssim;
 
 /// Why two images cannot be compared.
 #[derive(Debug, thiserror::Error, PartialEq)]

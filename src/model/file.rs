@@ -1,10 +1,9 @@
 //! The versioned binary model file (`.s4d`): a fixed little-endian header (magic, version,
 //! count, colour degrees, time mapping) followed by the structure-of-arrays payload in
 //! `f32`. Reading never panics: a truncated, oversized or foreign file is a typed error.
-//! Writing goes to `<name>.tmp` and is renamed into place when complete.
+//! Writing goes to a temporary sibling and is renamed into place when complete.
 
 use crate::model::{ColourDegrees, Gaussians, TimeMapping};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// First 8 bytes of every model file.
@@ -94,14 +93,7 @@ pub fn save_model(model: &Gaussians<f32>, path: &Path) -> Result<(), ModelFileEr
         path: path.to_path_buf(),
         source,
     };
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    let mut file = std::fs::File::create(&tmp).map_err(io)?;
-    file.write_all(&buf).map_err(io)?;
-    file.sync_all().map_err(io)?;
-    drop(file);
-    std::fs::rename(&tmp, path).map_err(io)
+    crate::atomic::write_atomic(path, &buf).map_err(io)
 }
 
 /// Read a model written by [`save_model`].

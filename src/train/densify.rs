@@ -5,9 +5,9 @@
 //! companions (Adam moments, statistics) the same way, so they never drift apart.
 
 use crate::model::Gaussians;
-use crate::numerics::{logit, sigmoid};
-use crate::optim::Adam;
-use crate::rotation4d::rotation;
+use crate::math::numerics::{logit, sigmoid};
+use crate::train::optim::Adam;
+use crate::math::rotation4d::rotation;
 use rand_chacha::ChaCha8Rng;
 use rand_core::Rng;
 use serde::{Deserialize, Serialize};

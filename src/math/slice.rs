@@ -1,4 +1,4 @@
-//! Slicing a 4D Gaussian at time `t` (REFERENCE.md §1): conditional 3D mean and
+//! Slicing a 4D Gaussian at time `t`: conditional 3D mean and
 //! covariance, temporal weight `ω(t)`, forward and backward.
 //!
 //! The covariance is kept in factored form: with `L = R·diag(exp(s))` (rows 0..3 = `A`,
@@ -7,8 +7,8 @@
 //! Working with `B` keeps the sliced covariance positive semi-definite in `f32`, even for
 //! nearly singular or badly scaled Gaussians.
 
-use crate::numerics::{MIN_TIME_VARIANCE, Real, scale_from_log};
-use crate::rotation4d::{Mat4, RotationAux, rotation, rotation_backward};
+use crate::math::numerics::{MIN_TIME_VARIANCE, Real, scale_from_log};
+use crate::math::rotation4d::{Mat4, RotationAux, rotation, rotation_backward};
 
 /// Gaussians whose temporal weight is at or below this are culled.
 pub const TEMPORAL_CUTOFF: f64 = 0.05;

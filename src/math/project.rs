@@ -1,8 +1,8 @@
-//! EWA projection of a sliced 3D Gaussian through a pinhole camera (REFERENCE.md §1):
+//! EWA projection of a sliced 3D Gaussian through a pinhole camera:
 //! 2D mean, inverse 2D covariance (conic) with the 0.3 px² low-pass, depth, and the 3σ
 //! extent; forward and backward. Cameras come in as [`PinholeCamera`] (no distortion).
 
-use crate::numerics::Real;
+use crate::math::numerics::Real;
 
 /// Low-pass added to the 2D covariance diagonal (px²).
 pub const LOW_PASS: f64 = 0.3;
@@ -60,6 +60,14 @@ impl<F: Real> PinholeCamera<F> {
             out[i] += w[i][0] * p[0] + w[i][1] * p[1] + w[i][2] * p[2];
         }
         out
+    }
+
+    /// Pixel position of a camera-space point in front of the camera (pinhole projection,
+    /// pixel centres at integer + 0.5).
+    #[inline]
+    pub fn to_pixel(&self, p: [F; 3]) -> [F; 2] {
+        let iz = F::one() / p[2];
+        [self.fx * p[0] * iz + self.cx, self.fy * p[1] * iz + self.cy]
     }
 }
 
@@ -151,7 +159,7 @@ pub fn project<F: Real>(
     let conic = [cc * inv, -cb * inv, ca * inv];
     let s = F::c(EXTENT_SIGMAS);
     let out = Projected {
-        mean: [cam.fx * p[0] * iz + cam.cx, cam.fy * p[1] * iz + cam.cy],
+        mean: cam.to_pixel(p),
         conic,
         depth: z,
         extent: [s * ca.sqrt(), s * cc.sqrt()],

@@ -3,7 +3,7 @@
 //! filtered separably with zero padding ("same" size), as in the 3DGS reference loss.
 //! No IO, no loss weighting here (see `loss`).
 
-use crate::numerics::Real;
+use crate::math::numerics::Real;
 use rayon::prelude::*;
 
 /// Window half-width: the window is `2·RADIUS + 1 = 11` pixels wide.
