@@ -9,57 +9,7 @@ use crate::math::numerics::Real;
 use crate::math::sh::SH_C0;
 use serde::{Deserialize, Serialize};
 
-/// Highest spatial spherical-harmonic degree (16 basis functions).
-pub const MAX_SPATIAL_DEGREE: u32 = 3;
-/// Highest temporal degree: the basis is `1, cos(2πΔt/T), cos(4πΔt/T)`.
-pub const MAX_TEMPORAL_DEGREE: u32 = 2;
-
-/// Spatial and temporal degrees of the "spherindrical" colour basis.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub struct ColourDegrees {
-    /// Spatial SH degree, 0..=3.
-    pub spatial: u32,
-    /// Temporal cosine degree, 0..=2.
-    pub temporal: u32,
-}
-
-impl ColourDegrees {
-    pub const DC: Self = Self {
-        spatial: 0,
-        temporal: 0,
-    };
-    pub const FULL: Self = Self {
-        spatial: MAX_SPATIAL_DEGREE,
-        temporal: MAX_TEMPORAL_DEGREE,
-    };
-
-    /// Number of spatial basis functions, `(spatial+1)²`.
-    pub fn spatial_count(&self) -> usize {
-        ((self.spatial + 1) * (self.spatial + 1)) as usize
-    }
-
-    /// Number of temporal basis functions, `temporal+1`.
-    pub fn temporal_count(&self) -> usize {
-        (self.temporal + 1) as usize
-    }
-
-    /// Coefficients per colour channel.
-    pub fn coeff_count(&self) -> usize {
-        self.spatial_count() * self.temporal_count()
-    }
-
-    pub fn is_valid(&self) -> bool {
-        self.spatial <= MAX_SPATIAL_DEGREE && self.temporal <= MAX_TEMPORAL_DEGREE
-    }
-
-    /// Component-wise minimum.
-    pub fn min(self, other: Self) -> Self {
-        Self {
-            spatial: self.spatial.min(other.spatial),
-            temporal: self.temporal.min(other.temporal),
-        }
-    }
-}
+pub use crate::math::sh::{ColourDegrees, MAX_SPATIAL_DEGREE, MAX_TEMPORAL_DEGREE};
 
 /// Maps capture time in seconds to the model's normalised time `t`.
 /// `t = (seconds − start_seconds) · units_per_second`; `duration` is the sequence length `T`

@@ -368,11 +368,8 @@ pub(super) fn backward(
                 cd = _mm256_fmadd_ps(colg, dcg[i], cd);
                 cd = _mm256_fmadd_ps(colb, dcb[i], cd);
                 cd = _mm256_fmadd_ps(cdep, ddv[i], cd);
-                let d_alpha = _mm256_fmadd_ps(
-                    cd,
-                    t,
-                    _mm256_mul_ps(_mm256_sub_ps(ftt[i], behind[i]), inv),
-                );
+                let d_alpha =
+                    _mm256_fmadd_ps(cd, t, _mm256_mul_ps(_mm256_sub_ps(ftt[i], behind[i]), inv));
                 // Masked-off lanes have w = 0.
                 behind[i] = _mm256_fmadd_ps(wgt, cd, behind[i]);
                 // Clamped lanes (opacity·g > α_max) pass no gradient to opacity/power.

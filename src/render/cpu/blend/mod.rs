@@ -213,23 +213,25 @@ pub fn blend_tile_forward<F: Real>(
     out: &mut TileOut<F>,
 ) {
     #[cfg(target_arch = "x86_64")]
-    if std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>()
-        && fits_tile(rect)
-        && has_avx2_fma()
-    {
+    if use_avx2::<F>(rect) {
         // SAFETY: F is f32, so these are the same types; the CPU has AVX2 and FMA.
         unsafe {
             let splats = &*(splats as *const [Splat<F>] as *const [Splat<f32>]);
             let out = &mut *(out as *mut TileOut<F> as *mut TileOut<f32>);
-            let background = [
-                background[0].f64() as f32,
-                background[1].f64() as f32,
-                background[2].f64() as f32,
-            ];
+            let background = background.map(|v| v.f64() as f32);
             return avx2::forward(rect, splats, background, out);
         }
     }
     scalar::forward(rect, splats, background, out)
+}
+
+/// Whether the AVX2+FMA `f32` kernels take this tile: `F` is `f32`, the tile fits their
+/// state and the CPU has both features.
+#[cfg(target_arch = "x86_64")]
+fn use_avx2<F: Real>(rect: PixelRect) -> bool {
+    std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>()
+        && fits_tile(rect)
+        && has_avx2_fma()
 }
 
 /// Whether the AVX2+FMA builds of the blend loops can run here.
@@ -264,21 +266,14 @@ pub fn blend_tile_backward<F: Real>(
     grads: &mut [SplatGrad<F>],
 ) {
     #[cfg(target_arch = "x86_64")]
-    if std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>()
-        && fits_tile(rect)
-        && has_avx2_fma()
-    {
+    if use_avx2::<F>(rect) {
         // SAFETY: F is f32, so these are the same types; the CPU has AVX2 and FMA.
         unsafe {
             let splats = &*(splats as *const [Splat<F>] as *const [Splat<f32>]);
             let final_t = &*(final_t as *const [F] as *const [f32]);
             let up = &*(up as *const TileUpstream<F> as *const TileUpstream<f32>);
             let grads = &mut *(grads as *mut [SplatGrad<F>] as *mut [SplatGrad<f32>]);
-            let background = [
-                background[0].f64() as f32,
-                background[1].f64() as f32,
-                background[2].f64() as f32,
-            ];
+            let background = background.map(|v| v.f64() as f32);
             return avx2::backward(rect, splats, background, final_t, n_contrib, up, grads);
         }
     }
@@ -288,7 +283,6 @@ pub fn blend_tile_backward<F: Real>(
 #[cfg(target_arch = "x86_64")]
 mod avx2;
 mod scalar;
-
 
 #[cfg(test)]
 mod tests {

@@ -95,7 +95,6 @@ pub(super) fn forward<F: Real>(
     out.evaluations = evaluations;
 }
 
-
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub(super) fn backward<F: Real>(
