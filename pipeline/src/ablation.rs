@@ -65,7 +65,7 @@ pub fn run(
     let cameras_file = work.join("poses/cameras.json");
     let progress = reporter.progress("ablation");
     let dataset = crate::training::load_dataset(&work.join("frames"), &cameras_file, &progress)?;
-    let points = splat4d::ply::read_points_ply(&work.join("init/points.ply"))?;
+    let points = shared_types::points::read_points_ply(&work.join("init/points.ply"))?;
     let index = FramesIndex::read_json(&work.join("frames/frames.json"))?;
     let poses = PosesFile::read(&cameras_file)?;
     let bench = work.join("bench");
@@ -110,7 +110,7 @@ pub fn run(
             seconds: summary.seconds,
         });
     }
-    splat4d::Progress::finish(&progress);
+    shared_types::Progress::finish(&progress);
     let md = bench.join("ablation.md");
     let header = format!(
         "scene {}, {} training views, {} held-out views, {iterations} iterations, seed {}",
@@ -119,8 +119,8 @@ pub fn run(
         heldout.len(),
         train_config.seed
     );
-    crate::atomic::write_atomic(&md, markdown(&header, &rows).as_bytes())?;
-    crate::atomic::write_atomic(&bench.join("ablation.csv"), csv(&rows).as_bytes())?;
+    shared_types::atomic::write_atomic(&md, markdown(&header, &rows).as_bytes())?;
+    shared_types::atomic::write_atomic(&bench.join("ablation.csv"), csv(&rows).as_bytes())?;
     Ok(md)
 }
 

@@ -12,8 +12,9 @@ use rig::frames::FramesIndex;
 use rig::sim::{HeldoutTimestamps, OffsetsFile};
 use rig::sync::SyncResult;
 use serde::{Deserialize, Serialize};
+use shared_types::{Camera, CameraSet, WorldToCamera};
+use splat4d::TimeMapping;
 use splat4d::eval::EvalView;
-use splat4d::{Camera, CameraSet, TimeMapping, WorldToCamera};
 
 use crate::heldout::HELDOUT_FILE;
 use crate::layout::Capture;

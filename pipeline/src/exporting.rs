@@ -35,7 +35,7 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
             None => String::new(),
         }
     );
-    crate::atomic::write_atomic(
+    shared_types::atomic::write_atomic(
         &ctx.output("export.json"),
         &serde_json::to_vec_pretty(&report)?,
     )

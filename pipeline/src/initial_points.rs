@@ -57,7 +57,7 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
         sparse,
     };
     let report = calib::init::run_init(&inputs, &config, &ctx.out_dir, ctx.progress)?;
-    crate::atomic::write_atomic(
+    shared_types::atomic::write_atomic(
         &ctx.output("init.json"),
         &serde_json::to_vec_pretty(&report)?,
     )

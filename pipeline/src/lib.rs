@@ -2,11 +2,10 @@
 //!
 //! `layout` validates a capture directory, `config` reads `capture.toml`, `stages`
 //! declares the pipeline, `runner` decides what is stale and runs it with atomic
-//! outputs (`manifest`, `atomic`, `lock`), `report` shows progress, `cli` is the
+//! outputs (`manifest`, `partial_dir`, `lock`), `report` shows progress, `cli` is the
 //! command line.
 
 pub mod ablation;
-pub mod atomic;
 pub mod cli;
 pub mod config;
 pub mod evaluation;
@@ -16,6 +15,7 @@ pub mod initial_points;
 pub mod layout;
 pub mod lock;
 pub mod manifest;
+pub mod partial_dir;
 pub mod rendering;
 pub mod report;
 pub mod runner;

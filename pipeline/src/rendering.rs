@@ -9,9 +9,10 @@ use anyhow::{Context, bail};
 use calib::poses::PosesFile;
 use rig::frames::FramesIndex;
 use serde::{Deserialize, Serialize};
+use shared_types::{Camera, Progress};
+use splat4d::Gaussians;
 use splat4d::eval::FrameOutputs;
 use splat4d::paths::{PathKind, PathSpec, TimeMode, camera_path};
-use splat4d::{Gaussians, Progress};
 
 use crate::stage::StageContext;
 use crate::training::pinhole_cameras;
@@ -52,9 +53,7 @@ impl Default for RenderSettings {
 
 /// The frames index and the pinhole cameras a path can follow: the training cameras and
 /// the held-out ones of a real capture (`[capture] heldout`; none otherwise).
-pub fn path_cameras(
-    work_dir: &Path,
-) -> anyhow::Result<(FramesIndex, Vec<splat4d::Camera>, Vec<splat4d::Camera>)> {
+pub fn path_cameras(work_dir: &Path) -> anyhow::Result<(FramesIndex, Vec<Camera>, Vec<Camera>)> {
     let cameras_file = work_dir.join("poses").join("cameras.json");
     let poses = PosesFile::read(&cameras_file)?;
     let index = FramesIndex::read_json(&work_dir.join("frames").join("frames.json"))?;
@@ -71,8 +70,8 @@ pub fn path_cameras(
 #[allow(clippy::too_many_arguments)]
 pub fn render(
     model: &Gaussians<f32>,
-    cameras: &[splat4d::Camera],
-    heldout: &[splat4d::Camera],
+    cameras: &[Camera],
+    heldout: &[Camera],
     settings: &RenderSettings,
     default_frames: usize,
     default_fps: f64,

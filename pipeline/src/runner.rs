@@ -26,6 +26,7 @@ use crate::manifest::{
     InputRecord, MANIFEST_VERSION, Manifest, RunRecord, RunState, file_stamp, hash_bytes,
     record_input, record_outputs,
 };
+use crate::partial_dir::{partial_path, recover_interrupted_swap, swap_in};
 use crate::report::{Event, Reporter};
 use crate::stage::{StageContext, StageDef};
 
@@ -323,7 +324,9 @@ impl Pipeline {
         let selected = self.select(sel)?;
         let work = capture.work_dir();
         let _lock = CaptureLock::acquire(&work)?;
-        recover_interrupted_swaps(&work, &self.stage_names());
+        for stage in &self.stages {
+            recover_interrupted_swap(&work.join(stage.name));
+        }
         let mut summary = RunSummary::default();
         let mut unavailable: HashSet<&str> = HashSet::new();
         for &index in &selected {
@@ -421,7 +424,7 @@ fn execute(
     reporter: &Reporter,
 ) -> anyhow::Result<Manifest> {
     let work = capture.work_dir();
-    let partial = work.join(format!(".{}.partial", stage.name));
+    let partial = partial_path(&work.join(stage.name));
     // A resumable stage continues from its partial folder only when that folder was
     // started with the same parameters and inputs (and without --force).
     let key = resume_key(&params, &inputs);
@@ -433,7 +436,7 @@ fn execute(
     }
     fs::create_dir_all(&partial).with_context(|| format!("cannot create {}", partial.display()))?;
     if stage.resumable {
-        crate::atomic::write_atomic(&key_file, key.as_bytes())
+        shared_types::atomic::write_atomic(&key_file, key.as_bytes())
             .with_context(|| format!("cannot write {}", key_file.display()))?;
     }
     let started = Utc::now();
@@ -475,7 +478,7 @@ fn execute(
             ))
         }
     };
-    splat4d::Progress::finish(&progress);
+    shared_types::Progress::finish(&progress);
     let duration_s = clock.elapsed().as_secs_f64();
     let finished = outcome.and_then(|()| {
         if stage.resumable {
@@ -503,7 +506,7 @@ fn execute(
         manifest
             .write(&partial)
             .context("cannot write stage.json")?;
-        swap_in(&work, stage.name, &partial)?;
+        swap_in(&partial, &work.join(stage.name))?;
         Ok(manifest)
     });
     match finished {
@@ -535,45 +538,6 @@ fn resume_key(params: &serde_json::Value, inputs: &BTreeMap<String, InputRecord>
     let hashes: Vec<(&String, &String)> = inputs.iter().map(|(k, v)| (k, &v.hash)).collect();
     let bytes = serde_json::to_vec(&(params, hashes)).unwrap_or_default();
     hash_bytes(&bytes)
-}
-
-/// Replace `work/<stage>/` with the finished partial folder.
-fn swap_in(work: &Path, stage: &str, partial: &Path) -> anyhow::Result<()> {
-    let final_dir = work.join(stage);
-    let old = work.join(format!(".{stage}.old"));
-    if old.exists() {
-        fs::remove_dir_all(&old).with_context(|| format!("cannot remove {}", old.display()))?;
-    }
-    if final_dir.exists() {
-        fs::rename(&final_dir, &old)
-            .with_context(|| format!("cannot move {} aside", final_dir.display()))?;
-    }
-    if let Err(e) = fs::rename(partial, &final_dir) {
-        if old.exists() {
-            let _ = fs::rename(&old, &final_dir);
-        }
-        return Err(e)
-            .with_context(|| format!("cannot move the new outputs to {}", final_dir.display()));
-    }
-    if old.exists() {
-        let _ = fs::remove_dir_all(&old);
-    }
-    Ok(())
-}
-
-/// After a crash between the two renames of [`swap_in`], put the old outputs back.
-fn recover_interrupted_swaps(work: &Path, stages: &[&str]) {
-    for stage in stages {
-        let old = work.join(format!(".{stage}.old"));
-        if old.exists() {
-            let final_dir = work.join(stage);
-            if final_dir.exists() {
-                let _ = fs::remove_dir_all(&old);
-            } else {
-                let _ = fs::rename(&old, &final_dir);
-            }
-        }
-    }
 }
 
 /// Expand folders to the files inside them (sorted); skip paths that do not exist.

@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
-use splat4d::Progress;
+use shared_types::Progress;
 
 use crate::config::CaptureConfig;
 use crate::layout::Capture;

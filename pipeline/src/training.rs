@@ -9,8 +9,9 @@ use calib::poses::PosesFile;
 use calib::undistort::{Fit, UndistortMap};
 use rayon::prelude::*;
 use rig::frames::FramesIndex;
+use shared_types::{Camera, CameraSet, Progress};
 use splat4d::train::{Dataset, ImageU8, PointCloud, TrainError, TrainHooks, View};
-use splat4d::{Camera, CameraSet, Gaussians, Progress, TimeMapping};
+use splat4d::{Gaussians, TimeMapping};
 
 use crate::stage::StageContext;
 
@@ -218,7 +219,7 @@ fn initial_points(ctx: &StageContext) -> anyhow::Result<PointCloud> {
         );
         sparse
     };
-    splat4d::ply::read_points_ply(&path)
+    shared_types::points::read_points_ply(&path)
         .with_context(|| format!("cannot read the initial points {}", path.display()))
 }
 

@@ -10,9 +10,10 @@
 
 mod common;
 
+use shared_types::NoProgress;
 use splat4d::decay::{DecayConfig, DecayHooks};
+use splat4d::load_model;
 use splat4d::train::{evaluate_psnr, train};
-use splat4d::{NoProgress, load_model};
 use std::io::Write;
 
 fn env_or<T: std::str::FromStr>(key: &str, default: T) -> T {

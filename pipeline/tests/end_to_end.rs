@@ -182,7 +182,7 @@ fn simulated_static_capture_gets_poses_from_colmap() {
     );
 
     let solved = calib::poses::PosesFile::read(&root.join("work/poses/cameras.json")).unwrap();
-    let truth: splat4d::CameraSet =
+    let truth: shared_types::CameraSet =
         serde_json::from_str(&fs::read_to_string(root.join("groundtruth/cameras.json")).unwrap())
             .unwrap();
     let video: Vec<_> = truth

@@ -8,8 +8,9 @@
 
 mod common;
 
+use shared_types::NoProgress;
+use splat4d::load_model;
 use splat4d::train::{NoHooks, evaluate_psnr, train};
-use splat4d::{NoProgress, load_model};
 
 const SCALE: usize = 2;
 

@@ -52,7 +52,7 @@ fn train_stops_cleanly_resumes_identically_and_exports() {
     let dataset = training::load_dataset(
         &root.join("work/frames"),
         &root.join("work/poses/cameras.json"),
-        &splat4d::NoProgress,
+        &shared_types::NoProgress,
     )
     .unwrap();
     let index = rig::frames::FramesIndex::read_json(&root.join("work/frames/frames.json")).unwrap();

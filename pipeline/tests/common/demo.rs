@@ -3,8 +3,9 @@
 //! benchmarks (`train_demo.rs`, `decay_demo.rs`).
 
 use rig::sim::{Scene, render_clean};
+use shared_types::Camera;
+use splat4d::TimeMapping;
 use splat4d::train::{Dataset, ImageU8, PointCloud, TrainConfig, View};
-use splat4d::{Camera, TimeMapping};
 use std::path::Path;
 
 /// The camera's image at scene time `t`, box-downsampled by `scale`, and its depth.
