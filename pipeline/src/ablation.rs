@@ -64,7 +64,8 @@ pub fn run(
     let work = capture.work_dir();
     let cameras_file = work.join("poses/cameras.json");
     let progress = reporter.progress("ablation");
-    let dataset = crate::training::load_dataset(&work.join("frames"), &cameras_file, &progress)?;
+    let dataset =
+        crate::engine_inputs::load_dataset(&work.join("frames"), &cameras_file, &progress)?;
     let points = shared_types::points::read_points_ply(&work.join("init/points.ply"))?;
     let index = FramesIndex::read_json(&work.join("frames/frames.json"))?;
     let poses = PosesFile::read(&cameras_file)?;
@@ -73,7 +74,7 @@ pub fn run(
         &capture,
         &config.eval,
         &poses.set,
-        &crate::training::time_mapping(&index),
+        &crate::engine_inputs::time_mapping(&index),
         &bench.join("heldout-groundtruth"),
     )?;
     let train_config = config.train.with_iterations(iterations);

@@ -16,10 +16,10 @@ use shared_types::{Camera, CameraSet, WorldToCamera};
 use splat4d::TimeMapping;
 use splat4d::eval::EvalView;
 
+use crate::engine_inputs::{load_frame, load_trained_model, pinhole_cameras, time_mapping};
 use crate::heldout::HELDOUT_FILE;
 use crate::layout::Capture;
 use crate::stage::StageContext;
-use crate::training::{load_frame, pinhole_cameras, time_mapping};
 
 /// `[eval]` settings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -286,7 +286,7 @@ fn train_views(
 
 /// The `eval` stage.
 pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
-    let model = crate::training::load_trained_model(&ctx.capture.work_dir())?;
+    let model = load_trained_model(&ctx.capture.work_dir())?;
     let poses = PosesFile::read(&ctx.stage_dir("poses").join("cameras.json"))?;
     let index = FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
     let mapping = time_mapping(&index);

@@ -9,7 +9,7 @@ use crate::stage::StageContext;
 
 /// The `export` stage.
 pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
-    let model = crate::training::load_trained_model(&ctx.capture.work_dir())?;
+    let model = crate::engine_inputs::load_trained_model(&ctx.capture.work_dir())?;
     let poses = PosesFile::read(&ctx.stage_dir("poses").join("cameras.json"))?;
     let index = FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
     let options = &ctx.config.export;

@@ -104,7 +104,7 @@ pub fn pinhole_heldout_cameras(work_dir: &Path) -> anyhow::Result<Vec<Camera>> {
     let poses_path = work_dir.join("poses").join(HELDOUT_FILE);
     let poses = PosesFile::read(&poses_path)?;
     Ok(
-        crate::training::pinhole_cameras(&index, &poses.set, &poses_path)?
+        crate::engine_inputs::pinhole_cameras(&index, &poses.set, &poses_path)?
             .into_iter()
             .map(|(camera, _)| camera)
             .collect(),

@@ -32,7 +32,7 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
         .frames
         .first()
         .context("the frames stage wrote no frames; rerun it")?;
-    let mapping = crate::training::time_mapping(&index);
+    let mapping = crate::engine_inputs::time_mapping(&index);
     let images = index
         .cameras
         .iter()

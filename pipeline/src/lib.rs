@@ -8,10 +8,12 @@
 pub mod ablation;
 pub mod cli;
 pub mod config;
+pub mod engine_inputs;
 pub mod evaluation;
 pub mod exporting;
 pub mod heldout;
 pub mod initial_points;
+pub mod interrupt;
 pub mod layout;
 pub mod lock;
 pub mod manifest;

@@ -39,7 +39,7 @@ fn main() -> ExitCode {
 
 fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     if matches!(command, Command::Run(_) | Command::Demo { .. }) {
-        ctrlc::set_handler(pipeline::training::on_interrupt)
+        ctrlc::set_handler(pipeline::interrupt::on_interrupt)
             .context("cannot install the Ctrl-C handler")?;
     }
     match command {
@@ -125,7 +125,7 @@ fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
 fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     let (capture, _) = open_capture(&args.capture_dir)?;
     let work = capture.work_dir();
-    let model = pipeline::training::load_trained_model(&work)?;
+    let model = pipeline::engine_inputs::load_trained_model(&work)?;
     let (index, cameras, heldout) = pipeline::rendering::path_cameras(&work)?;
     let video = args
         .out

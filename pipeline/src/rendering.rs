@@ -14,8 +14,8 @@ use splat4d::Gaussians;
 use splat4d::eval::FrameOutputs;
 use splat4d::paths::{PathKind, PathSpec, TimeMode, camera_path};
 
+use crate::engine_inputs::{load_trained_model, pinhole_cameras};
 use crate::stage::StageContext;
-use crate::training::pinhole_cameras;
 
 /// `[render]` settings (the same keys as the `pipeline render` flags).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -124,7 +124,7 @@ pub fn render(
 
 /// The `render` stage.
 pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
-    let model = crate::training::load_trained_model(&ctx.capture.work_dir())?;
+    let model = load_trained_model(&ctx.capture.work_dir())?;
     let (index, cameras, heldout) = path_cameras(&ctx.capture.work_dir())?;
     let settings = &ctx.config.render;
     let frames = render(

@@ -16,7 +16,7 @@ use pipeline::evaluation::{EvalSettings, capture_heldout_views};
 use pipeline::heldout::HELDOUT_FILE;
 use pipeline::report::{OutputMode, Reporter};
 use pipeline::runner::Selection;
-use pipeline::{simulate, training};
+use pipeline::{engine_inputs, simulate};
 use rig::frames::FramesIndex;
 
 /// Held-out PSNR the trained model must beat (dB); the swapped poses must not.
@@ -221,7 +221,7 @@ fn heldout_cameras_of_a_real_capture_are_posed_never_trained_and_measured() {
     );
 
     // Training never saw cam4/cam5.
-    let dataset = training::load_dataset(
+    let dataset = engine_inputs::load_dataset(
         &work.join("frames"),
         &work.join("poses/cameras.json"),
         &shared_types::NoProgress,
@@ -286,7 +286,7 @@ fn heldout_cameras_of_a_real_capture_are_posed_never_trained_and_measured() {
         serde_json::to_string(&swapped).unwrap(),
     )
     .unwrap();
-    let model = training::load_trained_model(&work).unwrap();
+    let model = engine_inputs::load_trained_model(&work).unwrap();
     let settings = EvalSettings::default();
     let views = capture_heldout_views(
         &work.join("frames"),
