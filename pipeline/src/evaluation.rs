@@ -316,11 +316,7 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
     let train = train_views(ctx, &poses.set, &index, &mapping, &gt_dir.join("train"))?;
     let lpips = match &ctx.config.eval.lpips {
         Some(path) => {
-            let path = if path.is_absolute() {
-                path.clone()
-            } else {
-                ctx.capture.root.join(path)
-            };
+            let path = ctx.capture.resolve(path);
             Some(splat4d::lpips::Lpips::load(&path).with_context(|| {
                 format!(
                     "[eval] lpips = {}: cannot load the LPIPS model",

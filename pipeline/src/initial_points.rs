@@ -2,25 +2,12 @@
 //! run here, or exported maps), else the sparse pose points, else a random cloud
 //! (`calib::init`, docs/init.md).
 
-use std::path::{Path, PathBuf};
-
 use anyhow::Context;
 use calib::init::{InitInputs, ViewImage};
 use calib::poses::PosesFile;
 use rig::frames::FramesIndex;
 
 use crate::stage::StageContext;
-
-/// A path from `capture.toml`, relative to the capture directory.
-fn in_capture(root: &Path, path: &Option<PathBuf>) -> Option<PathBuf> {
-    path.as_ref().map(|p| {
-        if p.is_absolute() {
-            p.clone()
-        } else {
-            root.join(p)
-        }
-    })
-}
 
 /// The `init` stage.
 pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
@@ -49,8 +36,8 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
         .map(|f| poses_dir.join(f))
         .filter(|p| p.exists());
     let mut config = ctx.config.init.clone();
-    config.model = in_capture(&ctx.capture.root, &config.model);
-    config.pointmaps = in_capture(&ctx.capture.root, &config.pointmaps);
+    config.model = config.model.map(|p| ctx.capture.resolve(&p));
+    config.pointmaps = config.pointmaps.map(|p| ctx.capture.resolve(&p));
     let inputs = InitInputs {
         cameras: poses.set,
         images,

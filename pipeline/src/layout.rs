@@ -61,6 +61,14 @@ impl Capture {
     pub fn config_path(&self) -> PathBuf {
         self.root.join(crate::config::CONFIG_FILE)
     }
+    /// A path from `capture.toml`: relative paths are relative to the capture directory.
+    pub fn resolve(&self, path: &Path) -> PathBuf {
+        if path.is_absolute() {
+            path.to_path_buf()
+        } else {
+            self.root.join(path)
+        }
+    }
     /// Training cameras, then held-out ones: every camera that is ingested, synchronised,
     /// aligned and posed (the first one is the sync reference by default).
     pub fn all_cameras(&self) -> impl Iterator<Item = &CameraFolder> {

@@ -232,19 +232,9 @@ pub fn pipeline() -> Pipeline {
     }
 }
 
-/// Names of all stages, in order.
-pub const STAGE_NAMES: &[&str] = &[
-    "ingest", "sync", "frames", "poses", "init", "train", "render", "eval", "export",
-];
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn stage_names_match_the_declarations() {
-        assert_eq!(pipeline().stage_names(), STAGE_NAMES);
-    }
 
     #[test]
     fn upstream_stages_come_first() {
