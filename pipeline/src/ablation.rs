@@ -70,7 +70,7 @@ pub fn run(
     let index = FramesIndex::read_json(&work.join("frames/frames.json"))?;
     let poses = PosesFile::read(&cameras_file)?;
     let bench = work.join("bench");
-    let heldout = crate::evaluation::heldout_views(
+    let heldout = crate::stages::eval::heldout_views(
         &capture,
         &config.eval,
         &poses.set,

@@ -9,23 +9,19 @@ pub mod ablation;
 pub mod cli;
 pub mod config;
 pub mod engine_inputs;
-pub mod evaluation;
-pub mod exporting;
 pub mod heldout;
-pub mod initial_points;
 pub mod interrupt;
 pub mod layout;
 pub mod lock;
 pub mod manifest;
 pub mod partial_dir;
-pub mod rendering;
 pub mod report;
 pub mod runner;
 pub mod simulate;
-pub mod stage;
+pub mod stage_context;
+pub mod stage_def;
 pub mod stages;
 pub mod status;
-pub mod training;
 
 use std::path::Path;
 

@@ -126,12 +126,12 @@ fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     let (capture, _) = open_capture(&args.capture_dir)?;
     let work = capture.work_dir();
     let model = pipeline::engine_inputs::load_trained_model(&work)?;
-    let (index, cameras, heldout) = pipeline::rendering::path_cameras(&work)?;
+    let (index, cameras, heldout) = pipeline::stages::render::path_cameras(&work)?;
     let video = args
         .out
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("mp4"));
-    let settings = pipeline::rendering::RenderSettings {
+    let settings = pipeline::stages::render::RenderSettings {
         path: args.path,
         time: args.time,
         frames: args.frames,
@@ -147,7 +147,7 @@ fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     let staging = partial_path(&args.out);
     let frames = build_fresh(&staging, |staging| {
         let progress = reporter.progress("render");
-        let frames = pipeline::rendering::render(
+        let frames = pipeline::stages::render::render(
             &model,
             &cameras,
             &heldout,
@@ -244,7 +244,7 @@ fn demo(out_dir: &std::path::Path, reporter: &Reporter) -> anyhow::Result<ExitCo
         ));
         let scene = simulate::demo_scene()?;
         simulate::simulate_into(&scene, out_dir, reporter)?;
-        let settings = out_dir.join(pipeline::config::CONFIG_FILE);
+        let settings = out_dir.join(pipeline::layout::CONFIG_FILE);
         shared_types::atomic::write_atomic(&settings, simulate::demo_settings(&scene).as_bytes())
             .with_context(|| format!("cannot write {}", settings.display()))?;
     }

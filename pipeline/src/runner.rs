@@ -28,7 +28,8 @@ use crate::manifest::{
 };
 use crate::partial_dir::{partial_path, recover_interrupted_swap, swap_in};
 use crate::report::{Event, Reporter};
-use crate::stage::{StageContext, StageDef};
+use crate::stage_context::StageContext;
+use crate::stage_def::{RunFn, StageDef};
 
 /// The stages of a pipeline, in execution order.
 pub struct Pipeline {
@@ -153,10 +154,11 @@ impl Pipeline {
         &self,
         stage: &StageDef,
         capture: &Capture,
+        config: &CaptureConfig,
         previous: Option<&Manifest>,
     ) -> anyhow::Result<BTreeMap<String, InputRecord>> {
         let mut inputs = BTreeMap::new();
-        for path in expand_inputs((stage.inputs)(capture))? {
+        for path in expand_inputs((stage.inputs)(capture, config))? {
             let key = path
                 .strip_prefix(&capture.root)
                 .unwrap_or(&path)
@@ -237,7 +239,7 @@ impl Pipeline {
         for stage in &self.stages {
             let dir = work.join(stage.name);
             let manifest = Manifest::read(&dir);
-            let inputs = self.current_inputs(stage, capture, manifest.as_ref())?;
+            let inputs = self.current_inputs(stage, capture, config, manifest.as_ref())?;
             let params = (stage.params)(config);
             let mut row = StageStatus {
                 stage: stage.name.to_string(),
@@ -365,7 +367,7 @@ impl Pipeline {
             }
             let dir = work.join(stage.name);
             let previous = Manifest::read(&dir);
-            let inputs = self.current_inputs(stage, capture, previous.as_ref())?;
+            let inputs = self.current_inputs(stage, capture, config, previous.as_ref())?;
             let params = (stage.params)(config);
             let reasons =
                 match Self::freshness(&dir, previous.as_ref(), &inputs, &params, stage.name) {
@@ -415,7 +417,7 @@ impl Pipeline {
 /// Run one stage into its partial folder and swap the result in.
 fn execute(
     stage: &StageDef,
-    run: &crate::stage::RunFn,
+    run: &RunFn,
     capture: &Capture,
     config: &CaptureConfig,
     params: serde_json::Value,
@@ -458,14 +460,13 @@ fn execute(
     );
     let ctx = StageContext {
         capture,
-        config,
         out_dir: partial.clone(),
         resume,
         progress: &progress,
         tool_versions: Mutex::new(tools),
     };
     let clock = Instant::now();
-    let outcome = match catch_unwind(AssertUnwindSafe(|| run(&ctx))) {
+    let outcome = match catch_unwind(AssertUnwindSafe(|| run(&ctx, config))) {
         Ok(result) => result,
         Err(panic) => {
             let msg = panic

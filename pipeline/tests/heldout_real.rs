@@ -12,10 +12,10 @@ use std::fs;
 use std::path::Path;
 
 use common::fixture;
-use pipeline::evaluation::{EvalSettings, capture_heldout_views};
 use pipeline::heldout::HELDOUT_FILE;
 use pipeline::report::{OutputMode, Reporter};
 use pipeline::runner::Selection;
+use pipeline::stages::eval::{EvalSettings, capture_heldout_views};
 use pipeline::{engine_inputs, simulate};
 use rig::frames::FramesIndex;
 
@@ -210,7 +210,7 @@ fn heldout_cameras_of_a_real_capture_are_posed_never_trained_and_measured() {
         ["cam4", "cam5"]
     );
     // `pipeline render --path heldout` follows them.
-    let (_, train_cams, held_cams) = pipeline::rendering::path_cameras(&work).unwrap();
+    let (_, train_cams, held_cams) = pipeline::stages::render::path_cameras(&work).unwrap();
     assert_eq!(
         names(&shared_types::CameraSet::new(train_cams)),
         ["cam0", "cam1", "cam2", "cam3"]

@@ -19,7 +19,7 @@ use splat4d::eval::EvalView;
 use crate::engine_inputs::{load_frame, load_trained_model, pinhole_cameras, time_mapping};
 use crate::heldout::HELDOUT_FILE;
 use crate::layout::Capture;
-use crate::stage::StageContext;
+use crate::stage_context::StageContext;
 
 /// `[eval]` settings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -263,6 +263,7 @@ fn train_picks(frames: usize, cameras: usize, n: usize) -> Vec<(usize, usize)> {
 /// A spread of the training views (undistorted copies in `gt_dir` where needed).
 fn train_views(
     ctx: &StageContext,
+    settings: &EvalSettings,
     poses: &CameraSet,
     index: &FramesIndex,
     mapping: &TimeMapping,
@@ -272,7 +273,7 @@ fn train_views(
     let picks = train_picks(
         index.frames.len(),
         index.cameras.len(),
-        ctx.config.eval.train_views,
+        settings.train_views,
     );
     frame_views(
         &ctx.stage_dir("frames"),
@@ -284,17 +285,21 @@ fn train_views(
     )
 }
 
-/// The `eval` stage.
-pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
+/// The `eval` stage; `heldout_cameras` are the held-out camera names of `[capture] heldout`.
+pub fn run(
+    ctx: &StageContext,
+    settings: &EvalSettings,
+    heldout_cameras: &[String],
+) -> anyhow::Result<()> {
     let model = load_trained_model(&ctx.capture.work_dir())?;
     let poses = PosesFile::read(&ctx.stage_dir("poses").join("cameras.json"))?;
     let index = FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
     let mapping = time_mapping(&index);
     let gt_dir = ctx.output("groundtruth");
-    let heldout = if ctx.config.capture.heldout.is_empty() {
+    let heldout = if heldout_cameras.is_empty() {
         heldout_views(
             ctx.capture,
-            &ctx.config.eval,
+            settings,
             &poses.set,
             &mapping,
             &gt_dir.join("heldout"),
@@ -303,7 +308,7 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
         capture_heldout_views(
             &ctx.stage_dir("frames"),
             &ctx.stage_dir("poses"),
-            &ctx.config.eval,
+            settings,
             &mapping,
             &gt_dir.join("heldout"),
         )?
@@ -313,8 +318,15 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
             "no held-out views (no [capture] heldout cameras and no groundtruth/heldout/): only training views are measured, which shows fit, not novel-view quality"
         );
     }
-    let train = train_views(ctx, &poses.set, &index, &mapping, &gt_dir.join("train"))?;
-    let lpips = match &ctx.config.eval.lpips {
+    let train = train_views(
+        ctx,
+        settings,
+        &poses.set,
+        &index,
+        &mapping,
+        &gt_dir.join("train"),
+    )?;
+    let lpips = match &settings.lpips {
         Some(path) => {
             let path = ctx.capture.resolve(path);
             Some(splat4d::lpips::Lpips::load(&path).with_context(|| {

@@ -1,16 +1,23 @@
-//! The `init` stage: the initial point cloud from MASt3R-style point maps (an ONNX model
-//! run here, or exported maps), else the sparse pose points, else a random cloud
-//! (`calib::init`, docs/init.md).
+//! The `init` stage: the initial point cloud, from MASt3R-style point maps (an ONNX model
+//! run here on pairs of the first aligned frames, or point maps exported beforehand),
+//! else the poses stage's sparse points, else a random cloud (`calib::init`,
+//! docs/init.md), into `points.ply` and `init.json`.
 
 use anyhow::Context;
-use calib::init::{InitInputs, ViewImage};
+use calib::init::{InitConfig, InitInputs, ViewImage};
 use calib::poses::PosesFile;
 use rig::frames::FramesIndex;
+use shared_types::atomic::write_atomic;
 
-use crate::stage::StageContext;
+use crate::engine_inputs::time_mapping;
+use crate::stage_context::StageContext;
+
+/// `[init]` settings: the initialiser's own. `model` (the ONNX point-map model) and
+/// `pointmaps` (a folder of exported point maps) are relative to the capture directory.
+pub type InitSettings = InitConfig;
 
 /// The `init` stage.
-pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
+pub fn run(ctx: &StageContext, settings: &InitSettings) -> anyhow::Result<()> {
     let frames_dir = ctx.stage_dir("frames");
     let index = FramesIndex::read_json(&frames_dir.join("frames.json"))?;
     let poses_dir = ctx.stage_dir("poses");
@@ -19,7 +26,7 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
         .frames
         .first()
         .context("the frames stage wrote no frames; rerun it")?;
-    let mapping = crate::engine_inputs::time_mapping(&index);
+    let mapping = time_mapping(&index);
     let images = index
         .cameras
         .iter()
@@ -35,7 +42,7 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
         .as_ref()
         .map(|f| poses_dir.join(f))
         .filter(|p| p.exists());
-    let mut config = ctx.config.init.clone();
+    let mut config = settings.clone();
     config.model = config.model.map(|p| ctx.capture.resolve(&p));
     config.pointmaps = config.pointmaps.map(|p| ctx.capture.resolve(&p));
     let inputs = InitInputs {
@@ -44,7 +51,7 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
         sparse,
     };
     let report = calib::init::run_init(&inputs, &config, &ctx.out_dir, ctx.progress)?;
-    shared_types::atomic::write_atomic(
+    write_atomic(
         &ctx.output("init.json"),
         &serde_json::to_vec_pretty(&report)?,
     )

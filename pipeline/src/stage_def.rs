@@ -1,19 +1,19 @@
 //! A stage, declared once: its name, the stages it reads from, the capture files it
-//! reads, the outputs it must produce, its parameters and the function that does the work.
+//! reads, the outputs it must produce, its parameters and the function that does the
+//! work. This module only declares; `stages` lists the pipeline's stages and `runner`
+//! runs them.
 
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
-use std::sync::Mutex;
-
-use shared_types::Progress;
+use std::path::PathBuf;
 
 use crate::config::CaptureConfig;
 use crate::layout::Capture;
+use crate::stage_context::StageContext;
 
-/// The work of a stage: read inputs, write outputs under `ctx.out_dir`.
-pub type RunFn = Box<dyn Fn(&StageContext) -> anyhow::Result<()> + Send + Sync>;
-/// The capture files (or folders) a stage reads, given the capture directory.
-pub type InputsFn = Box<dyn Fn(&Capture) -> Vec<PathBuf> + Send + Sync>;
+/// The work of a stage: read inputs and the settings, write outputs under `ctx.out_dir`.
+pub type RunFn = Box<dyn Fn(&StageContext, &CaptureConfig) -> anyhow::Result<()> + Send + Sync>;
+/// The capture files (or folders) a stage reads, given the capture directory and the
+/// settings (which may name files, e.g. `[init] model`).
+pub type InputsFn = Box<dyn Fn(&Capture, &CaptureConfig) -> Vec<PathBuf> + Send + Sync>;
 /// The parameters of a stage, given the settings.
 pub type ParamsFn = Box<dyn Fn(&CaptureConfig) -> serde_json::Value + Send + Sync>;
 
@@ -44,7 +44,7 @@ impl StageDef {
             name,
             summary,
             after: Vec::new(),
-            inputs: Box::new(|_| Vec::new()),
+            inputs: Box::new(|_, _| Vec::new()),
             outputs: Vec::new(),
             params: Box::new(move |config| config.section(name)),
             run: None,
@@ -57,7 +57,10 @@ impl StageDef {
         self
     }
 
-    pub fn inputs(mut self, f: impl Fn(&Capture) -> Vec<PathBuf> + Send + Sync + 'static) -> Self {
+    pub fn inputs(
+        mut self,
+        f: impl Fn(&Capture, &CaptureConfig) -> Vec<PathBuf> + Send + Sync + 'static,
+    ) -> Self {
         self.inputs = Box::new(f);
         self
     }
@@ -77,7 +80,7 @@ impl StageDef {
 
     pub fn run(
         mut self,
-        f: impl Fn(&StageContext) -> anyhow::Result<()> + Send + Sync + 'static,
+        f: impl Fn(&StageContext, &CaptureConfig) -> anyhow::Result<()> + Send + Sync + 'static,
     ) -> Self {
         self.run = Some(Box::new(f));
         self
@@ -86,37 +89,5 @@ impl StageDef {
     pub fn resumable(mut self) -> Self {
         self.resumable = true;
         self
-    }
-}
-
-/// What a running stage sees.
-pub struct StageContext<'a> {
-    pub capture: &'a Capture,
-    pub config: &'a CaptureConfig,
-    /// Where to write outputs. It becomes `work/<stage>/` only if the stage succeeds.
-    pub out_dir: PathBuf,
-    /// A resumable stage finds its own earlier, interrupted work in `out_dir` (same
-    /// parameters and inputs): continue it.
-    pub resume: bool,
-    pub progress: &'a dyn Progress,
-    pub(crate) tool_versions: Mutex<BTreeMap<String, String>>,
-}
-
-impl StageContext<'_> {
-    /// Finished outputs of another (upstream) stage.
-    pub fn stage_dir(&self, stage: &str) -> PathBuf {
-        self.capture.work_dir().join(stage)
-    }
-
-    /// Record the version of a program or library used, for the manifest.
-    pub fn record_tool(&self, name: &str, version: &str) {
-        if let Ok(mut tools) = self.tool_versions.lock() {
-            tools.insert(name.to_string(), version.to_string());
-        }
-    }
-
-    /// A path inside the output folder.
-    pub fn output(&self, relative: impl AsRef<Path>) -> PathBuf {
-        self.out_dir.join(relative)
     }
 }

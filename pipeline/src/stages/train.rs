@@ -6,11 +6,19 @@
 
 use anyhow::{Context, bail};
 use splat4d::Gaussians;
-use splat4d::train::{PointCloud, TrainError, TrainHooks, View};
+use splat4d::decay::DecayConfig;
+use splat4d::train::{PointCloud, TrainConfig, TrainError, TrainHooks, View};
 
 use crate::engine_inputs::load_dataset;
 use crate::interrupt::{Graceful, stop_requested};
-use crate::stage::StageContext;
+use crate::stage_context::StageContext;
+
+/// `[train]` settings: the trainer's own (iterations, learning rates, densification, …).
+pub type TrainSettings = TrainConfig;
+
+/// `[decay]` settings: the 4C4D opacity decay the train stage trains with
+/// (`variant = "none"`: plain 4DGS).
+pub type DecaySettings = DecayConfig;
 
 /// The stage's hooks: the method's hooks (4C4D decay, or none) plus the Ctrl-C stop.
 struct StageHooks<'a> {
@@ -62,7 +70,11 @@ fn initial_points(ctx: &StageContext) -> anyhow::Result<PointCloud> {
 }
 
 /// The `train` stage.
-pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
+pub fn run(
+    ctx: &StageContext,
+    settings: &TrainSettings,
+    decay: &DecaySettings,
+) -> anyhow::Result<()> {
     let cameras_file = ctx.stage_dir("poses").join("cameras.json");
     ctx.progress.message("loading frames");
     let dataset = load_dataset(&ctx.stage_dir("frames"), &cameras_file, ctx.progress)?;
@@ -73,14 +85,13 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
         points.xyz.len(),
         if ctx.resume { " (resuming)" } else { "" }
     );
-    let decay = &ctx.config.decay;
     let mut method = splat4d::decay::DecayHooks::new(decay)
         .map_err(|e| anyhow::anyhow!("capture.toml [decay]: {e}"))?;
     tracing::info!("opacity decay: {:?}", decay.variant);
     let mut hooks = StageHooks { inner: &mut method };
     let _graceful = Graceful::enter();
     let summary = match splat4d::train::train(
-        &ctx.config.train,
+        settings,
         &dataset,
         &points,
         &ctx.out_dir,

@@ -1,6 +1,6 @@
 //! The `render` stage and the `pipeline render` command: the trained model along a camera
 //! path (orbit, spiral, interpolate, train, heldout) with time frozen, swept or real, as
-//! PNG frames (colour, colour-mapped depth, alpha) and an H.264 MP4
+//! PNG frames (`rgb/`, colour-mapped `depth/`, `alpha/`) and an H.264 `render.mp4`
 //! (`splat4d::paths`, `splat4d::eval::render_path`, `rig::video`).
 
 use std::path::Path;
@@ -15,7 +15,8 @@ use splat4d::eval::FrameOutputs;
 use splat4d::paths::{PathKind, PathSpec, TimeMode, camera_path};
 
 use crate::engine_inputs::{load_trained_model, pinhole_cameras};
-use crate::stage::StageContext;
+use crate::heldout::pinhole_heldout_cameras;
+use crate::stage_context::StageContext;
 
 /// `[render]` settings (the same keys as the `pipeline render` flags).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -61,7 +62,7 @@ pub fn path_cameras(work_dir: &Path) -> anyhow::Result<(FramesIndex, Vec<Camera>
         .into_iter()
         .map(|(c, _)| c)
         .collect();
-    let heldout = crate::heldout::pinhole_heldout_cameras(work_dir)?;
+    let heldout = pinhole_heldout_cameras(work_dir)?;
     Ok((index, train, heldout))
 }
 
@@ -123,10 +124,9 @@ pub fn render(
 }
 
 /// The `render` stage.
-pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
+pub fn run(ctx: &StageContext, settings: &RenderSettings) -> anyhow::Result<()> {
     let model = load_trained_model(&ctx.capture.work_dir())?;
     let (index, cameras, heldout) = path_cameras(&ctx.capture.work_dir())?;
-    let settings = &ctx.config.render;
     let frames = render(
         &model,
         &cameras,
