@@ -487,8 +487,8 @@ fn execute(
                 .with_context(|| format!("cannot remove {}", key_file.display()))?;
         }
         for required in &stage.outputs {
-            if !partial.join(required).exists() {
-                bail!("the stage finished without writing {required}");
+            if !required.is_in(&partial) {
+                bail!("the stage finished without writing {}", required.describe());
             }
         }
         let (outputs, outputs_digest) =

@@ -21,6 +21,9 @@ use crate::heldout::HELDOUT_FILE;
 use crate::layout::Capture;
 use crate::stage_context::StageContext;
 
+/// The simulator's ground truth in a capture directory (cameras, offsets, held-out views).
+const GROUNDTRUTH_DIR: &str = "groundtruth";
+
 /// `[eval]` settings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -43,6 +46,14 @@ impl Default for EvalSettings {
             heldout_per_camera: 0,
         }
     }
+}
+
+/// The capture files the stage reads: the simulator's ground truth (`groundtruth/`, when
+/// present) and the `lpips` weights, when set.
+pub fn inputs(capture: &Capture, settings: &EvalSettings) -> Vec<PathBuf> {
+    let mut inputs = vec![capture.root.join(GROUNDTRUTH_DIR)];
+    inputs.extend(settings.lpips.as_deref().map(|path| capture.resolve(path)));
+    inputs
 }
 
 /// `n` evenly spread picks of `0..len` (all when `n` is 0 or ≥ `len`).
@@ -86,7 +97,7 @@ pub fn heldout_views(
     mapping: &TimeMapping,
     gt_dir: &Path,
 ) -> anyhow::Result<Vec<EvalView>> {
-    let truth_dir = capture.root.join("groundtruth");
+    let truth_dir = capture.root.join(GROUNDTRUTH_DIR);
     let heldout_dir = truth_dir.join("heldout");
     if !heldout_dir.is_dir() {
         return Ok(Vec::new());

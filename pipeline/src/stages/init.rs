@@ -3,6 +3,8 @@
 //! else the poses stage's sparse points, else a random cloud (`calib::init`,
 //! docs/init.md), into `points.ply` and `init.json`.
 
+use std::path::PathBuf;
+
 use anyhow::Context;
 use calib::init::{InitConfig, InitInputs, ViewImage};
 use calib::poses::PosesFile;
@@ -10,11 +12,21 @@ use rig::frames::FramesIndex;
 use shared_types::atomic::write_atomic;
 
 use crate::engine_inputs::time_mapping;
+use crate::layout::Capture;
 use crate::stage_context::StageContext;
 
 /// `[init]` settings: the initialiser's own. `model` (the ONNX point-map model) and
 /// `pointmaps` (a folder of exported point maps) are relative to the capture directory.
 pub type InitSettings = InitConfig;
+
+/// The capture files the stage reads: the `model` file and the `pointmaps` folder, when set.
+pub fn inputs(capture: &Capture, settings: &InitSettings) -> Vec<PathBuf> {
+    [&settings.model, &settings.pointmaps]
+        .into_iter()
+        .flatten()
+        .map(|path| capture.resolve(path))
+        .collect()
+}
 
 /// The `init` stage.
 pub fn run(ctx: &StageContext, settings: &InitSettings) -> anyhow::Result<()> {

@@ -92,6 +92,7 @@ pub fn pipeline() -> Pipeline {
                 "initial point cloud from MASt3R-style point maps or COLMAP points",
             )
             .after(&["frames", "poses"])
+            .inputs(|c, config| init::inputs(c, &config.init))
             .outputs(&["points.ply", "init.json"])
             .run(|ctx, config| init::run(ctx, &config.init)),
             StageDef::new("train", "train the 4C4D Gaussian model")
@@ -102,13 +103,14 @@ pub fn pipeline() -> Pipeline {
                 .run(|ctx, config| train::run(ctx, &config.train, &config.decay)),
             StageDef::new("render", "render videos along camera paths")
                 .after(&["frames", "poses", "train"])
+                .output_one_of(&render::OUTPUTS)
                 .run(|ctx, config| render::run(ctx, &config.render)),
             StageDef::new(
                 "eval",
                 "metrics on held-out views (PSNR, SSIM, DSSIM, LPIPS)",
             )
             .after(&["sync", "frames", "poses", "train"])
-            .inputs(|c, _| vec![c.root.join("groundtruth")])
+            .inputs(|c, config| eval::inputs(c, &config.eval))
             .params(with_heldout("eval"))
             .outputs(&["metrics.json", "per_frame.csv"])
             .run(|ctx, config| eval::run(ctx, &config.eval, &config.capture.heldout)),

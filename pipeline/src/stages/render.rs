@@ -18,6 +18,9 @@ use crate::engine_inputs::{load_trained_model, pinhole_cameras};
 use crate::heldout::pinhole_heldout_cameras;
 use crate::stage_context::StageContext;
 
+/// What a render writes, at least one of which proves it ran: the video, or PNG frames.
+pub const OUTPUTS: [&str; 4] = ["render.mp4", "rgb/", "depth/", "alpha/"];
+
 /// `[render]` settings (the same keys as the `pipeline render` flags).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
