@@ -64,16 +64,28 @@ fn write(root: &Path, file: &str, bytes: &[u8]) {
     fs::write(path, bytes).unwrap();
 }
 
-/// Bring `stage` up to date, change `file` (capture-relative) with `change`, and check
+/// A capture of 4 cameras with `capture.toml` = `settings` and the extra `files`
+/// (capture-relative path, contents).
+fn capture_with(settings: &str, files: &[(&str, &[u8])]) -> tempfile::TempDir {
+    let tmp = tempfile::tempdir().unwrap();
+    make_capture(tmp.path(), 4, 0);
+    write(tmp.path(), "capture.toml", settings.as_bytes());
+    for (file, bytes) in files {
+        write(tmp.path(), file, bytes);
+    }
+    tmp
+}
+
+/// Bring `stage` up to date, write `file` (capture-relative) anew with `bytes`, and check
 /// that `status` names the change and the next run reruns the stage.
-fn changing_reruns(root: &Path, stage: &str, file: &str, change: impl FnOnce(&Path)) {
+fn rewriting_reruns(root: &Path, stage: &str, file: &str, bytes: &[u8]) {
     let p = Pipeline {
         stages: vec![stand_in(stage)],
     };
     let first = run(&p, root);
     assert!(first.failed.is_none(), "{first:?}");
     assert_eq!(run(&p, root).skipped, [stage], "unchanged: up to date");
-    change(&root.join(file));
+    write(root, file, bytes);
     let (state, details) = status(&p, root);
     assert_eq!(state, State::Stale, "{details:?}");
     assert!(
@@ -85,46 +97,31 @@ fn changing_reruns(root: &Path, stage: &str, file: &str, change: impl FnOnce(&Pa
 
 #[test]
 fn replacing_the_init_model_reruns_init() {
-    let tmp = tempfile::tempdir().unwrap();
-    let root = make_capture(tmp.path(), 4, 0);
-    fs::write(
-        root.join("capture.toml"),
+    let model = "models/mast3r.onnx";
+    let tmp = capture_with(
         "[init]\nmodel = \"models/mast3r.onnx\"\n",
-    )
-    .unwrap();
-    write(&root, "models/mast3r.onnx", b"onnx weights v1");
-    changing_reruns(&root, "init", "models/mast3r.onnx", |path| {
-        fs::write(path, b"onnx weights v2, retrained").unwrap()
-    });
+        &[(model, b"onnx weights v1")],
+    );
+    rewriting_reruns(tmp.path(), "init", model, b"onnx weights v2, retrained");
 }
 
 #[test]
 fn replacing_or_adding_a_point_map_reruns_init() {
-    let tmp = tempfile::tempdir().unwrap();
-    let root = make_capture(tmp.path(), 4, 0);
-    fs::write(root.join("capture.toml"), "[init]\npointmaps = \"maps\"\n").unwrap();
-    write(&root, "maps/cam0__cam1.npz", b"maps v1");
-    changing_reruns(&root, "init", "maps/cam0__cam1.npz", |path| {
-        fs::write(path, b"maps v2").unwrap()
-    });
-    changing_reruns(&root, "init", "maps/cam1__cam2.npz", |path| {
-        fs::write(path, b"a new pair").unwrap()
-    });
+    let tmp = capture_with(
+        "[init]\npointmaps = \"maps\"\n",
+        &[("maps/cam0__cam1.npz", b"maps v1")],
+    );
+    rewriting_reruns(tmp.path(), "init", "maps/cam0__cam1.npz", b"maps v2");
+    rewriting_reruns(tmp.path(), "init", "maps/cam1__cam2.npz", b"a new pair");
 }
 
 #[test]
 fn replacing_the_lpips_weights_reruns_eval() {
-    let tmp = tempfile::tempdir().unwrap();
-    let root = make_capture(tmp.path(), 4, 0);
-    fs::write(
-        root.join("capture.toml"),
+    let tmp = capture_with(
         "[eval]\nlpips = \"lpips.onnx\"\n",
-    )
-    .unwrap();
-    write(&root, "lpips.onnx", b"alex v0.1");
-    changing_reruns(&root, "eval", "lpips.onnx", |path| {
-        fs::write(path, b"vgg v0.1").unwrap()
-    });
+        &[("lpips.onnx", b"alex v0.1")],
+    );
+    rewriting_reruns(tmp.path(), "eval", "lpips.onnx", b"vgg v0.1");
 }
 
 #[test]

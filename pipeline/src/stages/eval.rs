@@ -183,20 +183,8 @@ pub fn capture_heldout_views(
     mapping: &TimeMapping,
     gt_dir: &Path,
 ) -> anyhow::Result<Vec<EvalView>> {
-    let index_path = frames_dir.join(HELDOUT_FILE);
-    let index = FramesIndex::read_json(&index_path).with_context(|| {
-        format!(
-            "cannot read the held-out cameras' frames {}; rerun the frames stage (`pipeline run CAPTURE --from frames --force`)",
-            index_path.display()
-        )
-    })?;
-    let poses_path = poses_dir.join(HELDOUT_FILE);
-    let poses = PosesFile::read(&poses_path).with_context(|| {
-        format!(
-            "cannot read the held-out cameras' poses {}; rerun the poses stage (`pipeline run CAPTURE --from poses --force`)",
-            poses_path.display()
-        )
-    })?;
+    let (index, _) = read_heldout_file(frames_dir, "frames", FramesIndex::read_json)?;
+    let (poses, poses_path) = read_heldout_file(poses_dir, "poses", PosesFile::read)?;
     let cameras = pinhole_cameras(&index, &poses.set, &poses_path)?;
     let picks = (0..cameras.len())
         .flat_map(|c| {
@@ -206,6 +194,26 @@ pub fn capture_heldout_views(
         })
         .collect::<Vec<_>>();
     frame_views(frames_dir, &index, &cameras, picks, mapping, gt_dir)
+}
+
+/// `heldout.json` of the `stage` folder `dir` (the held-out cameras' frames or poses),
+/// read with `read`; the error says which stage to rerun. Returns it with its path.
+fn read_heldout_file<T, E>(
+    dir: &Path,
+    stage: &str,
+    read: impl FnOnce(&Path) -> Result<T, E>,
+) -> anyhow::Result<(T, PathBuf)>
+where
+    E: std::error::Error + Send + Sync + 'static,
+{
+    let path = dir.join(HELDOUT_FILE);
+    let value = read(&path).with_context(|| {
+        format!(
+            "cannot read the held-out cameras' {stage} {}; rerun the {stage} stage (`pipeline run CAPTURE --from {stage} --force`)",
+            path.display()
+        )
+    })?;
+    Ok((value, path))
 }
 
 /// Eval views of the aligned frames `picks` (frame, camera index) of `index`, at the
