@@ -1,7 +1,8 @@
-//! `pipeline bench ablation SCENE`: the paper's decay ablation on a simulated 4-camera
-//! scene with held-out cameras. The scene is simulated once, its true video cameras are
-//! imported as the calibration (so pose errors do not blur the comparison), the capture
-//! stages and the point initialisation run once, then every decay variant
+//! `pipeline bench ablation SCENE`: the 4C4D opacity-decay ablation (how much each decay
+//! variant, against none, changes novel-view quality) on a simulated 4-camera scene with
+//! held-out cameras. The scene is simulated once, its true video cameras are imported as
+//! the calibration (so pose errors do not blur the comparison), the capture stages and the
+//! point initialisation run once, then every decay variant
 //! (`DecayConfig::variants_for_ablation`) trains from the same points with the same
 //! settings and seed and is measured on the held-out views. Writes
 //! `work/bench/ablation.md` and `ablation.csv` in the capture directory.
@@ -129,7 +130,8 @@ fn cell(v: Option<f64>, digits: usize) -> String {
     v.map_or("–".into(), |v| format!("{v:.digits$}"))
 }
 
-/// The paper-style table.
+/// The results as a Markdown table: one row per variant with held-out PSNR, DSSIM₁,
+/// DSSIM₂, LPIPS, Gaussian count and training seconds.
 pub fn markdown(header: &str, rows: &[AblationRow]) -> String {
     let mut s = format!(
         "# Decay ablation\n\n{header}\n\n| variant | PSNR ↑ | DSSIM₁ ↓ | DSSIM₂ ↓ | LPIPS ↓ | Gaussians | train s |\n|---|---|---|---|---|---|---|\n"

@@ -183,7 +183,8 @@ fn parse_size(s: &str) -> Result<[u32; 2], String> {
 #[derive(Debug, Subcommand)]
 pub enum BenchCommand {
     /// Train every 4C4D decay variant on a simulated scene with held-out cameras and write
-    /// the paper-style table (PSNR, DSSIM1, DSSIM2, LPIPS) to work/bench/ablation.md + .csv.
+    /// a table of held-out PSNR, DSSIM1, DSSIM2 and LPIPS per variant to
+    /// work/bench/ablation.md + .csv.
     ///
     /// Example: pipeline bench ablation fixtures/demo.toml /tmp/ablation --iterations 600
     Ablation {

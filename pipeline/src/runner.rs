@@ -5,8 +5,9 @@
 //! upstream stage changed (content hashes, so an upstream rerun that reproduces identical
 //! outputs does not force the whole chain to rerun), when one of its outputs went missing,
 //! or with `--force`. Outputs are written to `work/.<stage>.partial/` and renamed to
-//! `work/<stage>/` on success; a failure or an interruption leaves the previous outputs
-//! untouched and is recorded in `work/.status/<stage>.json` for `status`.
+//! `work/<stage>/` on success; a stage that finishes without one of its required outputs
+//! has failed. A failure or an interruption leaves the previous outputs untouched and is
+//! recorded in `work/.status/<stage>.json` for `status`.
 
 use std::collections::{BTreeMap, BTreeSet, HashSet};
 use std::fs;

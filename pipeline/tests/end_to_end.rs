@@ -157,7 +157,7 @@ fn simulated_flash_capture_with_dropped_frames_is_synchronised() {
     );
 }
 
-/// Issue 8's acceptance check on a simulated capture: COLMAP on the first frame of the 4
+/// The pose acceptance check on a simulated capture: COLMAP on the first frame of the 4
 /// video cameras plus 8 stills of `poses.toml`, compared with the ground truth after a
 /// similarity alignment. (It used to converge to degenerate solves: the room's texture
 /// tile repeated, SIFT matched copies of it; the simulator now lays non-periodic spots
@@ -200,7 +200,7 @@ fn simulated_static_capture_gets_poses_from_colmap() {
         index.cameras[0].width
     );
 
-    // Issue 9: the true depth as exported point maps, aligned to the solved poses: every
+    // The true depth as exported point maps, aligned to the solved poses: every
     // pair accepted, its ray scale agreeing with COLMAP's sparse points.
     let maps = simulate::write_truth_pointmaps(&root).unwrap();
     assert_eq!(fs::read_dir(&maps).unwrap().count(), 6);
