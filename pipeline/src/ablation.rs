@@ -1,7 +1,8 @@
-//! `pipeline bench ablation SCENE`: the paper's decay ablation on a simulated 4-camera
-//! scene with held-out cameras. The scene is simulated once, its true video cameras are
-//! imported as the calibration (so pose errors do not blur the comparison), the capture
-//! stages and the point initialisation run once, then every decay variant
+//! `pipeline bench ablation SCENE`: the 4C4D opacity-decay ablation (how much each decay
+//! variant, against none, changes novel-view quality) on a simulated 4-camera scene with
+//! held-out cameras. The scene is simulated once, its true video cameras are imported as
+//! the calibration (so pose errors do not blur the comparison), the capture stages and the
+//! point initialisation run once, then every decay variant
 //! (`DecayConfig::variants_for_ablation`) trains from the same points with the same
 //! settings and seed and is measured on the held-out views. Writes
 //! `work/bench/ablation.md` and `ablation.csv` in the capture directory.
@@ -64,21 +65,23 @@ pub fn run(
     let work = capture.work_dir();
     let cameras_file = work.join("poses/cameras.json");
     let progress = reporter.progress("ablation");
-    let dataset = crate::training::load_dataset(&work.join("frames"), &cameras_file, &progress)?;
+    let dataset =
+        crate::engine_inputs::load_dataset(&work.join("frames"), &cameras_file, &progress)?;
     let points = shared_types::points::read_points_ply(&work.join("init/points.ply"))?;
     let index = FramesIndex::read_json(&work.join("frames/frames.json"))?;
     let poses = PosesFile::read(&cameras_file)?;
     let bench = work.join("bench");
-    let heldout = crate::evaluation::heldout_views(
+    let heldout = crate::stages::eval::heldout_views(
         &capture,
         &config.eval,
         &poses.set,
-        &crate::training::time_mapping(&index),
+        &crate::engine_inputs::time_mapping(&index),
         &bench.join("heldout-groundtruth"),
     )?;
     let train_config = config.train.with_iterations(iterations);
     let scale = iterations as f64 / config.train.iterations.max(1) as f64;
     let mut rows = Vec::new();
+    let backend = crate::engine_inputs::render_backend();
     for (label, mut decay) in DecayConfig::variants_for_ablation() {
         decay.warmup = (decay.warmup as f64 * scale).round() as u64;
         reporter.say(&format!(
@@ -87,7 +90,7 @@ pub fn run(
         let dir = bench.join("ablation").join(label.replace([' ', '/'], "_"));
         let mut hooks = DecayHooks::new(&decay).map_err(|e| anyhow::anyhow!("{label}: {e}"))?;
         let summary = splat4d::train::train(
-            &splat4d::CpuBackend,
+            backend.as_ref(),
             &train_config,
             &dataset,
             &points,
@@ -98,8 +101,15 @@ pub fn run(
         )
         .with_context(|| format!("training `{label}`"))?;
         let model = splat4d::load_model(&summary.model_path)?;
-        let report =
-            splat4d::eval::evaluate(&splat4d::CpuBackend, &model, &heldout, &[], &dir.join("eval"), None, &progress)?;
+        let report = splat4d::eval::evaluate(
+            backend.as_ref(),
+            &model,
+            &heldout,
+            &[],
+            &dir.join("eval"),
+            None,
+            &progress,
+        )?;
         let m = &report.heldout;
         rows.push(AblationRow {
             label,
@@ -111,7 +121,7 @@ pub fn run(
             seconds: summary.seconds,
         });
     }
-    splat4d::Progress::finish(&progress);
+    shared_types::Progress::finish(&progress);
     let md = bench.join("ablation.md");
     let header = format!(
         "scene {}, {} training views, {} held-out views, {iterations} iterations, seed {}",
@@ -120,8 +130,8 @@ pub fn run(
         heldout.len(),
         train_config.seed
     );
-    crate::atomic::write_atomic(&md, markdown(&header, &rows).as_bytes())?;
-    crate::atomic::write_atomic(&bench.join("ablation.csv"), csv(&rows).as_bytes())?;
+    shared_types::atomic::write_atomic(&md, markdown(&header, &rows).as_bytes())?;
+    shared_types::atomic::write_atomic(&bench.join("ablation.csv"), csv(&rows).as_bytes())?;
     Ok(md)
 }
 
@@ -129,7 +139,8 @@ fn cell(v: Option<f64>, digits: usize) -> String {
     v.map_or("–".into(), |v| format!("{v:.digits$}"))
 }
 
-/// The paper-style table.
+/// The results as a Markdown table: one row per variant with held-out PSNR, DSSIM₁,
+/// DSSIM₂, LPIPS, Gaussian count and training seconds.
 pub fn markdown(header: &str, rows: &[AblationRow]) -> String {
     let mut s = format!(
         "# Decay ablation\n\n{header}\n\n| variant | PSNR ↑ | DSSIM₁ ↓ | DSSIM₂ ↓ | LPIPS ↓ | Gaussians | train s |\n|---|---|---|---|---|---|---|\n"

@@ -4,16 +4,17 @@ use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand, builder::PossibleValuesParser};
 
-use crate::stages::STAGE_NAMES;
+use crate::stages::pipeline;
 
 /// Turn four cameras' recordings into a 4D Gaussian model you can render from any
 /// viewpoint at any moment (4C4D: 4 Camera 4D Gaussian Splatting).
-///
-/// Stages, in order: ingest → sync → frames → poses → init → train → render → eval → export.
-/// Each writes work/<stage>/ in the capture directory and is skipped when its inputs and
-/// settings have not changed.
 #[derive(Debug, Parser)]
-#[command(name = "pipeline", version, propagate_version = true)]
+#[command(
+    name = "pipeline",
+    version,
+    propagate_version = true,
+    after_long_help = stages_help()
+)]
 pub struct Cli {
     /// More log output (-v: debug, -vv: trace).
     #[arg(short, long, action = clap::ArgAction::Count, global = true)]
@@ -96,13 +97,13 @@ pub struct RunArgs {
     /// The capture directory (holds raw/, stills/, capture.toml).
     pub capture_dir: PathBuf,
     /// Start at this stage (earlier stages must have run).
-    #[arg(long, value_parser = PossibleValuesParser::new(STAGE_NAMES))]
+    #[arg(long, value_parser = PossibleValuesParser::new(pipeline().stage_names()))]
     pub from: Option<String>,
     /// Stop after this stage.
-    #[arg(long, value_parser = PossibleValuesParser::new(STAGE_NAMES))]
+    #[arg(long, value_parser = PossibleValuesParser::new(pipeline().stage_names()))]
     pub to: Option<String>,
     /// Run just this stage.
-    #[arg(long, value_parser = PossibleValuesParser::new(STAGE_NAMES), conflicts_with_all = ["from", "to"])]
+    #[arg(long, value_parser = PossibleValuesParser::new(pipeline().stage_names()), conflicts_with_all = ["from", "to"])]
     pub only: Option<String>,
     /// Rerun the selected stages even if they are up to date.
     #[arg(long)]
@@ -157,6 +158,14 @@ pub struct RenderArgs {
     pub out: PathBuf,
 }
 
+/// The stages in order, from the one list of them (`stages::pipeline`).
+fn stages_help() -> String {
+    format!(
+        "Stages, in order: {}.\nEach writes work/<stage>/ in the capture directory and is skipped when its inputs and\nsettings have not changed.",
+        pipeline().stage_names().join(" → ")
+    )
+}
+
 fn parse_size(s: &str) -> Result<[u32; 2], String> {
     let (w, h) = s
         .split_once(['x', 'X'])
@@ -174,7 +183,8 @@ fn parse_size(s: &str) -> Result<[u32; 2], String> {
 #[derive(Debug, Subcommand)]
 pub enum BenchCommand {
     /// Train every 4C4D decay variant on a simulated scene with held-out cameras and write
-    /// the paper-style table (PSNR, DSSIM1, DSSIM2, LPIPS) to work/bench/ablation.md + .csv.
+    /// a table of held-out PSNR, DSSIM1, DSSIM2 and LPIPS per variant to
+    /// work/bench/ablation.md + .csv.
     ///
     /// Example: pipeline bench ablation fixtures/demo.toml /tmp/ablation --iterations 600
     Ablation {
@@ -186,4 +196,16 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 600)]
         iterations: u64,
     },
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::CommandFactory;
+
+    #[test]
+    fn help_lists_the_stages_of_the_pipeline_in_order() {
+        let help = super::Cli::command().render_long_help().to_string();
+        let names = crate::stages::pipeline().stage_names();
+        assert!(help.contains(&names.join(" → ")), "{help}");
+    }
 }

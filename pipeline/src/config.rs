@@ -1,33 +1,43 @@
 //! `capture.toml`: the user's settings for one capture, overriding the defaults.
 //!
-//! Each stage reads its own section (`[sync]`, `[frames]`, …); the section, serialised to
-//! JSON, is that stage's parameter set in its manifest, so changing a key reruns exactly
-//! the stages that read it. Unknown sections and keys are errors that name the key.
+//! Each stage reads its own section (`[sync]`, `[frames]`, …), whose type lives with the
+//! stage in `stages`; the section, serialised to JSON, is that stage's parameter set in
+//! its manifest, so changing a key reruns exactly the stages that read it. Unknown
+//! sections and keys are errors that name the key. This module imports the stages'
+//! sections; no stage imports it.
 
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-/// File name of the settings file inside a capture directory.
-pub const CONFIG_FILE: &str = "capture.toml";
+use crate::layout::CONFIG_FILE;
+use crate::stages::eval;
+use crate::stages::export;
+use crate::stages::frames;
+use crate::stages::ingest;
+use crate::stages::init;
+use crate::stages::poses;
+use crate::stages::render;
+use crate::stages::sync;
+use crate::stages::train;
 
 /// All settings of a capture. Every section is optional in the file.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CaptureConfig {
     pub capture: CaptureSection,
-    pub ingest: StageSettings,
-    pub sync: rig::sync::SyncConfig,
-    pub frames: rig::frames::FramesConfig,
-    pub poses: calib::poses::PosesConfig,
-    pub init: calib::init::InitConfig,
-    pub train: splat4d::train::TrainConfig,
+    pub ingest: ingest::IngestSettings,
+    pub sync: sync::SyncSettings,
+    pub frames: frames::FramesSettings,
+    pub poses: poses::PosesSettings,
+    pub init: init::InitSettings,
+    pub train: train::TrainSettings,
     /// The 4C4D opacity decay used by the `train` stage (`variant = "none"`: plain 4DGS).
-    pub decay: splat4d::decay::DecayConfig,
-    pub render: crate::rendering::RenderSettings,
-    pub eval: crate::evaluation::EvalSettings,
-    pub export: splat4d::export::ExportOptions,
+    pub decay: train::DecaySettings,
+    pub render: render::RenderSettings,
+    pub eval: eval::EvalSettings,
+    pub export: export::ExportSettings,
 }
 
 /// `[capture]`: the rig itself.
@@ -70,12 +80,6 @@ impl CaptureSection {
         None
     }
 }
-
-/// The settings of a stage that has no keys of its own yet; any key in its section is an
-/// error (so a typo never passes silently).
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct StageSettings {}
 
 /// A `capture.toml` that cannot be used.
 #[derive(Debug, Error)]

@@ -15,7 +15,7 @@ use std::path::Path;
 use anyhow::{Context, bail};
 use calib::poses::PosesFile;
 use rig::frames::FramesIndex;
-use splat4d::CameraSet;
+use shared_types::{Camera, CameraSet};
 
 /// File name of the held-out cameras' index in `work/frames/` and of their poses in
 /// `work/poses/`.
@@ -95,7 +95,7 @@ pub fn split_poses(out_dir: &Path, heldout: &[String], origin: &str) -> anyhow::
 /// The held-out cameras of a capture's `work/` folder as the undistorted pinhole cameras
 /// that `eval` renders (e.g. for `[render] path = "heldout"`); empty when the capture
 /// lists no held-out cameras (no `work/frames/heldout.json`).
-pub fn pinhole_heldout_cameras(work_dir: &Path) -> anyhow::Result<Vec<splat4d::Camera>> {
+pub fn pinhole_heldout_cameras(work_dir: &Path) -> anyhow::Result<Vec<Camera>> {
     let index_path = work_dir.join("frames").join(HELDOUT_FILE);
     if !index_path.exists() {
         return Ok(Vec::new());
@@ -104,7 +104,7 @@ pub fn pinhole_heldout_cameras(work_dir: &Path) -> anyhow::Result<Vec<splat4d::C
     let poses_path = work_dir.join("poses").join(HELDOUT_FILE);
     let poses = PosesFile::read(&poses_path)?;
     Ok(
-        crate::training::pinhole_cameras(&index, &poses.set, &poses_path)?
+        crate::engine_inputs::pinhole_cameras(&index, &poses.set, &poses_path)?
             .into_iter()
             .map(|(camera, _)| camera)
             .collect(),
@@ -112,7 +112,7 @@ pub fn pinhole_heldout_cameras(work_dir: &Path) -> anyhow::Result<Vec<splat4d::C
 }
 
 fn write_json(path: &Path, value: &impl serde::Serialize) -> anyhow::Result<()> {
-    crate::atomic::write_atomic(path, &serde_json::to_vec_pretty(value)?)
+    shared_types::atomic::write_atomic(path, &serde_json::to_vec_pretty(value)?)
         .with_context(|| format!("cannot write {}", path.display()))
 }
 
@@ -122,7 +122,7 @@ mod tests {
     use calib::poses::{Normalisation, PoseSource};
     use glam::{DMat3, DVec3};
     use rig::frames::{AlignedFrame, CameraImages, View};
-    use splat4d::{Camera, Distortion, Intrinsics, WorldToCamera};
+    use shared_types::{Distortion, Intrinsics, WorldToCamera};
 
     fn names(n: &[&str]) -> Vec<String> {
         n.iter().map(|s| s.to_string()).collect()

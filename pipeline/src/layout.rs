@@ -21,6 +21,8 @@ use std::path::{Path, PathBuf};
 
 use thiserror::Error;
 
+/// File name of the settings file inside a capture directory.
+pub const CONFIG_FILE: &str = "capture.toml";
 /// File extensions taken as videos (case-insensitive).
 pub const VIDEO_EXTENSIONS: &[&str] = &["mp4", "mov", "m4v", "mkv", "webm", "avi"];
 /// Camera sidecar files that are ignored (GoPro thumbnails and low-res proxies).
@@ -59,7 +61,21 @@ impl Capture {
         self.root.join("work")
     }
     pub fn config_path(&self) -> PathBuf {
-        self.root.join(crate::config::CONFIG_FILE)
+        self.root.join(CONFIG_FILE)
+    }
+    /// A path from `capture.toml`: relative paths are relative to the capture directory.
+    pub fn resolve(&self, path: &Path) -> PathBuf {
+        if path.is_absolute() {
+            path.to_path_buf()
+        } else {
+            self.root.join(path)
+        }
+    }
+    /// Every camera's video files (training and held-out cameras).
+    pub fn all_videos(&self) -> Vec<PathBuf> {
+        self.all_cameras()
+            .flat_map(|c| c.videos.iter().cloned())
+            .collect()
     }
     /// Training cameras, then held-out ones: every camera that is ingested, synchronised,
     /// aligned and posed (the first one is the sync reference by default).

@@ -1,29 +1,35 @@
 //! The stage graph, capture directory, manifests and the `pipeline` command.
 //!
-//! `layout` validates a capture directory, `config` reads `capture.toml`, `stages`
-//! declares the pipeline, `runner` decides what is stale and runs it with atomic
-//! outputs (`manifest`, `atomic`, `lock`), `report` shows progress, `cli` is the
-//! command line.
+//! - `layout` validates a capture directory (reads only); `config` reads `capture.toml`,
+//!   gathering the settings section of each stage.
+//! - `stages` lists the pipeline's stages, in order, with one module per stage holding its
+//!   work and its settings section; `stage_def` is what a stage declares, `stage_context`
+//!   what a running stage sees.
+//! - Shared by several stages: `engine_inputs` (earlier stages' outputs loaded for the
+//!   engine: frames, pinhole cameras, the trained model), `heldout` (held-out cameras
+//!   split off the training ones), `interrupt` (Ctrl-C stops training cleanly).
+//! - `runner` decides what is stale and runs it, with `manifest` (`stage.json`),
+//!   `partial_dir` (outputs appear only when complete) and `lock` (one run per capture).
+//! - `report` shows progress, `status` prints the table, `cli` is the command line;
+//!   `simulate` and `ablation` are the `simulate`/`demo` and `bench ablation` commands.
 
 pub mod ablation;
-pub mod atomic;
 pub mod cli;
 pub mod config;
-pub mod evaluation;
-pub mod exporting;
+pub mod engine_inputs;
 pub mod heldout;
-pub mod initial_points;
+pub mod interrupt;
 pub mod layout;
 pub mod lock;
 pub mod manifest;
-pub mod rendering;
+pub mod partial_dir;
 pub mod report;
 pub mod runner;
 pub mod simulate;
-pub mod stage;
+pub mod stage_context;
+pub mod stage_def;
 pub mod stages;
 pub mod status;
-pub mod training;
 
 use std::path::Path;
 

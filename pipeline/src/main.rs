@@ -7,6 +7,7 @@ use anyhow::Context;
 use clap::Parser;
 use indicatif::MultiProgress;
 use pipeline::cli::{BenchCommand, Cli, Command, RecordArgs, RenderArgs, RunArgs};
+use pipeline::partial_dir::{build_fresh, partial_path, swap_in};
 use pipeline::report::{OutputMode, Reporter};
 use pipeline::runner::{RunSummary, Selection};
 use pipeline::{open_capture, simulate, stages, status};
@@ -38,7 +39,7 @@ fn main() -> ExitCode {
 
 fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     if matches!(command, Command::Run(_) | Command::Demo { .. }) {
-        ctrlc::set_handler(pipeline::training::on_interrupt)
+        ctrlc::set_handler(pipeline::interrupt::on_interrupt)
             .context("cannot install the Ctrl-C handler")?;
     }
     match command {
@@ -124,13 +125,13 @@ fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
 fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     let (capture, _) = open_capture(&args.capture_dir)?;
     let work = capture.work_dir();
-    let model = pipeline::training::load_trained_model(&work)?;
-    let (index, cameras, heldout) = pipeline::rendering::path_cameras(&work)?;
+    let model = pipeline::engine_inputs::load_trained_model(&work)?;
+    let (index, cameras, heldout) = pipeline::stages::render::path_cameras(&work)?;
     let video = args
         .out
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("mp4"));
-    let settings = pipeline::rendering::RenderSettings {
+    let settings = pipeline::stages::render::RenderSettings {
         path: args.path,
         time: args.time,
         frames: args.frames,
@@ -139,30 +140,25 @@ fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
         video,
         png: !video,
     };
-    let name = args
-        .out
+    // The partial folder is a sibling named after --out.
+    args.out
         .file_name()
         .context("--out needs a file or folder name")?;
-    let staging = args
-        .out
-        .with_file_name(format!(".{}.partial", name.to_string_lossy()));
-    if staging.exists() {
-        std::fs::remove_dir_all(&staging)?;
-    }
-    let progress = reporter.progress("render");
-    let frames = pipeline::rendering::render(
-        &model,
-        &cameras,
-        &heldout,
-        &settings,
-        index.frames.len(),
-        index.fps,
-        &staging,
-        &progress,
-    );
-    splat4d::Progress::finish(&progress);
-    let frames = frames.inspect_err(|_| {
-        let _ = std::fs::remove_dir_all(&staging);
+    let staging = partial_path(&args.out);
+    let frames = build_fresh(&staging, |staging| {
+        let progress = reporter.progress("render");
+        let frames = pipeline::stages::render::render(
+            &model,
+            &cameras,
+            &heldout,
+            &settings,
+            index.frames.len(),
+            index.fps,
+            staging,
+            &progress,
+        );
+        shared_types::Progress::finish(&progress);
+        frames
     })?;
     if video {
         std::fs::rename(staging.join("render.mp4"), &args.out)
@@ -172,8 +168,7 @@ fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
         if args.out.exists() {
             anyhow::bail!("{} already exists; choose a new folder", args.out.display());
         }
-        std::fs::rename(&staging, &args.out)
-            .with_context(|| format!("cannot write {}", args.out.display()))?;
+        swap_in(&staging, &args.out)?;
     }
     reporter.say(&format!(
         "{frames} frames written to {}",
@@ -203,7 +198,7 @@ fn record(args: RecordArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
         .context("cannot install the Ctrl-C handler")?;
     let progress = reporter.progress("record");
     let cameras = rig::record::record(&args.devices, &args.capture_dir, &config, &stop, &progress)?;
-    splat4d::Progress::finish(&progress);
+    shared_types::Progress::finish(&progress);
     for cam in &cameras {
         reporter.say(&format!(
             "{}: {} frames in {}",
@@ -249,8 +244,8 @@ fn demo(out_dir: &std::path::Path, reporter: &Reporter) -> anyhow::Result<ExitCo
         ));
         let scene = simulate::demo_scene()?;
         simulate::simulate_into(&scene, out_dir, reporter)?;
-        let settings = out_dir.join(pipeline::config::CONFIG_FILE);
-        pipeline::atomic::write_atomic(&settings, simulate::demo_settings(&scene).as_bytes())
+        let settings = out_dir.join(pipeline::layout::CONFIG_FILE);
+        shared_types::atomic::write_atomic(&settings, simulate::demo_settings(&scene).as_bytes())
             .with_context(|| format!("cannot write {}", settings.display()))?;
     }
     let (capture, config) = open_capture(out_dir)?;

@@ -13,7 +13,7 @@ use std::time::UNIX_EPOCH;
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 
-use crate::atomic::write_atomic;
+use shared_types::atomic::write_atomic;
 
 /// Manifest format version.
 pub const MANIFEST_VERSION: u32 = 1;

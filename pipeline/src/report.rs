@@ -228,7 +228,7 @@ impl StageProgress<'_> {
     }
 }
 
-impl splat4d::Progress for StageProgress<'_> {
+impl shared_types::Progress for StageProgress<'_> {
     fn start(&self, total: u64, unit: &str) {
         self.total.store(total, Ordering::Relaxed);
         self.done.store(0, Ordering::Relaxed);

@@ -5,8 +5,9 @@
 //! upstream stage changed (content hashes, so an upstream rerun that reproduces identical
 //! outputs does not force the whole chain to rerun), when one of its outputs went missing,
 //! or with `--force`. Outputs are written to `work/.<stage>.partial/` and renamed to
-//! `work/<stage>/` on success; a failure or an interruption leaves the previous outputs
-//! untouched and is recorded in `work/.status/<stage>.json` for `status`.
+//! `work/<stage>/` on success; a stage that finishes without one of its required outputs
+//! has failed. A failure or an interruption leaves the previous outputs untouched and is
+//! recorded in `work/.status/<stage>.json` for `status`.
 
 use std::collections::{BTreeMap, BTreeSet, HashSet};
 use std::fs;
@@ -26,8 +27,10 @@ use crate::manifest::{
     InputRecord, MANIFEST_VERSION, Manifest, RunRecord, RunState, file_stamp, hash_bytes,
     record_input, record_outputs,
 };
+use crate::partial_dir::{partial_path, recover_interrupted_swap, swap_in};
 use crate::report::{Event, Reporter};
-use crate::stage::{StageContext, StageDef};
+use crate::stage_context::StageContext;
+use crate::stage_def::{RunFn, StageDef};
 
 /// The stages of a pipeline, in execution order.
 pub struct Pipeline {
@@ -152,10 +155,11 @@ impl Pipeline {
         &self,
         stage: &StageDef,
         capture: &Capture,
+        config: &CaptureConfig,
         previous: Option<&Manifest>,
     ) -> anyhow::Result<BTreeMap<String, InputRecord>> {
         let mut inputs = BTreeMap::new();
-        for path in expand_inputs((stage.inputs)(capture))? {
+        for path in expand_inputs((stage.inputs)(capture, config))? {
             let key = path
                 .strip_prefix(&capture.root)
                 .unwrap_or(&path)
@@ -236,7 +240,7 @@ impl Pipeline {
         for stage in &self.stages {
             let dir = work.join(stage.name);
             let manifest = Manifest::read(&dir);
-            let inputs = self.current_inputs(stage, capture, manifest.as_ref())?;
+            let inputs = self.current_inputs(stage, capture, config, manifest.as_ref())?;
             let params = (stage.params)(config);
             let mut row = StageStatus {
                 stage: stage.name.to_string(),
@@ -323,7 +327,9 @@ impl Pipeline {
         let selected = self.select(sel)?;
         let work = capture.work_dir();
         let _lock = CaptureLock::acquire(&work)?;
-        recover_interrupted_swaps(&work, &self.stage_names());
+        for stage in &self.stages {
+            recover_interrupted_swap(&work.join(stage.name));
+        }
         let mut summary = RunSummary::default();
         let mut unavailable: HashSet<&str> = HashSet::new();
         for &index in &selected {
@@ -362,7 +368,7 @@ impl Pipeline {
             }
             let dir = work.join(stage.name);
             let previous = Manifest::read(&dir);
-            let inputs = self.current_inputs(stage, capture, previous.as_ref())?;
+            let inputs = self.current_inputs(stage, capture, config, previous.as_ref())?;
             let params = (stage.params)(config);
             let reasons =
                 match Self::freshness(&dir, previous.as_ref(), &inputs, &params, stage.name) {
@@ -412,7 +418,7 @@ impl Pipeline {
 /// Run one stage into its partial folder and swap the result in.
 fn execute(
     stage: &StageDef,
-    run: &crate::stage::RunFn,
+    run: &RunFn,
     capture: &Capture,
     config: &CaptureConfig,
     params: serde_json::Value,
@@ -421,7 +427,7 @@ fn execute(
     reporter: &Reporter,
 ) -> anyhow::Result<Manifest> {
     let work = capture.work_dir();
-    let partial = work.join(format!(".{}.partial", stage.name));
+    let partial = partial_path(&work.join(stage.name));
     // A resumable stage continues from its partial folder only when that folder was
     // started with the same parameters and inputs (and without --force).
     let key = resume_key(&params, &inputs);
@@ -433,7 +439,7 @@ fn execute(
     }
     fs::create_dir_all(&partial).with_context(|| format!("cannot create {}", partial.display()))?;
     if stage.resumable {
-        crate::atomic::write_atomic(&key_file, key.as_bytes())
+        shared_types::atomic::write_atomic(&key_file, key.as_bytes())
             .with_context(|| format!("cannot write {}", key_file.display()))?;
     }
     let started = Utc::now();
@@ -455,14 +461,13 @@ fn execute(
     );
     let ctx = StageContext {
         capture,
-        config,
         out_dir: partial.clone(),
         resume,
         progress: &progress,
         tool_versions: Mutex::new(tools),
     };
     let clock = Instant::now();
-    let outcome = match catch_unwind(AssertUnwindSafe(|| run(&ctx))) {
+    let outcome = match catch_unwind(AssertUnwindSafe(|| run(&ctx, config))) {
         Ok(result) => result,
         Err(panic) => {
             let msg = panic
@@ -475,7 +480,7 @@ fn execute(
             ))
         }
     };
-    splat4d::Progress::finish(&progress);
+    shared_types::Progress::finish(&progress);
     let duration_s = clock.elapsed().as_secs_f64();
     let finished = outcome.and_then(|()| {
         if stage.resumable {
@@ -483,8 +488,8 @@ fn execute(
                 .with_context(|| format!("cannot remove {}", key_file.display()))?;
         }
         for required in &stage.outputs {
-            if !partial.join(required).exists() {
-                bail!("the stage finished without writing {required}");
+            if !required.is_in(&partial) {
+                bail!("the stage finished without writing {}", required.describe());
             }
         }
         let (outputs, outputs_digest) =
@@ -503,7 +508,7 @@ fn execute(
         manifest
             .write(&partial)
             .context("cannot write stage.json")?;
-        swap_in(&work, stage.name, &partial)?;
+        swap_in(&partial, &work.join(stage.name))?;
         Ok(manifest)
     });
     match finished {
@@ -535,45 +540,6 @@ fn resume_key(params: &serde_json::Value, inputs: &BTreeMap<String, InputRecord>
     let hashes: Vec<(&String, &String)> = inputs.iter().map(|(k, v)| (k, &v.hash)).collect();
     let bytes = serde_json::to_vec(&(params, hashes)).unwrap_or_default();
     hash_bytes(&bytes)
-}
-
-/// Replace `work/<stage>/` with the finished partial folder.
-fn swap_in(work: &Path, stage: &str, partial: &Path) -> anyhow::Result<()> {
-    let final_dir = work.join(stage);
-    let old = work.join(format!(".{stage}.old"));
-    if old.exists() {
-        fs::remove_dir_all(&old).with_context(|| format!("cannot remove {}", old.display()))?;
-    }
-    if final_dir.exists() {
-        fs::rename(&final_dir, &old)
-            .with_context(|| format!("cannot move {} aside", final_dir.display()))?;
-    }
-    if let Err(e) = fs::rename(partial, &final_dir) {
-        if old.exists() {
-            let _ = fs::rename(&old, &final_dir);
-        }
-        return Err(e)
-            .with_context(|| format!("cannot move the new outputs to {}", final_dir.display()));
-    }
-    if old.exists() {
-        let _ = fs::remove_dir_all(&old);
-    }
-    Ok(())
-}
-
-/// After a crash between the two renames of [`swap_in`], put the old outputs back.
-fn recover_interrupted_swaps(work: &Path, stages: &[&str]) {
-    for stage in stages {
-        let old = work.join(format!(".{stage}.old"));
-        if old.exists() {
-            let final_dir = work.join(stage);
-            if final_dir.exists() {
-                let _ = fs::remove_dir_all(&old);
-            } else {
-                let _ = fs::rename(&old, &final_dir);
-            }
-        }
-    }
 }
 
 /// Expand folders to the files inside them (sorted); skip paths that do not exist.

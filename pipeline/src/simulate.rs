@@ -6,6 +6,7 @@ use std::path::Path;
 
 use anyhow::{Context, bail};
 
+use crate::partial_dir::build_fresh;
 use crate::report::Reporter;
 
 /// The scene of `pipeline demo`, built into the binary.
@@ -31,17 +32,12 @@ pub fn simulate_into(
     fs::create_dir_all(capture_dir)
         .with_context(|| format!("cannot create {}", capture_dir.display()))?;
     let partial = capture_dir.join(".simulate.partial");
-    if partial.exists() {
-        fs::remove_dir_all(&partial)
-            .with_context(|| format!("cannot clear {}", partial.display()))?;
-    }
-    let progress = reporter.progress("simulate");
-    let result = rig::sim::simulate(scene, &partial, &progress);
-    splat4d::Progress::finish(&progress);
-    if let Err(e) = result {
-        let _ = fs::remove_dir_all(&partial);
-        return Err(e).context("simulation failed");
-    }
+    build_fresh(&partial, |partial| {
+        let progress = reporter.progress("simulate");
+        let result = rig::sim::simulate(scene, partial, &progress);
+        shared_types::Progress::finish(&progress);
+        result.context("simulation failed")
+    })?;
     for entry in fs::read_dir(&partial)? {
         let entry = entry?;
         let target = capture_dir.join(entry.file_name());
@@ -93,9 +89,9 @@ pub fn demo_settings(scene: &rig::sim::Scene) -> String {
 /// The simulator's true video cameras (`groundtruth/cameras.json`, names `cam*`).
 fn truth_video_cameras(
     capture_dir: &Path,
-) -> anyhow::Result<(std::path::PathBuf, Vec<splat4d::Camera>)> {
+) -> anyhow::Result<(std::path::PathBuf, Vec<shared_types::Camera>)> {
     let path = capture_dir.join("groundtruth/cameras.json");
-    let truth: splat4d::CameraSet = serde_json::from_str(
+    let truth: shared_types::CameraSet = serde_json::from_str(
         &fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?,
     )
     .with_context(|| format!("{} is not a camera set", path.display()))?;
@@ -184,7 +180,7 @@ pub fn write_truth_calibration(capture_dir: &Path) -> anyhow::Result<()> {
         );
     }
     let out = capture_dir.join("calibration.json");
-    crate::atomic::write_atomic(
+    shared_types::atomic::write_atomic(
         &out,
         serde_json::to_string_pretty(&serde_json::json!({ "cameras": cameras }))?.as_bytes(),
     )

@@ -99,7 +99,11 @@ fn json_mode_prints_one_event_per_line() {
         .map(|k| summary[k].as_array().map_or(0, |a| a.len()))
         .sum::<usize>()
         + usize::from(!summary["failed"].is_null());
-    assert_eq!(accounted, pipeline::stages::STAGE_NAMES.len(), "{summary}");
+    assert_eq!(
+        accounted,
+        pipeline::stages::pipeline().stage_names().len(),
+        "{summary}"
+    );
 }
 
 #[test]
@@ -117,7 +121,7 @@ fn status_prints_a_table_of_every_stage() {
         text.contains("STAGE") && text.contains("STATE") && text.contains("DETAILS"),
         "{text}"
     );
-    for stage in pipeline::stages::STAGE_NAMES {
+    for stage in pipeline::stages::pipeline().stage_names() {
         assert!(
             text.lines().any(|l| l.starts_with(stage)),
             "no row for {stage}: {text}"
@@ -131,7 +135,7 @@ fn status_prints_a_table_of_every_stage() {
     let rows: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(
         rows.as_array().unwrap().len(),
-        pipeline::stages::STAGE_NAMES.len()
+        pipeline::stages::pipeline().stage_names().len()
     );
     let first = text.lines().next().unwrap_or_default().to_string();
     assert!(first.ends_with("(4 cameras, 8 stills)"), "{first}");

@@ -10,10 +10,8 @@
 
 mod common;
 
-use splat4d::CpuBackend;
+use common::demo::{Trained, train_and_measure};
 use splat4d::decay::{DecayConfig, DecayHooks};
-use splat4d::train::{evaluate_psnr, train};
-use splat4d::{NoProgress, load_model};
 use std::io::Write;
 
 fn env_or<T: std::str::FromStr>(key: &str, default: T) -> T {
@@ -47,7 +45,6 @@ fn decay_variants_on_the_demo_scene() {
     );
     println!("| variant | held-out PSNR (dB) | train PSNR (dB) | Gaussians | seconds |");
     println!("|---|---|---|---|---|");
-    let mean = |v: Vec<f64>| v.iter().sum::<f64>() / v.len() as f64;
     let mut results = Vec::new();
     for (label, mut decay) in DecayConfig::variants_for_ablation() {
         if !only.is_empty() && !only.iter().any(|o| label.starts_with(o.as_str())) {
@@ -56,20 +53,17 @@ fn decay_variants_on_the_demo_scene() {
         decay.warmup = warmup;
         let mut hooks = DecayHooks::new(&decay).unwrap();
         let dir = tempfile::tempdir().unwrap();
-        let summary = train(
-            &CpuBackend,
+        let Trained {
+            model,
+            summary,
+            train_psnr,
+            held_psnr,
+        } = train_and_measure(
             &config,
-            &train_data,
-            &init,
+            (&train_data, &held_data, &init),
             dir.path(),
-            false,
             &mut hooks,
-            &NoProgress,
-        )
-        .unwrap();
-        let model = load_model(&summary.model_path).unwrap();
-        let train_psnr = mean(evaluate_psnr(&CpuBackend, &model, &train_data, config.background).unwrap());
-        let held_psnr = mean(evaluate_psnr(&CpuBackend, &model, &held_data, config.background).unwrap());
+        );
         println!(
             "| {label} | {held_psnr:.2} | {train_psnr:.2} | {} | {:.0} |",
             model.len(),

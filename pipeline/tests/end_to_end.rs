@@ -157,7 +157,7 @@ fn simulated_flash_capture_with_dropped_frames_is_synchronised() {
     );
 }
 
-/// Issue 8's acceptance check on a simulated capture: COLMAP on the first frame of the 4
+/// The pose acceptance check on a simulated capture: COLMAP on the first frame of the 4
 /// video cameras plus 8 stills of `poses.toml`, compared with the ground truth after a
 /// similarity alignment. (It used to converge to degenerate solves: the room's texture
 /// tile repeated, SIFT matched copies of it; the simulator now lays non-periodic spots
@@ -182,7 +182,7 @@ fn simulated_static_capture_gets_poses_from_colmap() {
     );
 
     let solved = calib::poses::PosesFile::read(&root.join("work/poses/cameras.json")).unwrap();
-    let truth: splat4d::CameraSet =
+    let truth: shared_types::CameraSet =
         serde_json::from_str(&fs::read_to_string(root.join("groundtruth/cameras.json")).unwrap())
             .unwrap();
     let video: Vec<_> = truth
@@ -200,7 +200,7 @@ fn simulated_static_capture_gets_poses_from_colmap() {
         index.cameras[0].width
     );
 
-    // Issue 9: the true depth as exported point maps, aligned to the solved poses: every
+    // The true depth as exported point maps, aligned to the solved poses: every
     // pair accepted, its ray scale agreeing with COLMAP's sparse points.
     let maps = simulate::write_truth_pointmaps(&root).unwrap();
     assert_eq!(fs::read_dir(&maps).unwrap().count(), 6);

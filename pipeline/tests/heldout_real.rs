@@ -12,11 +12,11 @@ use std::fs;
 use std::path::Path;
 
 use common::fixture;
-use pipeline::evaluation::{EvalSettings, capture_heldout_views};
 use pipeline::heldout::HELDOUT_FILE;
 use pipeline::report::{OutputMode, Reporter};
 use pipeline::runner::Selection;
-use pipeline::{simulate, training};
+use pipeline::stages::eval::{EvalSettings, capture_heldout_views};
+use pipeline::{engine_inputs, simulate};
 use rig::frames::FramesIndex;
 
 /// Held-out PSNR the trained model must beat (dB); the swapped poses must not.
@@ -67,14 +67,14 @@ fn six_camera_capture(
     extra_text: &str,
     root: &Path,
     extra: &Path,
-) -> Vec<splat4d::Camera> {
+) -> Vec<shared_types::Camera> {
     simulate_text(scene_text, root);
     simulate_text(extra_text, extra);
-    let truth = |dir: &Path| -> splat4d::CameraSet {
+    let truth = |dir: &Path| -> shared_types::CameraSet {
         serde_json::from_str(&fs::read_to_string(dir.join("groundtruth/cameras.json")).unwrap())
             .unwrap()
     };
-    let mut cameras: Vec<splat4d::Camera> = truth(root)
+    let mut cameras: Vec<shared_types::Camera> = truth(root)
         .cameras
         .into_iter()
         .filter(|c| c.name.starts_with("cam"))
@@ -198,27 +198,33 @@ fn heldout_cameras_of_a_real_capture_are_posed_never_trained_and_measured() {
     // Poses: training cameras in cameras.json, held-out ones in heldout.json.
     let poses = calib::poses::PosesFile::read(&work.join("poses/cameras.json")).unwrap();
     let held_poses = calib::poses::PosesFile::read(&work.join("poses").join(HELDOUT_FILE)).unwrap();
-    let names = |set: &splat4d::CameraSet| -> Vec<String> {
+    let names = |set: &shared_types::CameraSet| -> Vec<String> {
         set.cameras.iter().map(|c| c.name.clone()).collect()
     };
     assert_eq!(names(&poses.set), ["cam0", "cam1", "cam2", "cam3"]);
     assert_eq!(names(&held_poses.set), ["cam4", "cam5"]);
     assert_eq!(held_poses.normalisation, poses.normalisation);
     let pinholes = pipeline::heldout::pinhole_heldout_cameras(&work).unwrap();
-    assert_eq!(names(&splat4d::CameraSet::new(pinholes)), ["cam4", "cam5"]);
-    // `pipeline render --path heldout` follows them.
-    let (_, train_cams, held_cams) = pipeline::rendering::path_cameras(&work).unwrap();
     assert_eq!(
-        names(&splat4d::CameraSet::new(train_cams)),
+        names(&shared_types::CameraSet::new(pinholes)),
+        ["cam4", "cam5"]
+    );
+    // `pipeline render --path heldout` follows them.
+    let (_, train_cams, held_cams) = pipeline::stages::render::path_cameras(&work).unwrap();
+    assert_eq!(
+        names(&shared_types::CameraSet::new(train_cams)),
         ["cam0", "cam1", "cam2", "cam3"]
     );
-    assert_eq!(names(&splat4d::CameraSet::new(held_cams)), ["cam4", "cam5"]);
+    assert_eq!(
+        names(&shared_types::CameraSet::new(held_cams)),
+        ["cam4", "cam5"]
+    );
 
     // Training never saw cam4/cam5.
-    let dataset = training::load_dataset(
+    let dataset = engine_inputs::load_dataset(
         &work.join("frames"),
         &work.join("poses/cameras.json"),
-        &splat4d::NoProgress,
+        &shared_types::NoProgress,
     )
     .unwrap();
     assert_eq!(dataset.views.len(), 4 * train_index.frames.len());
@@ -280,7 +286,7 @@ fn heldout_cameras_of_a_real_capture_are_posed_never_trained_and_measured() {
         serde_json::to_string(&swapped).unwrap(),
     )
     .unwrap();
-    let model = training::load_trained_model(&work).unwrap();
+    let model = engine_inputs::load_trained_model(&work).unwrap();
     let settings = EvalSettings::default();
     let views = capture_heldout_views(
         &work.join("frames"),
@@ -298,7 +304,7 @@ fn heldout_cameras_of_a_real_capture_are_posed_never_trained_and_measured() {
         &[],
         &tmp.path().join("swapped_eval"),
         None,
-        &splat4d::NoProgress,
+        &shared_types::NoProgress,
     )
     .unwrap();
     let wrong = report.heldout.psnr.unwrap();

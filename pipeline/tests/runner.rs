@@ -14,7 +14,7 @@ use pipeline::config::CaptureConfig;
 use pipeline::lock::CaptureLock;
 use pipeline::report::{OutputMode, Reporter};
 use pipeline::runner::{Pipeline, Selection, State};
-use pipeline::stage::StageDef;
+use pipeline::stage_def::StageDef;
 use pipeline::{Capture, open_capture};
 
 /// Counts of how often each fake stage ran, and a switch to make `b` fail midway.
@@ -32,13 +32,13 @@ fn fake_pipeline(probe: Arc<Probe>) -> Pipeline {
     Pipeline {
         stages: vec![
             StageDef::new("a", "first")
-                .inputs(|c: &Capture| c.cameras[0].videos.clone())
+                .inputs(|c: &Capture, _: &CaptureConfig| c.cameras[0].videos.clone())
                 .params(|_| serde_json::json!({"scale": std::env::var("UNUSED").ok()}))
                 .outputs(&["a.txt"])
-                .run(move |ctx| {
+                .run(move |ctx, config| {
                     pa.a.fetch_add(1, Ordering::SeqCst);
                     let video = fs::read(&ctx.capture.cameras[0].videos[0])?;
-                    let scale = ctx.config.capture.cameras;
+                    let scale = config.capture.cameras;
                     fs::write(
                         ctx.output("a.txt"),
                         format!("{} bytes, {scale} cameras", video.len()),
@@ -48,7 +48,7 @@ fn fake_pipeline(probe: Arc<Probe>) -> Pipeline {
             StageDef::new("b", "second")
                 .after(&["a"])
                 .outputs(&["b.txt"])
-                .run(move |ctx| {
+                .run(move |ctx, _| {
                     pb.b.fetch_add(1, Ordering::SeqCst);
                     let a = fs::read_to_string(ctx.stage_dir("a").join("a.txt"))
                         .context("reading a.txt")?;
@@ -63,7 +63,7 @@ fn fake_pipeline(probe: Arc<Probe>) -> Pipeline {
             StageDef::new("c", "third")
                 .after(&["b"])
                 .outputs(&["c.txt"])
-                .run(move |ctx| {
+                .run(move |ctx, _| {
                     pc.c.fetch_add(1, Ordering::SeqCst);
                     let b = fs::read_to_string(ctx.stage_dir("b").join("b.txt"))?;
                     fs::write(ctx.output("c.txt"), b.to_uppercase())?;
@@ -435,7 +435,7 @@ fn a_panicking_stage_is_recorded_as_failed() {
     let tmp = tempfile::tempdir().unwrap();
     make_capture(tmp.path(), 4, 0);
     let p = Pipeline {
-        stages: vec![StageDef::new("boom", "panics").run(|_| panic!("bug in stage"))],
+        stages: vec![StageDef::new("boom", "panics").run(|_, _| panic!("bug in stage"))],
     };
     let s = run(&p, tmp.path(), Selection::default());
     assert!(s.failed.unwrap().1.contains("bug in stage"));
@@ -450,7 +450,7 @@ fn a_stage_that_forgets_an_output_fails() {
         stages: vec![
             StageDef::new("lazy", "writes nothing")
                 .outputs(&["result.json"])
-                .run(|_| Ok(())),
+                .run(|_, _| Ok(())),
         ],
     };
     let s = run(&p, tmp.path(), Selection::default());
@@ -467,7 +467,7 @@ fn resumable_pipeline(done: Arc<AtomicBool>, resumed: Arc<AtomicUsize>) -> Pipel
                 .params(|c| serde_json::json!({"cameras": c.capture.cameras}))
                 .outputs(&["model.txt"])
                 .resumable()
-                .run(move |ctx| {
+                .run(move |ctx, _| {
                     let path = ctx.output("progress.txt");
                     let count: u32 = fs::read_to_string(&path)
                         .ok()

@@ -8,9 +8,8 @@
 
 mod common;
 
-use splat4d::CpuBackend;
-use splat4d::train::{NoHooks, evaluate_psnr, train};
-use splat4d::{NoProgress, load_model};
+use common::demo::{Trained, train_and_measure};
+use splat4d::train::NoHooks;
 
 const SCALE: usize = 2;
 
@@ -40,21 +39,17 @@ fn demo_scene_trains_and_reports_held_out_psnr() {
     let (train_data, held_data, init) = common::demo::demo_data(SCALE);
     let config = common::demo::train_config(iterations);
     let dir = tempfile::tempdir().unwrap();
-    let summary = train(
-        &CpuBackend,
+    let Trained {
+        model,
+        summary,
+        train_psnr,
+        held_psnr,
+    } = train_and_measure(
         &config,
-        &train_data,
-        &init,
+        (&train_data, &held_data, &init),
         dir.path(),
-        false,
         &mut NoHooks,
-        &NoProgress,
-    )
-    .unwrap();
-    let model = load_model(&summary.model_path).unwrap();
-    let mean = |v: Vec<f64>| v.iter().sum::<f64>() / v.len() as f64;
-    let train_psnr = mean(evaluate_psnr(&CpuBackend, &model, &train_data, config.background).unwrap());
-    let held_psnr = mean(evaluate_psnr(&CpuBackend, &model, &held_data, config.background).unwrap());
+    );
     let v0 = &train_data.views[0].image;
     println!(
         "demo {}x{}: {} train views, {} held-out views, {} initial points, {iterations} iterations (batch {}): \

@@ -11,7 +11,7 @@ use std::path::Path;
 
 use pipeline::report::{OutputMode, Reporter};
 use pipeline::runner::{RunSummary, Selection};
-use pipeline::{simulate, training};
+use pipeline::{engine_inputs, interrupt, simulate};
 
 fn run(root: &Path, sel: Selection) -> RunSummary {
     common::run_stages(root, sel)
@@ -49,15 +49,15 @@ fn train_stops_cleanly_resumes_identically_and_exports() {
     assert!(summary.failed.is_none(), "{summary:?}");
 
     // The views: every camera of every aligned frame, at its exact timestamp.
-    let dataset = training::load_dataset(
+    let dataset = engine_inputs::load_dataset(
         &root.join("work/frames"),
         &root.join("work/poses/cameras.json"),
-        &splat4d::NoProgress,
+        &shared_types::NoProgress,
     )
     .unwrap();
     let index = rig::frames::FramesIndex::read_json(&root.join("work/frames/frames.json")).unwrap();
     assert_eq!(dataset.views.len(), 4 * index.frames.len());
-    let mapping = training::time_mapping(&index);
+    let mapping = engine_inputs::time_mapping(&index);
     for (view, source) in dataset
         .views
         .iter()
@@ -71,7 +71,7 @@ fn train_stops_cleanly_resumes_identically_and_exports() {
 
     // A stop request: the stage stops after its first iteration with a checkpoint and
     // reports how to continue; the model is not written.
-    training::request_stop();
+    interrupt::request_stop();
     let stopped = run(&root, only("train", false));
     let (stage, error) = stopped.failed.expect("stopped");
     assert_eq!(stage, "train");

@@ -3,8 +3,13 @@
 //! benchmarks (`train_demo.rs`, `decay_demo.rs`).
 
 use rig::sim::{Scene, render_clean};
-use splat4d::train::{Dataset, ImageU8, PointCloud, TrainConfig, View};
-use splat4d::{Camera, TimeMapping};
+use shared_types::Camera;
+use splat4d::CpuBackend;
+use splat4d::TimeMapping;
+use splat4d::train::{
+    Dataset, ImageU8, PointCloud, TrainConfig, TrainHooks, TrainSummary, View, evaluate_psnr, train,
+};
+use splat4d::{Gaussians, load_model};
 use std::path::Path;
 
 /// The camera's image at scene time `t`, box-downsampled by `scale`, and its depth.
@@ -132,4 +137,44 @@ pub fn train_config(iterations: u64) -> TrainConfig {
     config.densify.every = 100;
     config.densify.opacity_reset_every = 0;
     config
+}
+
+/// A model trained on the demo data, with its mean PSNR on the training and held-out views.
+pub struct Trained {
+    pub model: Gaussians<f32>,
+    pub summary: TrainSummary,
+    pub train_psnr: f64,
+    pub held_psnr: f64,
+}
+
+/// Train `config` from `init` on `train_data` with `hooks` (outputs in `dir`), then measure
+/// the model on the training views and on `held_data`.
+pub fn train_and_measure(
+    config: &TrainConfig,
+    (train_data, held_data, init): (&Dataset, &Dataset, &PointCloud),
+    dir: &Path,
+    hooks: &mut dyn TrainHooks,
+) -> Trained {
+    let summary = train(
+        &CpuBackend,
+        config,
+        train_data,
+        init,
+        dir,
+        false,
+        hooks,
+        &shared_types::NoProgress,
+    )
+    .unwrap();
+    let model = load_model(&summary.model_path).unwrap();
+    let mean = |v: Vec<f64>| v.iter().sum::<f64>() / v.len() as f64;
+    let train_psnr =
+        mean(evaluate_psnr(&CpuBackend, &model, train_data, config.background).unwrap());
+    let held_psnr = mean(evaluate_psnr(&CpuBackend, &model, held_data, config.background).unwrap());
+    Trained {
+        model,
+        summary,
+        train_psnr,
+        held_psnr,
+    }
 }

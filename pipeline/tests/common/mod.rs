@@ -76,9 +76,9 @@ pub fn run_stages(
         .unwrap()
 }
 
-/// Issue 8's pose accuracy bound: every solved camera within 0.5° and 1 % of the rig
+/// The pose accuracy bound: every solved camera within 0.5° and 1 % of the rig
 /// radius of the truth after a similarity alignment (errors printed).
-pub fn assert_poses_close(solved: &[splat4d::Camera], truth: &[splat4d::Camera]) {
+pub fn assert_poses_close(solved: &[shared_types::Camera], truth: &[shared_types::Camera]) {
     let (_, errors, radius) = calib::align::compare(solved, truth).unwrap();
     assert_eq!(errors.len(), solved.len());
     for e in &errors {

@@ -12,13 +12,17 @@ use rig::frames::FramesIndex;
 use rig::sim::{HeldoutTimestamps, OffsetsFile};
 use rig::sync::SyncResult;
 use serde::{Deserialize, Serialize};
+use shared_types::{Camera, CameraSet, WorldToCamera};
+use splat4d::TimeMapping;
 use splat4d::eval::EvalView;
-use splat4d::{Camera, CameraSet, TimeMapping, WorldToCamera};
 
+use crate::engine_inputs::{load_frame, load_trained_model, pinhole_cameras, time_mapping};
 use crate::heldout::HELDOUT_FILE;
 use crate::layout::Capture;
-use crate::stage::StageContext;
-use crate::training::{load_frame, pinhole_cameras, time_mapping};
+use crate::stage_context::StageContext;
+
+/// The simulator's ground truth in a capture directory (cameras, offsets, held-out views).
+const GROUNDTRUTH_DIR: &str = "groundtruth";
 
 /// `[eval]` settings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -42,6 +46,14 @@ impl Default for EvalSettings {
             heldout_per_camera: 0,
         }
     }
+}
+
+/// The capture files the stage reads: the simulator's ground truth (`groundtruth/`, when
+/// present) and the `lpips` weights, when set.
+pub fn inputs(capture: &Capture, settings: &EvalSettings) -> Vec<PathBuf> {
+    let mut inputs = vec![capture.root.join(GROUNDTRUTH_DIR)];
+    inputs.extend(settings.lpips.as_deref().map(|path| capture.resolve(path)));
+    inputs
 }
 
 /// `n` evenly spread picks of `0..len` (all when `n` is 0 or ≥ `len`).
@@ -85,7 +97,7 @@ pub fn heldout_views(
     mapping: &TimeMapping,
     gt_dir: &Path,
 ) -> anyhow::Result<Vec<EvalView>> {
-    let truth_dir = capture.root.join("groundtruth");
+    let truth_dir = capture.root.join(GROUNDTRUTH_DIR);
     let heldout_dir = truth_dir.join("heldout");
     if !heldout_dir.is_dir() {
         return Ok(Vec::new());
@@ -171,20 +183,8 @@ pub fn capture_heldout_views(
     mapping: &TimeMapping,
     gt_dir: &Path,
 ) -> anyhow::Result<Vec<EvalView>> {
-    let index_path = frames_dir.join(HELDOUT_FILE);
-    let index = FramesIndex::read_json(&index_path).with_context(|| {
-        format!(
-            "cannot read the held-out cameras' frames {}; rerun the frames stage (`pipeline run CAPTURE --from frames --force`)",
-            index_path.display()
-        )
-    })?;
-    let poses_path = poses_dir.join(HELDOUT_FILE);
-    let poses = PosesFile::read(&poses_path).with_context(|| {
-        format!(
-            "cannot read the held-out cameras' poses {}; rerun the poses stage (`pipeline run CAPTURE --from poses --force`)",
-            poses_path.display()
-        )
-    })?;
+    let (index, _) = read_heldout_file(frames_dir, "frames", FramesIndex::read_json)?;
+    let (poses, poses_path) = read_heldout_file(poses_dir, "poses", PosesFile::read)?;
     let cameras = pinhole_cameras(&index, &poses.set, &poses_path)?;
     let picks = (0..cameras.len())
         .flat_map(|c| {
@@ -194,6 +194,26 @@ pub fn capture_heldout_views(
         })
         .collect::<Vec<_>>();
     frame_views(frames_dir, &index, &cameras, picks, mapping, gt_dir)
+}
+
+/// `heldout.json` of the `stage` folder `dir` (the held-out cameras' frames or poses),
+/// read with `read`; the error says which stage to rerun. Returns it with its path.
+fn read_heldout_file<T, E>(
+    dir: &Path,
+    stage: &str,
+    read: impl FnOnce(&Path) -> Result<T, E>,
+) -> anyhow::Result<(T, PathBuf)>
+where
+    E: std::error::Error + Send + Sync + 'static,
+{
+    let path = dir.join(HELDOUT_FILE);
+    let value = read(&path).with_context(|| {
+        format!(
+            "cannot read the held-out cameras' {stage} {}; rerun the {stage} stage (`pipeline run CAPTURE --from {stage} --force`)",
+            path.display()
+        )
+    })?;
+    Ok((value, path))
 }
 
 /// Eval views of the aligned frames `picks` (frame, camera index) of `index`, at the
@@ -262,6 +282,7 @@ fn train_picks(frames: usize, cameras: usize, n: usize) -> Vec<(usize, usize)> {
 /// A spread of the training views (undistorted copies in `gt_dir` where needed).
 fn train_views(
     ctx: &StageContext,
+    settings: &EvalSettings,
     poses: &CameraSet,
     index: &FramesIndex,
     mapping: &TimeMapping,
@@ -271,7 +292,7 @@ fn train_views(
     let picks = train_picks(
         index.frames.len(),
         index.cameras.len(),
-        ctx.config.eval.train_views,
+        settings.train_views,
     );
     frame_views(
         &ctx.stage_dir("frames"),
@@ -283,17 +304,21 @@ fn train_views(
     )
 }
 
-/// The `eval` stage.
-pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
-    let model = crate::training::load_trained_model(&ctx.capture.work_dir())?;
+/// The `eval` stage; `heldout_cameras` are the held-out camera names of `[capture] heldout`.
+pub fn run(
+    ctx: &StageContext,
+    settings: &EvalSettings,
+    heldout_cameras: &[String],
+) -> anyhow::Result<()> {
+    let model = load_trained_model(&ctx.capture.work_dir())?;
     let poses = PosesFile::read(&ctx.stage_dir("poses").join("cameras.json"))?;
     let index = FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
     let mapping = time_mapping(&index);
     let gt_dir = ctx.output("groundtruth");
-    let heldout = if ctx.config.capture.heldout.is_empty() {
+    let heldout = if heldout_cameras.is_empty() {
         heldout_views(
             ctx.capture,
-            &ctx.config.eval,
+            settings,
             &poses.set,
             &mapping,
             &gt_dir.join("heldout"),
@@ -302,7 +327,7 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
         capture_heldout_views(
             &ctx.stage_dir("frames"),
             &ctx.stage_dir("poses"),
-            &ctx.config.eval,
+            settings,
             &mapping,
             &gt_dir.join("heldout"),
         )?
@@ -312,14 +337,17 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
             "no held-out views (no [capture] heldout cameras and no groundtruth/heldout/): only training views are measured, which shows fit, not novel-view quality"
         );
     }
-    let train = train_views(ctx, &poses.set, &index, &mapping, &gt_dir.join("train"))?;
-    let lpips = match &ctx.config.eval.lpips {
+    let train = train_views(
+        ctx,
+        settings,
+        &poses.set,
+        &index,
+        &mapping,
+        &gt_dir.join("train"),
+    )?;
+    let lpips = match &settings.lpips {
         Some(path) => {
-            let path = if path.is_absolute() {
-                path.clone()
-            } else {
-                ctx.capture.root.join(path)
-            };
+            let path = ctx.capture.resolve(path);
             Some(splat4d::metrics::lpips::Lpips::load(&path).with_context(|| {
                 format!(
                     "[eval] lpips = {}: cannot load the LPIPS model",
@@ -329,8 +357,9 @@ pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
         }
         None => None,
     };
+    let backend = crate::engine_inputs::render_backend();
     let report = splat4d::eval::evaluate(
-        &splat4d::CpuBackend,
+        backend.as_ref(),
         &model,
         &heldout,
         &train,

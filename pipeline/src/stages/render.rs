@@ -1,7 +1,7 @@
 //! The `render` stage and the `pipeline render` command: the trained model along a camera
 //! path (orbit, spiral, interpolate, train, heldout) with time frozen, swept or real, as
-//! PNG frames (colour, colour-mapped depth, alpha) and an H.264 MP4
-//! (`splat4d::trajectories`, `splat4d::eval::render_path`, `rig::video`).
+//! PNG frames (`rgb/`, colour-mapped `depth/`, `alpha/`) and an H.264 `render.mp4`
+//! (`splat4d::paths`, `splat4d::eval::render_path`, `rig::video`).
 
 use std::path::Path;
 
@@ -9,12 +9,17 @@ use anyhow::{Context, bail};
 use calib::poses::PosesFile;
 use rig::frames::FramesIndex;
 use serde::{Deserialize, Serialize};
+use shared_types::{Camera, Progress};
+use splat4d::Gaussians;
 use splat4d::eval::FrameOutputs;
 use splat4d::trajectories::{PathKind, PathSpec, TimeMode, camera_path};
-use splat4d::{Gaussians, Progress};
 
-use crate::stage::StageContext;
-use crate::training::pinhole_cameras;
+use crate::engine_inputs::{load_trained_model, pinhole_cameras};
+use crate::heldout::pinhole_heldout_cameras;
+use crate::stage_context::StageContext;
+
+/// What a render writes, at least one of which proves it ran: the video, or PNG frames.
+pub const OUTPUTS: [&str; 4] = ["render.mp4", "rgb/", "depth/", "alpha/"];
 
 /// `[render]` settings (the same keys as the `pipeline render` flags).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -52,9 +57,7 @@ impl Default for RenderSettings {
 
 /// The frames index and the pinhole cameras a path can follow: the training cameras and
 /// the held-out ones of a real capture (`[capture] heldout`; none otherwise).
-pub fn path_cameras(
-    work_dir: &Path,
-) -> anyhow::Result<(FramesIndex, Vec<splat4d::Camera>, Vec<splat4d::Camera>)> {
+pub fn path_cameras(work_dir: &Path) -> anyhow::Result<(FramesIndex, Vec<Camera>, Vec<Camera>)> {
     let cameras_file = work_dir.join("poses").join("cameras.json");
     let poses = PosesFile::read(&cameras_file)?;
     let index = FramesIndex::read_json(&work_dir.join("frames").join("frames.json"))?;
@@ -62,7 +65,7 @@ pub fn path_cameras(
         .into_iter()
         .map(|(c, _)| c)
         .collect();
-    let heldout = crate::heldout::pinhole_heldout_cameras(work_dir)?;
+    let heldout = pinhole_heldout_cameras(work_dir)?;
     Ok((index, train, heldout))
 }
 
@@ -71,8 +74,8 @@ pub fn path_cameras(
 #[allow(clippy::too_many_arguments)]
 pub fn render(
     model: &Gaussians<f32>,
-    cameras: &[splat4d::Camera],
-    heldout: &[splat4d::Camera],
+    cameras: &[Camera],
+    heldout: &[Camera],
     settings: &RenderSettings,
     default_frames: usize,
     default_fps: f64,
@@ -115,8 +118,15 @@ pub fn render(
             None => Ok(()),
         }
     };
-    let rendered =
-        splat4d::eval::render_path(&splat4d::CpuBackend, model, &path, out_dir, outputs, progress, Some(&mut sink))?;
+    let rendered = splat4d::eval::render_path(
+        crate::engine_inputs::render_backend().as_ref(),
+        model,
+        &path,
+        out_dir,
+        outputs,
+        progress,
+        Some(&mut sink),
+    )?;
     if let Some(v) = video {
         v.finish()?;
     }
@@ -124,10 +134,9 @@ pub fn render(
 }
 
 /// The `render` stage.
-pub fn run(ctx: &StageContext) -> anyhow::Result<()> {
-    let model = crate::training::load_trained_model(&ctx.capture.work_dir())?;
+pub fn run(ctx: &StageContext, settings: &RenderSettings) -> anyhow::Result<()> {
+    let model = load_trained_model(&ctx.capture.work_dir())?;
     let (index, cameras, heldout) = path_cameras(&ctx.capture.work_dir())?;
-    let settings = &ctx.config.render;
     let frames = render(
         &model,
         &cameras,

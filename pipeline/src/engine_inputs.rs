@@ -1,0 +1,142 @@
+//! The outputs of the frames, poses and train stages as the engine takes them, for every
+//! stage and command that hands them to the engine: the time mapping of the aligned
+//! frames, the pinhole camera of each frames camera (with the map that undistorts its
+//! images: undistortion happens here, once, and frames on disk stay as recorded), aligned
+//! frames loaded and undistorted, the whole training dataset, the trained model, and the
+//! render backend the engine draws with. This module only reads.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use calib::poses::PosesFile;
+use calib::undistort::{Fit, UndistortMap};
+use rayon::prelude::*;
+use rig::frames::FramesIndex;
+use shared_types::{Camera, CameraSet, Progress};
+use splat4d::train::{Dataset, ImageU8, View};
+use splat4d::{Gaussians, RenderBackend, TimeMapping};
+
+/// The render backend every stage and command draws with (training, eval, render),
+/// logged once per use. The one place a backend is chosen.
+pub fn render_backend() -> Box<dyn RenderBackend> {
+    let backend = Box::new(splat4d::CpuBackend);
+    tracing::info!("render backend: {}", backend.describe());
+    backend
+}
+
+/// The time mapping of a frames index: model time 0 at the first output frame, one model
+/// unit per 30 frames (the 4DGS convention), the sequence as long as its frames.
+pub fn time_mapping(index: &FramesIndex) -> TimeMapping {
+    let duration = index.frames.len() as f64 / index.fps;
+    TimeMapping::frames_over_30(index.start_s, index.fps, duration)
+}
+
+/// The pinhole camera of each frames camera and, for a camera with a lens, the map that
+/// undistorts its images. Cameras are rescaled to the frames' size.
+pub fn pinhole_cameras(
+    index: &FramesIndex,
+    cameras: &CameraSet,
+    cameras_file: &Path,
+) -> anyhow::Result<Vec<(Camera, Option<UndistortMap>)>> {
+    index
+        .cameras
+        .iter()
+        .map(|images| {
+            let Some(camera) = cameras.get(&images.name) else {
+                bail!(
+                    "{} has no camera '{}' (the frames stage wrote images for it); rerun the poses stage: `pipeline run CAPTURE --from poses --force`",
+                    cameras_file.display(),
+                    images.name
+                );
+            };
+            let mut camera = camera.clone();
+            camera.intrinsics = camera.intrinsics.scaled_to(images.width, images.height);
+            if camera.distortion.is_none() {
+                Ok((camera, None))
+            } else {
+                let map = UndistortMap::new(&camera, Fit::ValidPixels);
+                Ok((map.pinhole().clone(), Some(map)))
+            }
+        })
+        .collect()
+}
+
+/// Load an aligned frame image, undistorted when `map` is given.
+pub fn load_frame(path: &Path, map: Option<&UndistortMap>) -> anyhow::Result<ImageU8> {
+    let image = image::open(path)
+        .with_context(|| {
+            format!(
+                "cannot read the frame {}; rerun the frames stage (`pipeline run CAPTURE --from frames --force`)",
+                path.display()
+            )
+        })?
+        .to_rgb8();
+    let image = match map {
+        Some(map) => map
+            .apply(&image)
+            .with_context(|| format!("cannot undistort {}", path.display()))?,
+        None => image,
+    };
+    let (width, height) = image.dimensions();
+    Ok(ImageU8 {
+        width,
+        height,
+        data: image.into_raw(),
+    })
+}
+
+/// Every (camera, frame) of the frames stage as a training view at its own exact
+/// timestamp, undistorted to the pinhole cameras.
+pub fn load_dataset(
+    frames_dir: &Path,
+    cameras_file: &Path,
+    progress: &dyn Progress,
+) -> anyhow::Result<Dataset> {
+    let index = FramesIndex::read_json(&frames_dir.join("frames.json"))?;
+    let poses = PosesFile::read(cameras_file)?;
+    let cameras = pinhole_cameras(&index, &poses.set, cameras_file)?;
+    let mapping = time_mapping(&index);
+    let jobs: Vec<(usize, PathBuf, f64)> = index
+        .frames
+        .iter()
+        .flat_map(|frame| {
+            frame
+                .views
+                .iter()
+                .enumerate()
+                .map(|(c, v)| (c, frames_dir.join(&v.file), v.timestamp_s))
+        })
+        .collect();
+    if jobs.is_empty() {
+        bail!(
+            "{} lists no frames; rerun the frames stage",
+            frames_dir.join("frames.json").display()
+        );
+    }
+    progress.start(jobs.len() as u64, "images");
+    let views = jobs
+        .par_iter()
+        .map(|(c, path, timestamp)| {
+            let (camera, map) = &cameras[*c];
+            let image = load_frame(path, map.as_ref())?;
+            progress.advance(1);
+            let time = mapping.model_time(*timestamp) as f32;
+            Ok(View::at_image_size(camera.clone(), time, image))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    Ok(Dataset {
+        views,
+        time_mapping: mapping,
+    })
+}
+
+/// The trained model of a capture (`work/train/model.bin`).
+pub fn load_trained_model(work_dir: &Path) -> anyhow::Result<Gaussians<f32>> {
+    let path = work_dir.join("train/model.bin");
+    splat4d::load_model(&path).with_context(|| {
+        format!(
+            "cannot load the trained model {}; run the train stage first",
+            path.display()
+        )
+    })
+}

@@ -1,0 +1,143 @@
+//! The stages of the 4C4D pipeline, declared once, in order: for each, the stages it
+//! reads from, the capture files it reads, its parameters (its own `capture.toml`
+//! section, plus any other setting it reads, so that changing it reruns the stage), the
+//! outputs it must produce and the function that does the work.
+//!
+//! Each stage's work and its settings section live in its own module (`ingest`, `sync`,
+//! `frames`, `poses`, `init`, `train`, `render`, `eval`, `export`); `config` gathers the
+//! sections into `capture.toml`. A stage module never reads `capture.toml` itself: this
+//! list hands each run function the settings it takes.
+
+pub mod eval;
+pub mod export;
+pub mod frames;
+pub mod ingest;
+pub mod init;
+pub mod poses;
+pub mod render;
+pub mod sync;
+pub mod train;
+
+use crate::config::CaptureConfig;
+use crate::runner::Pipeline;
+use crate::stage_def::StageDef;
+
+/// A stage's parameters: its own section, plus `heldout` (the held-out camera names) when
+/// the capture has held-out cameras, so that listing them reruns the stage.
+fn with_heldout(stage: &'static str) -> impl Fn(&CaptureConfig) -> serde_json::Value {
+    move |config| {
+        let mut params = config.section(stage);
+        if !config.capture.heldout.is_empty()
+            && let Some(map) = params.as_object_mut()
+        {
+            map.insert("heldout".into(), config.capture.heldout.clone().into());
+        }
+        params
+    }
+}
+
+/// The train stage's parameters: `[train]`, with `[decay]` under the key `decay`
+/// (`status` then names a change `train.decay.variant`).
+fn train_params(config: &CaptureConfig) -> serde_json::Value {
+    let mut params = config.section("train");
+    if let Some(map) = params.as_object_mut() {
+        map.insert("decay".into(), config.section("decay"));
+    }
+    params
+}
+
+/// The pipeline as `pipeline run` executes it.
+pub fn pipeline() -> Pipeline {
+    Pipeline {
+        stages: vec![
+            StageDef::new(
+                "ingest",
+                "probe every camera's videos: fps, size, per-frame timestamps, audio",
+            )
+            .inputs(|c, _| c.all_videos())
+            .outputs(&["streams.json"])
+            .run(|ctx, _| ingest::run(ctx)),
+            StageDef::new(
+                "sync",
+                "find each camera's time offset from audio (clap) or a flash",
+            )
+            .after(&["ingest"])
+            .inputs(|c, _| c.all_videos())
+            .outputs(&["sync.json"])
+            .run(|ctx, config| sync::run(ctx, &config.sync)),
+            StageDef::new(
+                "frames",
+                "extract time-aligned frames at the working resolution",
+            )
+            .after(&["ingest", "sync"])
+            .inputs(|c, _| c.all_videos())
+            .params(with_heldout("frames"))
+            .outputs(&["frames.json"])
+            .run(|ctx, config| frames::run(ctx, &config.frames, &config.capture.heldout)),
+            StageDef::new(
+                "poses",
+                "solve camera poses with COLMAP (4 views + stills) or import a calibration",
+            )
+            .after(&["frames"])
+            .params(with_heldout("poses"))
+            .inputs(|c, _| {
+                let mut inputs = c.stills.clone();
+                inputs.extend(c.calibration.clone());
+                inputs
+            })
+            .outputs(&["cameras.json"])
+            .run(|ctx, config| poses::run(ctx, &config.poses, &config.capture.heldout)),
+            StageDef::new(
+                "init",
+                "initial point cloud from MASt3R-style point maps or COLMAP points",
+            )
+            .after(&["frames", "poses"])
+            .inputs(|c, config| init::inputs(c, &config.init))
+            .outputs(&["points.ply", "init.json"])
+            .run(|ctx, config| init::run(ctx, &config.init)),
+            StageDef::new("train", "train the 4C4D Gaussian model")
+                .after(&["frames", "poses", "init"])
+                .params(train_params)
+                .outputs(&["model.bin", "log.csv"])
+                .resumable()
+                .run(|ctx, config| train::run(ctx, &config.train, &config.decay)),
+            StageDef::new("render", "render videos along camera paths")
+                .after(&["frames", "poses", "train"])
+                .output_one_of(&render::OUTPUTS)
+                .run(|ctx, config| render::run(ctx, &config.render)),
+            StageDef::new(
+                "eval",
+                "metrics on held-out views (PSNR, SSIM, DSSIM, LPIPS)",
+            )
+            .after(&["sync", "frames", "poses", "train"])
+            .inputs(|c, config| eval::inputs(c, &config.eval))
+            .params(with_heldout("eval"))
+            .outputs(&["metrics.json", "per_frame.csv"])
+            .run(|ctx, config| eval::run(ctx, &config.eval, &config.capture.heldout)),
+            StageDef::new("export", "PLY / .splatv exports and a browser viewer")
+                .after(&["frames", "poses", "train"])
+                .outputs(&["export.json"])
+                .run(|ctx, config| export::run(ctx, &config.export)),
+        ],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn upstream_stages_come_first() {
+        let p = pipeline();
+        for (i, stage) in p.stages.iter().enumerate() {
+            for up in &stage.after {
+                let j = p
+                    .stages
+                    .iter()
+                    .position(|s| s.name == *up)
+                    .expect("known upstream");
+                assert!(j < i, "{} reads {} which comes later", stage.name, up);
+            }
+        }
+    }
+}

@@ -1,0 +1,74 @@
+//! The `poses` stage: every camera's pose, solved with COLMAP from each video camera's
+//! first aligned frame plus the stills, or imported from the capture's calibration file
+//! when there is one (`calib::poses`, `calib::import`), into `cameras.json`. With
+//! held-out cameras they are posed with the training cameras and then split off into
+//! `heldout.json` (see `crate::heldout`).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use calib::poses::PosesConfig;
+use rig::frames::FramesIndex;
+
+use crate::heldout::{HELDOUT_FILE, split_poses};
+use crate::stage_context::StageContext;
+
+/// `[poses]` settings: the pose solver's own (COLMAP options, minimum stills, rig radius).
+pub type PosesSettings = PosesConfig;
+
+/// The `poses` stage; `heldout` are the held-out camera names of `[capture] heldout`.
+pub fn run(ctx: &StageContext, settings: &PosesSettings, heldout: &[String]) -> anyhow::Result<()> {
+    let frames_dir = ctx.stage_dir("frames");
+    let index = FramesIndex::read_json(&frames_dir.join("frames.json"))?;
+    if let Some(calibration) = &ctx.capture.calibration {
+        tracing::info!(
+            "importing the calibration {} instead of solving poses",
+            calibration.display()
+        );
+        let set = calib::import::import_calibration(calibration)
+            .with_context(|| format!("cannot import {}", calibration.display()))?;
+        // The calibration is for the recorded size; the engine sees the working size.
+        let working_size = index.cameras.first().map(|c| (c.width, c.height));
+        calib::poses::write_imported(
+            &set,
+            calibration,
+            &ctx.out_dir,
+            working_size,
+            settings.radius,
+        )?;
+        return split_poses(
+            &ctx.out_dir,
+            heldout,
+            &format!("the calibration {}", calibration.display()),
+        );
+    }
+    // Held-out cameras are posed with the training cameras, from their first frame too.
+    let mut video_frames = first_frames(&index, &frames_dir)?;
+    if !heldout.is_empty() {
+        let held = FramesIndex::read_json(&frames_dir.join(HELDOUT_FILE))?;
+        video_frames.extend(first_frames(&held, &frames_dir)?);
+    }
+    let inputs = calib::poses::PosesInputs {
+        video_frames,
+        stills: ctx.capture.stills.clone(),
+        working_size: None,
+        config: settings.clone(),
+    };
+    let out = calib::poses::solve(&inputs, &ctx.out_dir, ctx.progress)?;
+    tracing::info!("poses solved: {} sparse points", out.points.len());
+    split_poses(&ctx.out_dir, heldout, "the COLMAP model")
+}
+
+/// (camera name, its first aligned frame) of every camera of a frames index.
+fn first_frames(index: &FramesIndex, frames_dir: &Path) -> anyhow::Result<Vec<(String, PathBuf)>> {
+    let first = index
+        .frames
+        .first()
+        .context("the frames stage wrote no frames")?;
+    Ok(index
+        .cameras
+        .iter()
+        .zip(&first.views)
+        .map(|(cam, view)| (cam.name.clone(), frames_dir.join(&view.file)))
+        .collect())
+}

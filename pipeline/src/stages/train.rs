@@ -1,0 +1,119 @@
+//! The `train` stage: the 4C4D Gaussian model trained on every aligned frame of the
+//! training cameras (undistorted to pinhole cameras, at their exact timestamps), from the
+//! init stage's points (`splat4d::train` with the opacity decay of `splat4d::decay`),
+//! into `model.bin` and `log.csv`. It can stop cleanly on Ctrl-C (see `crate::interrupt`)
+//! and continue from its checkpoint on the next run.
+
+use anyhow::{Context, bail};
+use splat4d::Gaussians;
+use splat4d::decay::DecayConfig;
+use splat4d::train::{PointCloud, TrainConfig, TrainError, TrainHooks, View};
+
+use crate::engine_inputs::load_dataset;
+use crate::interrupt::{Graceful, stop_requested};
+use crate::stage_context::StageContext;
+
+/// `[train]` settings: the trainer's own (iterations, learning rates, densification, …).
+pub type TrainSettings = TrainConfig;
+
+/// `[decay]` settings: the 4C4D opacity decay the train stage trains with
+/// (`variant = "none"`: plain 4DGS).
+pub type DecaySettings = DecayConfig;
+
+/// The stage's hooks: the method's hooks (4C4D decay, or none) plus the Ctrl-C stop.
+struct StageHooks<'a> {
+    inner: &'a mut dyn TrainHooks,
+}
+
+impl TrainHooks for StageHooks<'_> {
+    fn opacity_factor(
+        &mut self,
+        iteration: u64,
+        model: &Gaussians<f32>,
+        view: &View,
+    ) -> Option<Vec<f32>> {
+        self.inner.opacity_factor(iteration, model, view)
+    }
+    fn factor_gradient(&mut self, iteration: u64, model: &Gaussians<f32>, gradient: &[f32]) {
+        self.inner.factor_gradient(iteration, model, gradient)
+    }
+    fn after_step(&mut self, iteration: u64, model: &mut Gaussians<f32>) {
+        self.inner.after_step(iteration, model)
+    }
+    fn save_state(&self) -> Vec<u8> {
+        self.inner.save_state()
+    }
+    fn load_state(&mut self, state: &[u8]) {
+        self.inner.load_state(state)
+    }
+    fn stop_requested(&mut self, iteration: u64) -> bool {
+        stop_requested() || self.inner.stop_requested(iteration)
+    }
+}
+
+/// The initial points: `work/init/points.ply`, else the poses stage's sparse points.
+fn initial_points(ctx: &StageContext) -> anyhow::Result<PointCloud> {
+    let init = ctx.stage_dir("init").join("points.ply");
+    let path = if init.exists() {
+        init
+    } else {
+        let sparse = ctx.stage_dir("poses").join("points3d.ply");
+        tracing::warn!(
+            "no {}; starting from the sparse pose points {}",
+            init.display(),
+            sparse.display()
+        );
+        sparse
+    };
+    shared_types::points::read_points_ply(&path)
+        .with_context(|| format!("cannot read the initial points {}", path.display()))
+}
+
+/// The `train` stage.
+pub fn run(
+    ctx: &StageContext,
+    settings: &TrainSettings,
+    decay: &DecaySettings,
+) -> anyhow::Result<()> {
+    let cameras_file = ctx.stage_dir("poses").join("cameras.json");
+    ctx.progress.message("loading frames");
+    let dataset = load_dataset(&ctx.stage_dir("frames"), &cameras_file, ctx.progress)?;
+    let points = initial_points(ctx)?;
+    tracing::info!(
+        "training on {} views from {} points{}",
+        dataset.views.len(),
+        points.xyz.len(),
+        if ctx.resume { " (resuming)" } else { "" }
+    );
+    let mut method = splat4d::decay::DecayHooks::new(decay)
+        .map_err(|e| anyhow::anyhow!("capture.toml [decay]: {e}"))?;
+    tracing::info!("opacity decay: {:?}", decay.variant);
+    let mut hooks = StageHooks { inner: &mut method };
+    let _graceful = Graceful::enter();
+    let backend = crate::engine_inputs::render_backend();
+    let summary = match splat4d::train::train(
+        backend.as_ref(),
+        settings,
+        &dataset,
+        &points,
+        &ctx.out_dir,
+        ctx.resume,
+        &mut hooks,
+        ctx.progress,
+    ) {
+        Ok(summary) => summary,
+        Err(TrainError::Interrupted { iteration, .. }) => bail!(
+            "training stopped after iteration {iteration} (a checkpoint was kept); run the same `pipeline run` again to continue from it, or add --force to start over"
+        ),
+        Err(e) => return Err(e.into()),
+    };
+    tracing::info!(
+        "trained {} iterations ({} this run) in {:.0} s: {} Gaussians, last batch PSNR {:.2} dB",
+        summary.iterations,
+        summary.iterations - summary.started_at,
+        summary.seconds,
+        summary.gaussians,
+        summary.final_psnr
+    );
+    Ok(())
+}
