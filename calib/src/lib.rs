@@ -3,7 +3,8 @@
 //!
 //! The poses stage calls [`poses::solve`] (COLMAP) or [`import::import_calibration`] then
 //! [`poses::write_imported`]; frames are made pinhole with [`undistort::UndistortMap`].
-//! Depends on the engine crate only for the shared camera types.
+//! Depends on `shared-types` (cameras, progress, atomic writes, PLY point clouds), not on
+//! the engine.
 
 pub mod align;
 pub mod colmap;
