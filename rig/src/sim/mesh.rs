@@ -7,7 +7,8 @@
 
 use glam::{DQuat, DVec3, Vec3};
 
-use super::scene::{DeformKind, DeformSpec, ObjectSection, SceneFile};
+use super::animation::object_pose;
+use super::schema::{DeformKind, DeformSpec, ObjectSection, SceneFile};
 use super::texture::Texture;
 
 /// Object id of the background in masks; objects are numbered from 2.
@@ -253,7 +254,7 @@ pub(crate) fn world_positions(file: &SceneFile, meshes: &[SceneMesh], t: f64) ->
         .iter()
         .map(|m| {
             let (rot, pos): (DQuat, DVec3) = match m.object {
-                Some(i) => super::scene::object_pose(&file.objects[i], t),
+                Some(i) => object_pose(&file.objects[i], t),
                 None => (DQuat::IDENTITY, DVec3::ZERO),
             };
             m.mesh
