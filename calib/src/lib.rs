@@ -6,11 +6,11 @@
 //! Depends on `shared-types` (cameras, progress, atomic writes, PLY point clouds), not on
 //! the engine.
 
-pub mod align;
 pub mod colmap;
 pub mod colmap_runner;
 pub mod convert;
 pub mod import;
 pub mod init;
 pub mod poses;
+pub mod similarity;
 pub mod undistort;

@@ -629,7 +629,7 @@ pub fn orthonormalise(r: DMat3) -> DMat3 {
         u2.column_mut(2).neg_mut();
         q = u2 * vt;
     }
-    crate::align::to_dmat3(&q)
+    crate::similarity::to_dmat3(&q)
 }
 
 /// Checks the inputs; returns the distinct sizes of the video frames.

@@ -121,7 +121,7 @@ fn herzjesu_p8_poses_match_ground_truth() {
             )
         })
         .collect();
-    let (_, errors, radius) = calib::align::compare(&out.file.set.cameras, &gt).unwrap();
+    let (_, errors, radius) = calib::similarity::compare(&out.file.set.cameras, &gt).unwrap();
     if let PoseSource::Colmap {
         timings,
         registered_images,

@@ -1,4 +1,5 @@
-//! Putting one pair's point maps into the world frame with the known poses.
+//! The scale of one pair's point maps, from the known poses: what puts the maps into the
+//! world frame of the posed cameras.
 //!
 //! A MASt3R-style model returns both views' points in the first camera's frame at an
 //! unknown scale `s`. The poses fix everything else: with `R, t` taking camera `a`'s frame
