@@ -10,38 +10,8 @@
 use std::path::Path;
 
 use super::{
-    CameraModel, ColmapCamera, ColmapImage, ColmapModel, ColmapPoint3D, ModelError, Point2D,
-    TrackElement, write_atomically,
+    CameraModel, ColmapCamera, ColmapImage, ColmapPoint3D, ModelError, Point2D, TrackElement,
 };
-
-/// Read `cameras.bin`, `images.bin` and `points3D.bin` from `dir`.
-pub fn read_model(dir: &Path) -> Result<ColmapModel, ModelError> {
-    Ok(ColmapModel {
-        cameras: read_cameras(&dir.join("cameras.bin"))?
-            .into_iter()
-            .map(|c| (c.id, c))
-            .collect(),
-        images: read_images(&dir.join("images.bin"))?
-            .into_iter()
-            .map(|i| (i.id, i))
-            .collect(),
-        points3d: read_points3d(&dir.join("points3D.bin"))?
-            .into_iter()
-            .map(|p| (p.id, p))
-            .collect(),
-    })
-}
-
-/// Write the three binary files to `dir` (which must exist).
-pub fn write_model(model: &ColmapModel, dir: &Path) -> Result<(), ModelError> {
-    let save = |name: &str, bytes: Vec<u8>| {
-        let path = dir.join(name);
-        write_atomically(&path, &bytes).map_err(|source| ModelError::Io { path, source })
-    };
-    save("cameras.bin", cameras_to_bytes(model.cameras.values()))?;
-    save("images.bin", images_to_bytes(model.images.values()))?;
-    save("points3D.bin", points3d_to_bytes(model.points3d.values()))
-}
 
 pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>, ModelError> {
     let bytes = read(path)?;

@@ -14,38 +14,8 @@ use std::path::Path;
 use std::str::{FromStr, SplitWhitespace};
 
 use super::{
-    ColmapCamera, ColmapImage, ColmapModel, ColmapPoint3D, INVALID_POINT3D_ID, ModelError, Point2D,
-    TrackElement, write_atomically,
+    ColmapCamera, ColmapImage, ColmapPoint3D, INVALID_POINT3D_ID, ModelError, Point2D, TrackElement,
 };
-
-/// Read `cameras.txt`, `images.txt` and `points3D.txt` from `dir`.
-pub fn read_model(dir: &Path) -> Result<ColmapModel, ModelError> {
-    Ok(ColmapModel {
-        cameras: read_cameras(&dir.join("cameras.txt"))?
-            .into_iter()
-            .map(|c| (c.id, c))
-            .collect(),
-        images: read_images(&dir.join("images.txt"))?
-            .into_iter()
-            .map(|i| (i.id, i))
-            .collect(),
-        points3d: read_points3d(&dir.join("points3D.txt"))?
-            .into_iter()
-            .map(|p| (p.id, p))
-            .collect(),
-    })
-}
-
-/// Write the three text files to `dir` (which must exist).
-pub fn write_model(model: &ColmapModel, dir: &Path) -> Result<(), ModelError> {
-    let save = |name: &str, text: String| {
-        let path = dir.join(name);
-        write_atomically(&path, text.as_bytes()).map_err(|source| ModelError::Io { path, source })
-    };
-    save("cameras.txt", cameras_to_text(model.cameras.values()))?;
-    save("images.txt", images_to_text(model.images.values()))?;
-    save("points3D.txt", points3d_to_text(model.points3d.values()))
-}
 
 pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>, ModelError> {
     let text = read(path)?;
