@@ -7,6 +7,7 @@ mod sync_support;
 use std::path::{Path, PathBuf};
 
 use rig::ingest::{IngestError, Streams, camera_files, decode_audio, ingest};
+use shared_types::atomic::temp_sibling;
 use shared_types::progress::NoProgress;
 use sync_support::{ffmpeg, ffmpeg_available};
 
@@ -83,7 +84,7 @@ fn a_plain_file_reports_frames_timestamps_and_audio() {
     let json = dir.path().join("work/ingest/streams.json");
     streams.write_json(&json).unwrap();
     assert_eq!(Streams::read_json(&json).unwrap(), streams);
-    assert!(!json.with_extension("json.tmp").exists());
+    assert!(!temp_sibling(&json).exists());
 }
 
 #[test]

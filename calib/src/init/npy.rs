@@ -265,7 +265,7 @@ pub fn point_map(pts: Array, conf: Option<Array>, path: &Path) -> Result<PointMa
     })
 }
 
-/// Write a `float32` `.npy` file of `shape` (C order), atomically through `<path>.tmp`.
+/// Write a `float32` `.npy` file of `shape` (C order), atomically.
 pub fn write_npy(path: &Path, shape: &[usize], data: &[f32]) -> std::io::Result<()> {
     use npyz::WriterBuilder;
     let mut buf = Vec::new();
@@ -277,9 +277,7 @@ pub fn write_npy(path: &Path, shape: &[usize], data: &[f32]) -> std::io::Result<
         .begin_nd()?;
     w.extend(data.iter().copied())?;
     w.finish()?;
-    let tmp = path.with_extension("npy.tmp");
-    std::fs::write(&tmp, &buf)?;
-    std::fs::rename(&tmp, path)
+    shared_types::atomic::write_atomic(path, &buf)
 }
 
 /// Write pair maps as `a__b/{pts1,conf1,pts2,conf2}.npy` under `dir` (confidences only
@@ -311,7 +309,7 @@ pub fn write_pair_dir(
 }
 
 /// Write pair maps as one `a__b.npz` archive under `dir` (arrays named by `names`;
-/// confidences only when present), atomically through a `.tmp` name.
+/// confidences only when present), atomically.
 pub fn write_pair_npz(
     dir: &Path,
     first: &str,
@@ -321,9 +319,8 @@ pub fn write_pair_npz(
 ) -> std::io::Result<()> {
     use npyz::WriterBuilder;
     let path = dir.join(format!("{}.npz", pair_stem(first, second)));
-    let tmp = path.with_extension("npz.tmp");
-    {
-        let mut npz = npyz::npz::NpzWriter::create(&tmp)?;
+    shared_types::atomic::write_with(&path, |tmp| {
+        let mut npz = npyz::npz::NpzWriter::create(tmp)?;
         for (map, pn, cn) in [
             (&maps.first, &names.pts1, &names.conf1),
             (&maps.second, &names.pts2, &names.conf2),
@@ -347,8 +344,8 @@ pub fn write_pair_npz(
             }
         }
         npz.zip_writer().finish()?;
-    }
-    std::fs::rename(&tmp, &path)
+        Ok(())
+    })
 }
 
 /// What a perfect MASt3R-style model would output for the pair `(first, second)`: each
