@@ -14,3 +14,20 @@ pub mod init;
 pub mod poses;
 pub mod similarity;
 pub mod undistort;
+
+/// Cameras for the unit tests.
+#[cfg(test)]
+pub(crate) mod test_support {
+    use glam::DVec3;
+    use shared_types::{Camera, Intrinsics, WorldToCamera};
+
+    /// A distortion-free camera `name` at `eye` looking at `target`, world z up.
+    pub fn looking_at(name: &str, intrinsics: Intrinsics, eye: DVec3, target: DVec3) -> Camera {
+        Camera {
+            name: name.into(),
+            intrinsics,
+            distortion: Default::default(),
+            world_to_camera: WorldToCamera::look_at(eye, target, DVec3::Z).unwrap(),
+        }
+    }
+}

@@ -116,6 +116,7 @@ pub fn compare(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::looking_at;
     use shared_types::{Intrinsics, WorldToCamera};
 
     #[test]
@@ -136,12 +137,7 @@ mod tests {
         let reference: Vec<Camera> = eyes
             .iter()
             .enumerate()
-            .map(|(i, &e)| Camera {
-                name: format!("c{i}"),
-                intrinsics: intr,
-                distortion: Default::default(),
-                world_to_camera: WorldToCamera::look_at(e, DVec3::ZERO, DVec3::Z).unwrap(),
-            })
+            .map(|(i, &e)| looking_at(&format!("c{i}"), intr, e, DVec3::ZERO))
             .collect();
         // Solved = reference mapped by the inverse similarity: x_s = Rᵀ(x_r − t)/s.
         let solved: Vec<Camera> = reference

@@ -18,14 +18,7 @@ use super::{
 };
 
 pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>, ModelError> {
-    let text = read(path)?;
-    let mut out = Vec::new();
-    for (n, line) in data_lines(&text) {
-        let mut f = Fields {
-            it: line.split_whitespace(),
-            path,
-            line: n,
-        };
+    read_lines(path, |f| {
         let id = f.next("CAMERA_ID")?;
         let model_name: String = f.next("MODEL")?;
         let model = model_name
@@ -37,18 +30,14 @@ pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>, ModelError> {
         let width = f.next("WIDTH")?;
         let height = f.next("HEIGHT")?;
         let params: Vec<f64> = f.rest("PARAMS")?;
-        let camera = ColmapCamera::new(id, model, width, height, params.clone()).ok_or(
-            ModelError::ParamCount {
-                path: path.to_path_buf(),
-                camera_id: id,
-                model: model.name(),
-                got: params.len(),
-                expected: model.num_params(),
-            },
-        )?;
-        out.push(camera);
-    }
-    Ok(out)
+        ColmapCamera::new(id, model, width, height, params.clone()).ok_or(ModelError::ParamCount {
+            path: path.to_path_buf(),
+            camera_id: id,
+            model: model.name(),
+            got: params.len(),
+            expected: model.num_params(),
+        })
+    })
 }
 
 pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>, ModelError> {
@@ -119,14 +108,7 @@ pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>, ModelError> {
 }
 
 pub fn read_points3d(path: &Path) -> Result<Vec<ColmapPoint3D>, ModelError> {
-    let text = read(path)?;
-    let mut out = Vec::new();
-    for (n, line) in data_lines(&text) {
-        let mut f = Fields {
-            it: line.split_whitespace(),
-            path,
-            line: n,
-        };
+    read_lines(path, |f| {
         let id = f.next("POINT3D_ID")?;
         let xyz = [f.next("X")?, f.next("Y")?, f.next("Z")?];
         let rgb = [f.next("R")?, f.next("G")?, f.next("B")?];
@@ -135,7 +117,7 @@ pub fn read_points3d(path: &Path) -> Result<Vec<ColmapPoint3D>, ModelError> {
         if !track.len().is_multiple_of(2) {
             return Err(malformed(
                 path,
-                n,
+                f.line,
                 "TRACK is not a list of IMAGE_ID POINT2D_IDX pairs",
             ));
         }
@@ -146,15 +128,14 @@ pub fn read_points3d(path: &Path) -> Result<Vec<ColmapPoint3D>, ModelError> {
                 point2d_idx: c[1],
             })
             .collect();
-        out.push(ColmapPoint3D {
+        Ok(ColmapPoint3D {
             id,
             xyz,
             rgb,
             error,
             track,
-        });
-    }
-    Ok(out)
+        })
+    })
 }
 
 pub fn cameras_to_text<'a>(cameras: impl ExactSizeIterator<Item = &'a ColmapCamera>) -> String {
@@ -254,6 +235,24 @@ fn data_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
         .enumerate()
         .map(|(n, l)| (n + 1, l.trim()))
         .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'))
+}
+
+/// One item per data line of the file at `path` (blank and `#` lines skipped), each parsed
+/// by `item` from the line's fields.
+fn read_lines<T>(
+    path: &Path,
+    mut item: impl FnMut(&mut Fields) -> Result<T, ModelError>,
+) -> Result<Vec<T>, ModelError> {
+    let text = read(path)?;
+    data_lines(&text)
+        .map(|(line, text)| {
+            item(&mut Fields {
+                it: text.split_whitespace(),
+                path,
+                line,
+            })
+        })
+        .collect()
 }
 
 fn malformed(path: &Path, line: usize, what: &str) -> ModelError {

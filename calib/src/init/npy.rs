@@ -122,7 +122,7 @@ pub fn read_pair_npz(path: &Path, names: &OutputNames) -> Result<PairMaps, NpyEr
     };
     let mut archive = npyz::npz::NpzArchive::open(path).map_err(io)?;
     let found = archive.array_names().collect::<Vec<_>>().join(", ");
-    let mut get = |name: &str, required: bool| -> Result<Option<Array>, NpyError> {
+    let get = |name: &str, required: bool| -> Result<Option<Array>, NpyError> {
         let file = archive.by_name(name).map_err(io)?;
         match file {
             Some(f) => array_from(f, path).map(Some),
@@ -134,14 +134,7 @@ pub fn read_pair_npz(path: &Path, names: &OutputNames) -> Result<PairMaps, NpyEr
             None => Ok(None),
         }
     };
-    let pts1 = get(&names.pts1, true)?.unwrap_or_default();
-    let conf1 = get(&names.conf1, false)?;
-    let pts2 = get(&names.pts2, true)?.unwrap_or_default();
-    let conf2 = get(&names.conf2, false)?;
-    Ok(PairMaps {
-        first: point_map(pts1, conf1, path)?,
-        second: point_map(pts2, conf2, path)?,
-    })
+    pair_maps(names, path, get)
 }
 
 /// A pair stored as a directory of `.npy` files.
@@ -153,13 +146,23 @@ pub fn read_pair_dir(dir: &Path, names: &OutputNames) -> Result<PairMaps, NpyErr
         }
         read_npy(&path).map(Some)
     };
-    let pts1 = read(&names.pts1, true)?.unwrap_or_default();
-    let conf1 = read(&names.conf1, false)?;
-    let pts2 = read(&names.pts2, true)?.unwrap_or_default();
-    let conf2 = read(&names.conf2, false)?;
+    pair_maps(names, dir, read)
+}
+
+/// A pair's maps from its arrays, each fetched by `get(name, required)` (`None`: an
+/// optional array that is absent); `origin` names the pair in errors.
+fn pair_maps(
+    names: &OutputNames,
+    origin: &Path,
+    mut get: impl FnMut(&str, bool) -> Result<Option<Array>, NpyError>,
+) -> Result<PairMaps, NpyError> {
+    let pts1 = get(&names.pts1, true)?.unwrap_or_default();
+    let conf1 = get(&names.conf1, false)?;
+    let pts2 = get(&names.pts2, true)?.unwrap_or_default();
+    let conf2 = get(&names.conf2, false)?;
     Ok(PairMaps {
-        first: point_map(pts1, conf1, dir)?,
-        second: point_map(pts2, conf2, dir)?,
+        first: point_map(pts1, conf1, origin)?,
+        second: point_map(pts2, conf2, origin)?,
     })
 }
 

@@ -198,15 +198,11 @@ pub fn sparse_scale(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use shared_types::{Intrinsics, WorldToCamera};
+    use crate::test_support::looking_at;
+    use shared_types::Intrinsics;
 
     fn camera(name: &str, eye: DVec3) -> Camera {
-        Camera {
-            name: name.into(),
-            intrinsics: Intrinsics::from_hfov(40, 30, 60.0),
-            distortion: Default::default(),
-            world_to_camera: WorldToCamera::look_at(eye, DVec3::ZERO, DVec3::Z).unwrap(),
-        }
+        looking_at(name, Intrinsics::from_hfov(40, 30, 60.0), eye, DVec3::ZERO)
     }
 
     /// Both views of a sphere-ish surface in camera a's frame, divided by `true_scale`.

@@ -62,6 +62,7 @@ pub fn normalisation_for(cameras: &[Camera], points: &[DVec3], radius: f64) -> N
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::looking_at;
 
     #[test]
     fn normalisation_puts_cameras_at_the_radius_and_keeps_projections() {
@@ -74,13 +75,7 @@ mod tests {
         ]
         .iter()
         .enumerate()
-        .map(|(i, &e)| Camera {
-            name: format!("c{i}"),
-            intrinsics: intr,
-            distortion: Default::default(),
-            world_to_camera: WorldToCamera::look_at(e, DVec3::new(1.0, 2.0, 0.0), DVec3::Z)
-                .unwrap(),
-        })
+        .map(|(i, &e)| looking_at(&format!("c{i}"), intr, e, DVec3::new(1.0, 2.0, 0.0)))
         .collect();
         let norm = normalisation_for(&cams, &[], 1.0);
         let p = DVec3::new(1.2, 2.1, 0.3);

@@ -284,22 +284,18 @@ fn check_inputs(inputs: &PosesInputs) -> Result<BTreeSet<(u32, u32)>, PosesError
             video_sizes.insert(img.dimensions());
         }
     }
+    let list = |sizes: &BTreeSet<(u32, u32)>| {
+        let sizes: Vec<String> = sizes.iter().map(|(w, h)| format!("{w}×{h}")).collect();
+        sizes.join(", ")
+    };
     if inputs.config.colmap.video_cameras == VideoCameras::Shared && video_sizes.len() > 1 {
-        let sizes: Vec<String> = video_sizes
-            .iter()
-            .map(|(w, h)| format!("{w}×{h}"))
-            .collect();
         return Err(PosesError::VideoSizesDiffer {
-            sizes: sizes.join(", "),
+            sizes: list(&video_sizes),
         });
     }
     if inputs.config.colmap.stills_cameras == StillsCameras::Shared && still_sizes.len() > 1 {
-        let sizes: Vec<String> = still_sizes
-            .iter()
-            .map(|(w, h)| format!("{w}×{h}"))
-            .collect();
         return Err(PosesError::StillSizesDiffer {
-            sizes: sizes.join(", "),
+            sizes: list(&still_sizes),
         });
     }
     Ok(video_sizes)
