@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use rig::ingest::{IngestError, Streams, camera_files, decode_audio, ingest};
 use shared_types::atomic::temp_sibling;
 use shared_types::progress::NoProgress;
-use sync_support::{cut, ffmpeg, ffmpeg_available};
+use sync_support::{H264_AAC, cut, ffmpeg, ffmpeg_available};
 
 /// testsrc2 + a 440 Hz sine, `seconds` long, at `fps` and `size`.
 fn clip(path: &Path, seconds: f64, fps: u32, size: &str, extra: &[&str]) {
@@ -32,16 +32,8 @@ fn clip(path: &Path, seconds: f64, fps: u32, size: &str, extra: &[&str]) {
         &t,
     ];
     args.extend_from_slice(extra);
-    args.extend_from_slice(&[
-        "-pix_fmt",
-        "yuv420p",
-        "-c:v",
-        "libx264",
-        "-preset",
-        "ultrafast",
-        "-c:a",
-        "aac",
-    ]);
+    args.extend_from_slice(&["-pix_fmt", "yuv420p"]);
+    args.extend_from_slice(&H264_AAC);
     let p = path.to_string_lossy().to_string();
     args.push(&p);
     ffmpeg(&args);

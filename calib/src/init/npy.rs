@@ -283,6 +283,27 @@ pub fn write_npy(path: &Path, shape: &[usize], data: &[f32]) -> std::io::Result<
     shared_types::atomic::write_atomic(path, &buf)
 }
 
+/// The arrays of a pair as written, in order, each `(name, shape, data)`: the first view's
+/// points (`height × width × 3`) and confidences (`height × width`, when present), then the
+/// second view's.
+fn pair_arrays<'a>(
+    maps: &PairMaps,
+    names: &'a OutputNames,
+) -> Vec<(&'a str, Vec<usize>, Vec<f32>)> {
+    let mut arrays = Vec::new();
+    for (map, pn, cn) in [
+        (&maps.first, &names.pts1, &names.conf1),
+        (&maps.second, &names.pts2, &names.conf2),
+    ] {
+        let flat = map.points.iter().flatten().copied().collect::<Vec<_>>();
+        arrays.push((pn.as_str(), vec![map.height, map.width, 3], flat));
+        if let Some(c) = &map.confidence {
+            arrays.push((cn.as_str(), vec![map.height, map.width], c.clone()));
+        }
+    }
+    arrays
+}
+
 /// Write pair maps as `a__b/{pts1,conf1,pts2,conf2}.npy` under `dir` (confidences only
 /// when present): the layout [`read_pair`] reads.
 pub fn write_pair_dir(
@@ -294,19 +315,8 @@ pub fn write_pair_dir(
 ) -> std::io::Result<()> {
     let sub = dir.join(pair_stem(first, second));
     std::fs::create_dir_all(&sub)?;
-    for (map, pn, cn) in [
-        (&maps.first, &names.pts1, &names.conf1),
-        (&maps.second, &names.pts2, &names.conf2),
-    ] {
-        let flat = map.points.iter().flatten().copied().collect::<Vec<_>>();
-        write_npy(
-            &sub.join(format!("{pn}.npy")),
-            &[map.height, map.width, 3],
-            &flat,
-        )?;
-        if let Some(c) = &map.confidence {
-            write_npy(&sub.join(format!("{cn}.npy")), &[map.height, map.width], c)?;
-        }
+    for (name, shape, data) in pair_arrays(maps, names) {
+        write_npy(&sub.join(format!("{name}.npy")), &shape, &data)?;
     }
     Ok(())
 }
@@ -324,27 +334,15 @@ pub fn write_pair_npz(
     let path = dir.join(format!("{}.npz", pair_stem(first, second)));
     shared_types::atomic::write_with(&path, |tmp| {
         let mut npz = npyz::npz::NpzWriter::create(tmp)?;
-        for (map, pn, cn) in [
-            (&maps.first, &names.pts1, &names.conf1),
-            (&maps.second, &names.pts2, &names.conf2),
-        ] {
-            let mut arrays = vec![(
-                pn,
-                vec![map.height as u64, map.width as u64, 3],
-                map.points.iter().flatten().copied().collect::<Vec<_>>(),
-            )];
-            if let Some(c) = &map.confidence {
-                arrays.push((cn, vec![map.height as u64, map.width as u64], c.clone()));
-            }
-            for (name, shape, data) in arrays {
-                let mut w = npz
-                    .array::<f32>(name, Default::default())?
-                    .default_dtype()
-                    .shape(&shape)
-                    .begin_nd()?;
-                w.extend(data)?;
-                w.finish()?;
-            }
+        for (name, shape, data) in pair_arrays(maps, names) {
+            let shape: Vec<u64> = shape.iter().map(|&d| d as u64).collect();
+            let mut w = npz
+                .array::<f32>(name, Default::default())?
+                .default_dtype()
+                .shape(&shape)
+                .begin_nd()?;
+            w.extend(data)?;
+            w.finish()?;
         }
         npz.zip_writer().finish()?;
         Ok(())

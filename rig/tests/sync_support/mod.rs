@@ -44,25 +44,17 @@ pub fn ffmpeg(args: &[&str]) {
     );
 }
 
+/// ffmpeg's output options for a file as a camera writes it: H.264 video, AAC audio.
+pub const H264_AAC: [&str; 6] = ["-c:v", "libx264", "-preset", "ultrafast", "-c:a", "aac"];
+
 /// Cuts `len` seconds starting at `from` (seconds, as ffmpeg reads them) out of `input`
-/// into `out`, re-encoded as a camera writes it (H.264 + AAC).
+/// into `out`, re-encoded as a camera writes it ([`H264_AAC`]).
 pub fn cut(input: &Path, from: &str, len: &str, out: &Path) {
     let (input, out) = (input.to_string_lossy(), out.to_string_lossy());
-    ffmpeg(&[
-        "-ss",
-        from,
-        "-i",
-        &input,
-        "-t",
-        len,
-        "-c:v",
-        "libx264",
-        "-preset",
-        "ultrafast",
-        "-c:a",
-        "aac",
-        &out,
-    ]);
+    let mut args = vec!["-ss", from, "-i", &input, "-t", len];
+    args.extend_from_slice(&H264_AAC);
+    args.push(&out);
+    ffmpeg(&args);
 }
 
 /// Analytic scene sound: ambient tones plus a band-limited clap at `clap_t` (`CLAP_T`).
