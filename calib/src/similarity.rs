@@ -113,6 +113,21 @@ pub fn compare(
     Some((sim, errors, radius))
 }
 
+/// A nalgebra 3×3 matrix (used for SVDs) as a glam matrix.
+pub(crate) fn to_dmat3(m: &nalgebra::Matrix3<f64>) -> DMat3 {
+    DMat3::from_cols_array(&[
+        m[(0, 0)],
+        m[(1, 0)],
+        m[(2, 0)],
+        m[(0, 1)],
+        m[(1, 1)],
+        m[(2, 1)],
+        m[(0, 2)],
+        m[(1, 2)],
+        m[(2, 2)],
+    ])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -160,19 +175,4 @@ mod tests {
             assert!(e.rotation_deg < 1e-5 && e.centre < 1e-9, "{e:?}");
         }
     }
-}
-
-/// A nalgebra 3×3 matrix (used for SVDs) as a glam matrix.
-pub(crate) fn to_dmat3(m: &nalgebra::Matrix3<f64>) -> DMat3 {
-    DMat3::from_cols_array(&[
-        m[(0, 0)],
-        m[(1, 0)],
-        m[(2, 0)],
-        m[(0, 1)],
-        m[(1, 1)],
-        m[(2, 1)],
-        m[(0, 2)],
-        m[(1, 2)],
-        m[(2, 2)],
-    ])
 }
