@@ -1,4 +1,6 @@
-//! COLMAP camera models ↔ the engine's [`Intrinsics`] + [`Distortion`].
+//! COLMAP cameras ↔ the engine's: camera models ↔ [`Intrinsics`] + [`Distortion`], and a
+//! COLMAP image with its camera → a [`Camera`] ([`camera_from_image`], the one place a
+//! COLMAP pose becomes an engine pose).
 //!
 //! Exact for the models the engine's distortion can express: SIMPLE_PINHOLE, PINHOLE,
 //! SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV with k4 = k5 = k6 = 0 (radial-tangential), and
@@ -6,9 +8,10 @@
 //! θ = atan r exactly like OpenCV's fisheye model). FOV and the thin-prism models have no
 //! engine equivalent: solve with OPENCV or OPENCV_FISHEYE instead.
 
-use shared_types::{Distortion, Intrinsics};
+use glam::DMat3;
+use shared_types::{Camera, Distortion, Intrinsics, WorldToCamera};
 
-use crate::colmap::{CameraModel, ColmapCamera};
+use crate::colmap::{CameraModel, ColmapCamera, ColmapImage, ColmapModel};
 
 #[derive(Debug, thiserror::Error)]
 pub enum ConvertError {
@@ -21,6 +24,8 @@ pub enum ConvertError {
         model: CameraModel,
         detail: String,
     },
+    #[error("COLMAP image {image} uses camera {camera_id}, which is not among the model's cameras")]
+    MissingCamera { image: String, camera_id: u32 },
     #[error(
         "COLMAP camera {camera_id} has an image size of {width}×{height} that does not fit in 32 bits"
     )]
@@ -122,6 +127,50 @@ pub fn to_engine(cam: &ColmapCamera) -> Result<(Intrinsics, Distortion), Convert
         }
     };
     Ok((intr, dist))
+}
+
+/// The engine camera `name` of a COLMAP `image` of `model`: its camera's intrinsics and
+/// distortion ([`to_engine`]) and the image's world-to-camera pose, the rotation made
+/// exactly orthonormal.
+pub fn camera_from_image(
+    model: &ColmapModel,
+    image: &ColmapImage,
+    name: &str,
+) -> Result<Camera, ConvertError> {
+    let cam = model
+        .cameras
+        .get(&image.camera_id)
+        .ok_or_else(|| ConvertError::MissingCamera {
+            image: image.name.clone(),
+            camera_id: image.camera_id,
+        })?;
+    let (intrinsics, distortion) = to_engine(cam)?;
+    Ok(Camera {
+        name: name.to_string(),
+        intrinsics,
+        distortion,
+        world_to_camera: WorldToCamera::from_parts(
+            orthonormalise(image.rotation()),
+            image.translation(),
+        ),
+    })
+}
+
+/// The nearest rotation (COLMAP's normalised quaternions are orthonormal to ~1e-16 already;
+/// this guards models written by other tools).
+fn orthonormalise(r: DMat3) -> DMat3 {
+    let m = nalgebra::Matrix3::from_fn(|i, j| r.col(j)[i]);
+    let svd = m.svd(true, true);
+    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else {
+        return r;
+    };
+    let mut q = u * vt;
+    if q.determinant() < 0.0 {
+        let mut u2 = u;
+        u2.column_mut(2).neg_mut();
+        q = u2 * vt;
+    }
+    crate::similarity::to_dmat3(&q)
 }
 
 /// The COLMAP model and parameters for engine intrinsics and distortion

@@ -168,30 +168,11 @@ fn from_colmap(dir: &Path) -> Result<CameraSet, ImportError> {
     let model = ColmapModel::read(dir)?;
     let mut cameras = Vec::new();
     for image in model.images.values() {
-        let cam = model
-            .cameras
-            .get(&image.camera_id)
-            .ok_or_else(|| ImportError::Invalid {
-                path: dir.to_path_buf(),
-                message: format!(
-                    "image {} uses camera {} which is not in cameras",
-                    image.name, image.camera_id
-                ),
-            })?;
-        let (intrinsics, distortion) = convert::to_engine(cam)?;
         let name = Path::new(&image.name)
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
-        cameras.push(Camera {
-            name,
-            intrinsics,
-            distortion,
-            world_to_camera: WorldToCamera::from_parts(
-                crate::poses::orthonormalise(image.rotation()),
-                image.translation(),
-            ),
-        });
+        cameras.push(convert::camera_from_image(&model, image, &name)?);
     }
     cameras.sort_by(|a, b| a.name.cmp(&b.name));
     Ok(CameraSet::new(cameras))

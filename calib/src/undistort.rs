@@ -449,20 +449,14 @@ impl Sample for f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::looking_at;
     use glam::DVec3;
-    use shared_types::WorldToCamera;
 
     fn cam(d: Distortion) -> Camera {
+        let intrinsics = Intrinsics::from_hfov(320, 240, 80.0);
         Camera {
-            name: "c".into(),
-            intrinsics: Intrinsics::from_hfov(320, 240, 80.0),
             distortion: d,
-            world_to_camera: WorldToCamera::look_at(
-                DVec3::new(0.0, -3.0, 1.0),
-                DVec3::ZERO,
-                DVec3::Z,
-            )
-            .unwrap(),
+            ..looking_at("c", intrinsics, DVec3::new(0.0, -3.0, 1.0), DVec3::ZERO)
         }
     }
 

@@ -1,5 +1,9 @@
 //! Calibration import: OpenCV-style JSON/YAML, Caliscope TOML, COLMAP folders; units and
-//! axis conventions.
+//! axis conventions. Two tests read real calibrations that are not part of the repository
+//! (`caliscope-4cam/camera_array.toml` from a Caliscope session and
+//! `panoptic-5view/camera_parameters.json`, a 5-camera calibration in centimetres),
+//! looked for in `shared/data/` beside the checkout or in `/work/shared/data/`; they skip
+//! when the files are absent.
 
 use std::path::Path;
 
@@ -188,7 +192,7 @@ fn shared_data(name: &str) -> Option<std::path::PathBuf> {
     if p.exists() {
         Some(p)
     } else {
-        eprintln!("skipping: {name} is absent (../shared/data/{name})");
+        eprintln!("skipping: {name} is absent (real data, not part of the repository)");
         None
     }
 }

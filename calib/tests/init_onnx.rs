@@ -1,5 +1,9 @@
-//! The ONNX path of point init on the fixture model `fixtures/onnx/pointmap_tiny.onnx`,
-//! whose output is a known function of its input (see its generator script).
+//! The ONNX path of point init on the fixture model `fixtures/onnx/pointmap_tiny.onnx`
+//! (made by `fixtures/onnx/make_pointmap_fixture.py`), whose output is a known function of
+//! its input: with `c = mean(rgb) / 255` of a pixel of either 32×24 image, its point is
+//! `(1 + c) · ray`, the ray of a pinhole with f = 32 px centred on the image, in image 1's
+//! camera frame (image 2's camera sits at x = 0.5 there, same rotation), and its confidence
+//! `1 + 4c`.
 
 use std::path::{Path, PathBuf};
 

@@ -38,7 +38,7 @@ fn solves_the_rendered_rig_within_half_a_degree() {
         cams.iter().map(|c| c.name.as_str()).collect::<Vec<_>>(),
         ["cam0", "cam1", "cam2", "cam3"]
     );
-    let (_, errors, radius) = calib::align::compare(cams, &rig.video).unwrap();
+    let (_, errors, radius) = calib::similarity::compare(cams, &rig.video).unwrap();
     for e in &errors {
         eprintln!(
             "{}: rotation {:.4}°, centre {:.4}% of radius",
@@ -220,7 +220,7 @@ fn fisheye_video_cameras_solve_with_opencv_fisheye() {
         .unwrap_or_else(|e| panic!("{e}"));
     eprintln!("source: {:?}", out.file.source);
     let cams = &out.file.set.cameras;
-    let (_, errors, radius) = calib::align::compare(cams, &rig.video).unwrap();
+    let (_, errors, radius) = calib::similarity::compare(cams, &rig.video).unwrap();
     for (e, c) in errors.iter().zip(cams) {
         eprintln!(
             "{}: rotation {:.4}°, centre {:.4}% of radius, {:?}",

@@ -1,6 +1,11 @@
 //! Real photos with ground truth: Strecha's Herz-Jesu-P8 (8 images, 3072×2048), downscaled to
-//! 768×512. Images 0, 2, 4, 6 play the video cameras, 1, 3, 5, 7 the stills. Skips when
-//! `../shared/data/strecha-herzjesu-p8` is absent.
+//! 768×512. Images 0, 2, 4, 6 play the video cameras, 1, 3, 5, 7 the stills.
+//!
+//! The data set is not part of the repository. The test looks for a folder
+//! `strecha-herzjesu-p8` holding `images/0000.jpg` … `images/0007.jpg` and the ground truth
+//! `gt_dense_cameras/0000.jpg.camera` … (each: K as 3 rows, a zero row, R as 3 rows, the
+//! camera centre, the image size) in `shared/data/` beside the checkout or in
+//! `/work/shared/data/`, and skips when it is absent or COLMAP is not installed.
 
 use std::path::{Path, PathBuf};
 
@@ -51,7 +56,9 @@ fn read_gt(path: &Path, name: &str, size: (u32, u32)) -> Camera {
 #[test]
 fn herzjesu_p8_poses_match_ground_truth() {
     let Some(dir) = data_dir() else {
-        eprintln!("skipping: ../shared/data/strecha-herzjesu-p8 is absent");
+        eprintln!(
+            "skipping: the strecha-herzjesu-p8 data set is absent (not part of the repository)"
+        );
         return;
     };
     if calib::colmap_runner::find_colmap(None).is_err() {
@@ -121,7 +128,7 @@ fn herzjesu_p8_poses_match_ground_truth() {
             )
         })
         .collect();
-    let (_, errors, radius) = calib::align::compare(&out.file.set.cameras, &gt).unwrap();
+    let (_, errors, radius) = calib::similarity::compare(&out.file.set.cameras, &gt).unwrap();
     if let PoseSource::Colmap {
         timings,
         registered_images,

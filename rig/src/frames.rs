@@ -374,22 +374,19 @@ fn write_camera(
     Ok(())
 }
 
-/// Writes an RGB8 PNG via a temporary name and a rename.
+/// Writes an RGB8 PNG atomically.
 fn write_png(path: &Path, data: &[u8], (w, h): (u32, u32)) -> Result<(), FramesError> {
-    let tmp = path.with_extension("png.tmp");
-    image::save_buffer_with_format(
-        &tmp,
-        data,
-        w,
-        h,
-        image::ExtendedColorType::Rgb8,
-        image::ImageFormat::Png,
-    )
+    shared_types::atomic::write_with(path, |tmp| {
+        image::save_buffer_with_format(
+            tmp,
+            data,
+            w,
+            h,
+            image::ExtendedColorType::Rgb8,
+            image::ImageFormat::Png,
+        )
+    })
     .map_err(|source| FramesError::Image {
-        path: path.into(),
-        source,
-    })?;
-    std::fs::rename(&tmp, path).map_err(|source| FramesError::Io {
         path: path.into(),
         source,
     })

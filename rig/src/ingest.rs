@@ -220,17 +220,10 @@ impl CameraStream {
     }
 }
 
-/// Serialises `value` as pretty JSON to `path` via a temporary file and a rename.
+/// Serialises `value` as pretty JSON to `path`, atomically (its folder created if needed).
 pub(crate) fn write_json_atomic<T: Serialize>(path: &Path, value: &T) -> std::io::Result<()> {
-    if let Some(dir) = path.parent()
-        && !dir.as_os_str().is_empty()
-    {
-        std::fs::create_dir_all(dir)?;
-    }
     let text = serde_json::to_string_pretty(value).map_err(std::io::Error::other)?;
-    let tmp = path.with_extension("json.tmp");
-    std::fs::write(&tmp, text)?;
-    std::fs::rename(&tmp, path)
+    shared_types::atomic::write_atomic(path, text.as_bytes())
 }
 
 const VIDEO_EXTENSIONS: &[&str] = &["mp4", "mov", "mkv", "avi", "m4v", "webm", "mts", "ts"];
@@ -272,7 +265,13 @@ pub fn camera_files(camera: &str, path: &Path) -> Result<Vec<PathBuf>, IngestErr
             .and_then(|e| e.to_str())
             .unwrap_or("")
             .to_ascii_lowercase();
-        if p.is_file() && VIDEO_EXTENSIONS.contains(&ext.as_str()) {
+        // Hidden files are never recordings: an interrupted atomic write leaves its
+        // temporary sibling (`.NAME.tmp-PID.MP4`, see `shared_types::atomic::temp_sibling`).
+        let hidden = p
+            .file_name()
+            .and_then(|n| n.to_str())
+            .is_some_and(|n| n.starts_with('.'));
+        if p.is_file() && !hidden && VIDEO_EXTENSIONS.contains(&ext.as_str()) {
             files.push(p);
         }
     }

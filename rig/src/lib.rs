@@ -1,7 +1,7 @@
 //! `rig`: cameras and time. Camera sources (video files, V4L2 devices, simulated
 //! cameras), audio and flash synchronisation, frame re-alignment and extraction.
 //!
-//! Depends on the engine crate only for the shared camera and progress types.
+//! Depends on `shared-types` (cameras, progress, atomic writes), not on the engine.
 
 pub mod frames;
 pub mod ingest;

@@ -16,6 +16,7 @@ use ffmpeg_next as ffmpeg;
 use serde::{Deserialize, Serialize};
 
 use crate::source::{CameraSource, Frame, PixelLayout, SourceError, init_ffmpeg};
+use shared_types::atomic::{temp_sibling, write_atomic};
 use shared_types::progress::Progress;
 
 pub mod v4l2;
@@ -182,9 +183,13 @@ impl FrameClock {
 }
 
 /// Encodes frames with exact timestamps into `capture.mov` (Motion JPEG, microsecond
-/// timestamps) and lists them in `timestamps.csv`; both appear only when complete.
+/// timestamps) and lists them in `timestamps.csv`; both appear only when complete. While
+/// recording, the video grows under a temporary sibling name
+/// ([`shared_types::atomic::temp_sibling`]) that [`CaptureWriter::finish`] renames.
 pub struct CaptureWriter {
     dir: PathBuf,
+    /// The recording while it is written: the temporary sibling of `capture.mov`.
+    tmp: PathBuf,
     output: ffmpeg::format::context::Output,
     encoder: ffmpeg::encoder::Video,
     scaler: Option<(PixelLayout, ffmpeg::software::scaling::Context)>,
@@ -204,7 +209,7 @@ impl CaptureWriter {
     /// Starts `dir/capture.mov` for frames of `size`.
     pub fn create(dir: &Path, size: (u32, u32)) -> Result<Self, RecordError> {
         init_ffmpeg();
-        let tmp = dir.join("capture.tmp.mov");
+        let tmp = temp_sibling(&dir.join("capture.mov"));
         let err = |e: ffmpeg::Error| RecordError::Write {
             path: tmp.clone(),
             message: e.to_string(),
@@ -249,6 +254,7 @@ impl CaptureWriter {
         let stream_time_base = output.stream(0).map(|s| s.time_base()).unwrap_or(TIME_BASE);
         Ok(CaptureWriter {
             dir: dir.to_path_buf(),
+            tmp,
             output,
             encoder,
             scaler: None,
@@ -261,13 +267,9 @@ impl CaptureWriter {
         })
     }
 
-    fn tmp_path(&self) -> PathBuf {
-        self.dir.join("capture.tmp.mov")
-    }
-
     /// Appends one frame; `frame.timestamp` (seconds, ≥ 0, increasing) becomes its pts.
     pub fn write(&mut self, frame: &Frame) -> Result<(), RecordError> {
-        let path = self.tmp_path();
+        let path = self.tmp.clone();
         let err = |e: ffmpeg::Error| RecordError::Write {
             path: path.clone(),
             message: e.to_string(),
@@ -325,7 +327,7 @@ impl CaptureWriter {
     }
 
     fn drain(&mut self) -> Result<(), RecordError> {
-        let path = self.tmp_path();
+        let path = self.tmp.clone();
         let mut packet = ffmpeg::Packet::empty();
         while self.encoder.receive_packet(&mut packet).is_ok() {
             packet.set_stream(0);
@@ -343,7 +345,7 @@ impl CaptureWriter {
 
     /// Flushes, closes and renames the files; returns the video's path.
     pub fn finish(mut self) -> Result<PathBuf, RecordError> {
-        let path = self.tmp_path();
+        let path = self.tmp.clone();
         let err = |e: ffmpeg::Error| RecordError::Write {
             path: path.clone(),
             message: e.to_string(),
@@ -356,9 +358,7 @@ impl CaptureWriter {
             message: e.to_string(),
         };
         let csv = self.dir.join("timestamps.csv");
-        let csv_tmp = self.dir.join("timestamps.csv.tmp");
-        std::fs::write(&csv_tmp, &self.csv).map_err(|e| io(&csv_tmp, e))?;
-        std::fs::rename(&csv_tmp, &csv).map_err(|e| io(&csv, e))?;
+        write_atomic(&csv, self.csv.as_bytes()).map_err(|e| io(&csv, e))?;
         let video = self.dir.join("capture.mov");
         std::fs::rename(&path, &video).map_err(|e| io(&video, e))?;
         Ok(video)

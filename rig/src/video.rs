@@ -2,7 +2,8 @@
 //! pts = dts) with exact per-frame pts in units of 1/fps, and optionally AAC audio
 //! (FFmpeg's native encoder, mono, fltp). The one encoder of the project: the simulator's
 //! cameras and the renderer's videos both use it. The file is written under a temporary
-//! name (`<name>.MP4.tmp`) and renamed by [`Mp4Writer::finish`].
+//! sibling name ([`shared_types::atomic::temp_sibling`]: hidden, same extension) and renamed
+//! by [`Mp4Writer::finish`], so a reader never sees a half-written video.
 
 use std::path::{Path, PathBuf};
 
@@ -10,6 +11,7 @@ use ffmpeg::{
     ChannelLayout, Dictionary, Packet, Rational, codec, encoder, format, frame, software,
 };
 use ffmpeg_next as ffmpeg;
+use shared_types::atomic::temp_sibling;
 
 /// What can go wrong writing a video; every variant names the file.
 #[derive(Debug, thiserror::Error)]
@@ -135,7 +137,7 @@ impl Mp4Writer {
             let what = what.to_string();
             move |source| VideoError::Encode { path, what, source }
         };
-        let tmp = path.with_extension("MP4.tmp");
+        let tmp = temp_sibling(path);
         let mut octx = format::output_as(&tmp, "mp4").map_err(err("opening the MP4 muxer"))?;
         let global = octx.format().flags().contains(format::Flags::GLOBAL_HEADER);
 

@@ -1,14 +1,19 @@
 //! Ingest of real video files made with ffmpeg: plain files, GoPro chapters, variable
-//! frame rate / dropped frames, mismatch warnings, error messages, audio decoding, and the
-//! caliscope 4-camera recording from shared/data when it is present.
+//! frame rate / dropped frames, mismatch warnings, error messages, audio decoding, and a
+//! real 4-camera recording made with Caliscope when it is present. That recording is not
+//! part of the repository: the test looks for `caliscope-4cam/calibration/extrinsic/` (videos
+//! `cam_0.mp4` … `cam_3.mp4` and Caliscope's `timestamps.csv`, one row per frame with the
+//! camera in the second column and its time in the third) in `shared/data/` beside the
+//! checkout or in `/work/shared/data/`, and skips when it is absent.
 
 mod sync_support;
 
 use std::path::{Path, PathBuf};
 
 use rig::ingest::{IngestError, Streams, camera_files, decode_audio, ingest};
+use shared_types::atomic::temp_sibling;
 use shared_types::progress::NoProgress;
-use sync_support::{ffmpeg, ffmpeg_available};
+use sync_support::{H264_AAC, cut, ffmpeg, ffmpeg_available};
 
 /// testsrc2 + a 440 Hz sine, `seconds` long, at `fps` and `size`.
 fn clip(path: &Path, seconds: f64, fps: u32, size: &str, extra: &[&str]) {
@@ -27,16 +32,8 @@ fn clip(path: &Path, seconds: f64, fps: u32, size: &str, extra: &[&str]) {
         &t,
     ];
     args.extend_from_slice(extra);
-    args.extend_from_slice(&[
-        "-pix_fmt",
-        "yuv420p",
-        "-c:v",
-        "libx264",
-        "-preset",
-        "ultrafast",
-        "-c:a",
-        "aac",
-    ]);
+    args.extend_from_slice(&["-pix_fmt", "yuv420p"]);
+    args.extend_from_slice(&H264_AAC);
     let p = path.to_string_lossy().to_string();
     args.push(&p);
     ffmpeg(&args);
@@ -83,7 +80,7 @@ fn a_plain_file_reports_frames_timestamps_and_audio() {
     let json = dir.path().join("work/ingest/streams.json");
     streams.write_json(&json).unwrap();
     assert_eq!(Streams::read_json(&json).unwrap(), streams);
-    assert!(!json.with_extension("json.tmp").exists());
+    assert!(!temp_sibling(&json).exists());
 }
 
 #[test]
@@ -96,26 +93,10 @@ fn gopro_chapters_are_joined_in_order() {
     clip(&whole, 3.0, 30, "160x120", &["-g", "15"]);
     let cam = dir.path().join("cam0");
     std::fs::create_dir_all(&cam).unwrap();
-    let w = whole.to_string_lossy().to_string();
     // Chapter 2 sorts before chapter 1 by name only if numbers were ignored: GX02 < GX01 is false,
     // so name them so that a wrong (recording-first) order would be visible.
     for (name, from, len) in [("GX010042.MP4", "0", "1.5"), ("GX020042.MP4", "1.5", "1.5")] {
-        let out = cam.join(name).to_string_lossy().to_string();
-        ffmpeg(&[
-            "-ss",
-            from,
-            "-i",
-            &w,
-            "-t",
-            len,
-            "-c:v",
-            "libx264",
-            "-preset",
-            "ultrafast",
-            "-c:a",
-            "aac",
-            &out,
-        ]);
+        cut(&whole, from, len, &cam.join(name));
     }
     let files = camera_files("cam0", &cam).unwrap();
     let names: Vec<_> = files
@@ -275,7 +256,7 @@ fn caliscope_recording_matches_its_timestamps_csv() {
     };
     if !root.join("timestamps.csv").exists() {
         eprintln!(
-            "SKIPPED: {} not found (the caliscope-4cam sample lives in ../shared/data)",
+            "SKIPPED: {} not found (the caliscope-4cam sample is not in the repository)",
             root.display()
         );
         return;

@@ -17,6 +17,7 @@ use rig::record::{
 };
 use rig::sim::{Scene, SimSource};
 use rig::source::{CameraSource, Frame, PixelLayout, SourceError};
+use shared_types::atomic::temp_sibling;
 use shared_types::progress::NoProgress;
 
 /// A camera that films a moving bar at ~30 fps with timestamp jitter and one dropped frame.
@@ -130,7 +131,10 @@ fn recorded_frames_keep_their_exact_timestamps_through_ingest() {
     let stop = AtomicBool::new(false);
     let rec = record_source(&mut camera, &cam_dir, &stop, None, &NoProgress).unwrap();
     assert_eq!(rec.frames, 44);
-    assert!(cam_dir.join("capture.mov").exists() && !cam_dir.join("capture.tmp.mov").exists());
+    assert!(
+        cam_dir.join("capture.mov").exists()
+            && !temp_sibling(&cam_dir.join("capture.mov")).exists()
+    );
     let csv = std::fs::read_to_string(cam_dir.join("timestamps.csv")).unwrap();
     assert_eq!(csv.lines().count(), 45);
     let streams = ingest(&[("cam0".into(), cam_dir.clone())], &NoProgress).unwrap();
@@ -319,7 +323,7 @@ fn a_stop_request_ends_every_camera_with_complete_files() {
     for rec in &recorded {
         assert!(rec.frames > 0, "{}", rec.name);
         assert!(rec.dir.join("capture.mov").exists() && rec.dir.join("timestamps.csv").exists());
-        assert!(!rec.dir.join("capture.tmp.mov").exists());
+        assert!(!temp_sibling(&rec.dir.join("capture.mov")).exists());
     }
 }
 

@@ -3,66 +3,22 @@
 //! one sample. Checks GCC-PHAT's sub-sample accuracy, the confidence of silent or
 //! unrelated tracks, and the acoustic path correction.
 
+mod sync_support;
+
 use std::collections::BTreeMap;
-use std::f64::consts::TAU;
 
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rig::ingest::AudioTrack;
 use rig::sync::audio::{AcousticConfig, AudioSyncConfig, audio_offsets};
+use sync_support::SceneSound;
 
 const RATE: u32 = 48_000;
 const CLAP_T: f64 = 2.0;
 
-struct Scene {
-    ambient: Vec<(f64, f64, f64)>,
-    clap: Vec<(f64, f64, f64)>,
-}
-
-impl Scene {
-    fn new(seed: u64) -> Self {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let mut tones = |n: usize, lo: f64, hi: f64, amp: f64| {
-            (0..n)
-                .map(|_| {
-                    (
-                        lo + (hi - lo) * rng.random::<f64>(),
-                        amp * (0.5 + rng.random::<f64>()),
-                        TAU * rng.random::<f64>(),
-                    )
-                })
-                .collect::<Vec<_>>()
-        };
-        Scene {
-            ambient: tones(30, 80.0, 6000.0, 0.004),
-            clap: tones(60, 300.0, 12_000.0, 0.05),
-        }
-    }
-
-    /// Sound pressure at scene time `t` (seconds).
-    fn at(&self, t: f64) -> f64 {
-        let mut v: f64 = self
-            .ambient
-            .iter()
-            .map(|(f, a, p)| a * (TAU * f * t + p).sin())
-            .sum();
-        let x = t - CLAP_T;
-        if x.abs() < 0.03 {
-            let env = (-0.5 * (x / 0.004).powi(2)).exp();
-            v += env
-                * self
-                    .clap
-                    .iter()
-                    .map(|(f, a, p)| a * (TAU * f * x + p).sin())
-                    .sum::<f64>();
-        }
-        v
-    }
-}
-
 /// A camera whose clock reads `t − offset` at scene time `t`, recording 4 s, hearing the
 /// scene `delay` seconds late, with its own microphone noise.
-fn record(scene: &Scene, offset: f64, delay: f64, seed: u64) -> AudioTrack {
+fn record(scene: &SceneSound, offset: f64, delay: f64, seed: u64) -> AudioTrack {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let samples = (0..4 * RATE as usize)
         .map(|n| {
@@ -81,7 +37,7 @@ const OFFSETS: [f64; 4] = [0.0, 0.012_345_6, -0.350_123_4, 0.800_037_1];
 
 #[test]
 fn gcc_phat_offsets_are_sub_sample() {
-    let scene = Scene::new(7);
+    let scene = SceneSound::with_tones(7, 30, 60, CLAP_T);
     let tracks: Vec<_> = OFFSETS
         .iter()
         .enumerate()
@@ -110,7 +66,7 @@ fn gcc_phat_offsets_are_sub_sample() {
 
 #[test]
 fn silent_and_unrelated_tracks_are_not_trusted() {
-    let scene = Scene::new(7);
+    let scene = SceneSound::with_tones(7, 30, 60, CLAP_T);
     let mut rng = ChaCha8Rng::seed_from_u64(5);
     let hiss: Vec<f32> = (0..4 * RATE as usize)
         .map(|_| 0.002 * (rng.random::<f32>() - 0.5))
@@ -140,7 +96,7 @@ fn silent_and_unrelated_tracks_are_not_trusted() {
 
 #[test]
 fn acoustic_path_delay_is_measured_and_corrected() {
-    let scene = Scene::new(3);
+    let scene = SceneSound::with_tones(3, 30, 60, CLAP_T);
     let clap_position = [0.0, 0.0, 0.0];
     let positions = [
         [3.0, 0.0, 0.0],

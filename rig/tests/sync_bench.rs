@@ -11,7 +11,7 @@ use rig::frames::{FramesConfig, extract};
 use rig::ingest::ingest;
 use rig::sync::{SyncConfig, SyncMethod, synchronise};
 use shared_types::progress::NoProgress;
-use sync_support::{ffmpeg, ffmpeg_available};
+use sync_support::{cut, ffmpeg, ffmpeg_available};
 
 #[test]
 #[ignore = "benchmark: encodes 4 minutes of 1080p footage"]
@@ -59,23 +59,8 @@ fn one_minute_of_four_1080p_cameras() {
     for (i, s) in starts.iter().enumerate() {
         let cam = dir.path().join(format!("cam{i}"));
         std::fs::create_dir_all(&cam).unwrap();
-        let out = cam.join("GX010001.MP4").to_string_lossy().to_string();
         let (ss, t) = (format!("{s}"), format!("{seconds}"));
-        ffmpeg(&[
-            "-ss",
-            &ss,
-            "-i",
-            &m,
-            "-t",
-            &t,
-            "-c:v",
-            "libx264",
-            "-preset",
-            "ultrafast",
-            "-c:a",
-            "aac",
-            &out,
-        ]);
+        cut(&master, &ss, &t, &cam.join("GX010001.MP4"));
         cams.push((format!("cam{i}"), cam));
     }
     println!(
@@ -83,6 +68,14 @@ fn one_minute_of_four_1080p_cameras() {
         t0.elapsed().as_secs_f64()
     );
     let per_minute = 60.0 / seconds;
+    // Offset error of every camera against the true start, milliseconds.
+    let errors_ms = |r: &rig::sync::SyncResult| -> Vec<f64> {
+        r.cameras
+            .iter()
+            .zip(&starts)
+            .map(|(c, s)| (c.offset_s - s) * 1e3)
+            .collect()
+    };
 
     let t = Instant::now();
     let streams = ingest(&cams, &NoProgress).unwrap();
@@ -122,12 +115,7 @@ fn one_minute_of_four_1080p_cameras() {
         &NoProgress,
     )
     .unwrap();
-    let errs: Vec<f64> = r
-        .cameras
-        .iter()
-        .zip(&starts)
-        .map(|(c, s)| (c.offset_s - s) * 1e3)
-        .collect();
+    let errs = errors_ms(&r);
     println!(
         "sync Audio without clap window (30 s excerpt): {:.2} s per minute of footage; errors (ms) {errs:?}",
         t.elapsed().as_secs_f64() * per_minute
@@ -145,12 +133,7 @@ fn one_minute_of_four_1080p_cameras() {
         .unwrap();
         println!("{method:?} notes: {:?}", r.notes);
         let secs = t.elapsed().as_secs_f64();
-        let errs: Vec<f64> = r
-            .cameras
-            .iter()
-            .zip(&starts)
-            .map(|(c, s)| (c.offset_s - s) * 1e3)
-            .collect();
+        let errs = errors_ms(&r);
         println!(
             "sync {method:?}: {secs:.2} s ({:.2} s per minute of footage); offset errors (ms) {:?}",
             secs * per_minute,

@@ -10,49 +10,11 @@
 use std::path::Path;
 
 use super::{
-    CameraModel, ColmapCamera, ColmapImage, ColmapModel, ColmapPoint3D, ModelError, Point2D,
-    TrackElement, write_atomically,
+    CameraModel, ColmapCamera, ColmapImage, ColmapPoint3D, ModelError, Point2D, TrackElement,
 };
 
-/// Read `cameras.bin`, `images.bin` and `points3D.bin` from `dir`.
-pub fn read_model(dir: &Path) -> Result<ColmapModel, ModelError> {
-    Ok(ColmapModel {
-        cameras: read_cameras(&dir.join("cameras.bin"))?
-            .into_iter()
-            .map(|c| (c.id, c))
-            .collect(),
-        images: read_images(&dir.join("images.bin"))?
-            .into_iter()
-            .map(|i| (i.id, i))
-            .collect(),
-        points3d: read_points3d(&dir.join("points3D.bin"))?
-            .into_iter()
-            .map(|p| (p.id, p))
-            .collect(),
-    })
-}
-
-/// Write the three binary files to `dir` (which must exist).
-pub fn write_model(model: &ColmapModel, dir: &Path) -> Result<(), ModelError> {
-    let save = |name: &str, bytes: Vec<u8>| {
-        let path = dir.join(name);
-        write_atomically(&path, &bytes).map_err(|source| ModelError::Io { path, source })
-    };
-    save("cameras.bin", cameras_to_bytes(model.cameras.values()))?;
-    save("images.bin", images_to_bytes(model.images.values()))?;
-    save("points3D.bin", points3d_to_bytes(model.points3d.values()))
-}
-
 pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>, ModelError> {
-    let bytes = read(path)?;
-    let mut r = Reader {
-        bytes: &bytes,
-        pos: 0,
-        path,
-    };
-    let n = r.count(24)?;
-    let mut out = Vec::with_capacity(n);
-    for _ in 0..n {
+    read_items(path, 24, |r| {
         let id = r.u32()?;
         let model_id = r.i32()?;
         let model =
@@ -65,28 +27,18 @@ pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>, ModelError> {
         let params = (0..model.num_params())
             .map(|_| r.f64())
             .collect::<Result<_, _>>()?;
-        out.push(ColmapCamera {
+        Ok(ColmapCamera {
             id,
             model,
             width,
             height,
             params,
-        });
-    }
-    r.finish()?;
-    Ok(out)
+        })
+    })
 }
 
 pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>, ModelError> {
-    let bytes = read(path)?;
-    let mut r = Reader {
-        bytes: &bytes,
-        pos: 0,
-        path,
-    };
-    let n = r.count(73)?;
-    let mut out = Vec::with_capacity(n);
-    for _ in 0..n {
+    read_items(path, 73, |r| {
         let id = r.u32()?;
         let qvec = [r.f64()?, r.f64()?, r.f64()?, r.f64()?];
         let tvec = [r.f64()?, r.f64()?, r.f64()?];
@@ -100,29 +52,19 @@ pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>, ModelError> {
                 point3d_id: r.u64()?,
             });
         }
-        out.push(ColmapImage {
+        Ok(ColmapImage {
             id,
             qvec,
             tvec,
             camera_id,
             name,
             points2d,
-        });
-    }
-    r.finish()?;
-    Ok(out)
+        })
+    })
 }
 
 pub fn read_points3d(path: &Path) -> Result<Vec<ColmapPoint3D>, ModelError> {
-    let bytes = read(path)?;
-    let mut r = Reader {
-        bytes: &bytes,
-        pos: 0,
-        path,
-    };
-    let n = r.count(51)?;
-    let mut out = Vec::with_capacity(n);
-    for _ in 0..n {
+    read_items(path, 51, |r| {
         let id = r.u64()?;
         let xyz = [r.f64()?, r.f64()?, r.f64()?];
         let rgb = [r.u8()?, r.u8()?, r.u8()?];
@@ -135,16 +77,14 @@ pub fn read_points3d(path: &Path) -> Result<Vec<ColmapPoint3D>, ModelError> {
                 point2d_idx: r.u32()?,
             });
         }
-        out.push(ColmapPoint3D {
+        Ok(ColmapPoint3D {
             id,
             xyz,
             rgb,
             error,
             track,
-        });
-    }
-    r.finish()?;
-    Ok(out)
+        })
+    })
 }
 
 pub fn cameras_to_bytes<'a>(cameras: impl ExactSizeIterator<Item = &'a ColmapCamera>) -> Vec<u8> {
@@ -201,6 +141,28 @@ pub fn points3d_to_bytes<'a>(points: impl ExactSizeIterator<Item = &'a ColmapPoi
 
 fn put(w: &mut Vec<u8>, bytes: &[u8]) {
     w.extend_from_slice(bytes);
+}
+
+/// The items of the file at `path`: a `u64` count (each item at least `min_item_bytes`
+/// long), then the items, each read by `item`; the file must end with the last one.
+fn read_items<T>(
+    path: &Path,
+    min_item_bytes: usize,
+    mut item: impl FnMut(&mut Reader) -> Result<T, ModelError>,
+) -> Result<Vec<T>, ModelError> {
+    let bytes = read(path)?;
+    let mut r = Reader {
+        bytes: &bytes,
+        pos: 0,
+        path,
+    };
+    let n = r.count(min_item_bytes)?;
+    let mut out = Vec::with_capacity(n);
+    for _ in 0..n {
+        out.push(item(&mut r)?);
+    }
+    r.finish()?;
+    Ok(out)
 }
 
 fn read(path: &Path) -> Result<Vec<u8>, ModelError> {

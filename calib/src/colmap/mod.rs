@@ -4,7 +4,8 @@
 //!
 //! Conventions are COLMAP's: world-to-camera pose `x_cam = R(q)·x_world + t`, Hamilton
 //! quaternion `(qw, qx, qy, qz)`, pixel centres at integer + 0.5.
-//! This module does file IO only; turning a model into engine cameras is [`crate::poses`].
+//! This module does file IO only; turning a model's images into engine cameras is
+//! [`crate::convert::camera_from_image`].
 
 pub mod binary;
 mod camera_model;
@@ -14,6 +15,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use glam::{DMat3, DQuat, DVec3};
+use shared_types::atomic::write_atomic;
 
 pub use camera_model::CameraModel;
 
@@ -93,6 +95,11 @@ impl ModelFormat {
             ModelFormat::Text => "txt",
         }
     }
+
+    /// The path of model file `name` (`cameras`, `images`, `points3D`) in `dir`.
+    fn file(self, dir: &Path, name: &str) -> PathBuf {
+        dir.join(format!("{name}.{}", self.extension()))
+    }
 }
 
 /// Errors reading or writing a COLMAP model. Each names the file and what is wrong.
@@ -171,13 +178,27 @@ impl ColmapImage {
 impl ColmapModel {
     /// Read the model in `dir`, in whichever format is there (binary preferred when both).
     pub fn read(dir: &Path) -> Result<Self, ModelError> {
-        match Self::detect_format(dir) {
-            Some(ModelFormat::Binary) => binary::read_model(dir),
-            Some(ModelFormat::Text) => text::read_model(dir),
-            None => Err(ModelError::NotAModel {
-                dir: dir.to_path_buf(),
-            }),
-        }
+        let format = Self::detect_format(dir).ok_or_else(|| ModelError::NotAModel {
+            dir: dir.to_path_buf(),
+        })?;
+        let file = |name: &str| format.file(dir, name);
+        let (cameras, images, points3d) = match format {
+            ModelFormat::Binary => (
+                binary::read_cameras(&file("cameras"))?,
+                binary::read_images(&file("images"))?,
+                binary::read_points3d(&file("points3D"))?,
+            ),
+            ModelFormat::Text => (
+                text::read_cameras(&file("cameras"))?,
+                text::read_images(&file("images"))?,
+                text::read_points3d(&file("points3D"))?,
+            ),
+        };
+        Ok(ColmapModel {
+            cameras: cameras.into_iter().map(|c| (c.id, c)).collect(),
+            images: images.into_iter().map(|i| (i.id, i)).collect(),
+            points3d: points3d.into_iter().map(|p| (p.id, p)).collect(),
+        })
     }
 
     /// The format of the model in `dir`, if a complete one is there.
@@ -187,7 +208,7 @@ impl ColmapModel {
             .find(|f| {
                 ["cameras", "images", "points3D"]
                     .iter()
-                    .all(|n| dir.join(format!("{n}.{}", f.extension())).is_file())
+                    .all(|n| f.file(dir, n).is_file())
             })
     }
 
@@ -198,19 +219,39 @@ impl ColmapModel {
             path: dir.to_path_buf(),
             source,
         })?;
-        match format {
-            ModelFormat::Binary => binary::write_model(self, dir),
-            ModelFormat::Text => text::write_model(self, dir),
+        let files = match format {
+            ModelFormat::Binary => [
+                ("cameras", binary::cameras_to_bytes(self.cameras.values())),
+                ("images", binary::images_to_bytes(self.images.values())),
+                (
+                    "points3D",
+                    binary::points3d_to_bytes(self.points3d.values()),
+                ),
+            ],
+            ModelFormat::Text => [
+                (
+                    "cameras",
+                    text::cameras_to_text(self.cameras.values()).into_bytes(),
+                ),
+                (
+                    "images",
+                    text::images_to_text(self.images.values()).into_bytes(),
+                ),
+                (
+                    "points3D",
+                    text::points3d_to_text(self.points3d.values()).into_bytes(),
+                ),
+            ],
+        };
+        for (name, bytes) in files {
+            let path = format.file(dir, name);
+            write_atomic(&path, &bytes).map_err(|source| ModelError::Io { path, source })?;
         }
+        Ok(())
     }
 
     /// The image with this file name (as COLMAP stores it, e.g. `video/cam0.png`).
     pub fn image_by_name(&self, name: &str) -> Option<&ColmapImage> {
         self.images.values().find(|i| i.name == name)
     }
-}
-
-/// Write `bytes` to `path` through a temporary file in the same folder, then rename.
-pub(crate) fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    shared_types::atomic::write_atomic(path, bytes)
 }

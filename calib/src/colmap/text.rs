@@ -14,48 +14,11 @@ use std::path::Path;
 use std::str::{FromStr, SplitWhitespace};
 
 use super::{
-    ColmapCamera, ColmapImage, ColmapModel, ColmapPoint3D, INVALID_POINT3D_ID, ModelError, Point2D,
-    TrackElement, write_atomically,
+    ColmapCamera, ColmapImage, ColmapPoint3D, INVALID_POINT3D_ID, ModelError, Point2D, TrackElement,
 };
 
-/// Read `cameras.txt`, `images.txt` and `points3D.txt` from `dir`.
-pub fn read_model(dir: &Path) -> Result<ColmapModel, ModelError> {
-    Ok(ColmapModel {
-        cameras: read_cameras(&dir.join("cameras.txt"))?
-            .into_iter()
-            .map(|c| (c.id, c))
-            .collect(),
-        images: read_images(&dir.join("images.txt"))?
-            .into_iter()
-            .map(|i| (i.id, i))
-            .collect(),
-        points3d: read_points3d(&dir.join("points3D.txt"))?
-            .into_iter()
-            .map(|p| (p.id, p))
-            .collect(),
-    })
-}
-
-/// Write the three text files to `dir` (which must exist).
-pub fn write_model(model: &ColmapModel, dir: &Path) -> Result<(), ModelError> {
-    let save = |name: &str, text: String| {
-        let path = dir.join(name);
-        write_atomically(&path, text.as_bytes()).map_err(|source| ModelError::Io { path, source })
-    };
-    save("cameras.txt", cameras_to_text(model.cameras.values()))?;
-    save("images.txt", images_to_text(model.images.values()))?;
-    save("points3D.txt", points3d_to_text(model.points3d.values()))
-}
-
 pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>, ModelError> {
-    let text = read(path)?;
-    let mut out = Vec::new();
-    for (n, line) in data_lines(&text) {
-        let mut f = Fields {
-            it: line.split_whitespace(),
-            path,
-            line: n,
-        };
+    read_lines(path, |f| {
         let id = f.next("CAMERA_ID")?;
         let model_name: String = f.next("MODEL")?;
         let model = model_name
@@ -67,18 +30,14 @@ pub fn read_cameras(path: &Path) -> Result<Vec<ColmapCamera>, ModelError> {
         let width = f.next("WIDTH")?;
         let height = f.next("HEIGHT")?;
         let params: Vec<f64> = f.rest("PARAMS")?;
-        let camera = ColmapCamera::new(id, model, width, height, params.clone()).ok_or(
-            ModelError::ParamCount {
-                path: path.to_path_buf(),
-                camera_id: id,
-                model: model.name(),
-                got: params.len(),
-                expected: model.num_params(),
-            },
-        )?;
-        out.push(camera);
-    }
-    Ok(out)
+        ColmapCamera::new(id, model, width, height, params.clone()).ok_or(ModelError::ParamCount {
+            path: path.to_path_buf(),
+            camera_id: id,
+            model: model.name(),
+            got: params.len(),
+            expected: model.num_params(),
+        })
+    })
 }
 
 pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>, ModelError> {
@@ -149,14 +108,7 @@ pub fn read_images(path: &Path) -> Result<Vec<ColmapImage>, ModelError> {
 }
 
 pub fn read_points3d(path: &Path) -> Result<Vec<ColmapPoint3D>, ModelError> {
-    let text = read(path)?;
-    let mut out = Vec::new();
-    for (n, line) in data_lines(&text) {
-        let mut f = Fields {
-            it: line.split_whitespace(),
-            path,
-            line: n,
-        };
+    read_lines(path, |f| {
         let id = f.next("POINT3D_ID")?;
         let xyz = [f.next("X")?, f.next("Y")?, f.next("Z")?];
         let rgb = [f.next("R")?, f.next("G")?, f.next("B")?];
@@ -165,7 +117,7 @@ pub fn read_points3d(path: &Path) -> Result<Vec<ColmapPoint3D>, ModelError> {
         if !track.len().is_multiple_of(2) {
             return Err(malformed(
                 path,
-                n,
+                f.line,
                 "TRACK is not a list of IMAGE_ID POINT2D_IDX pairs",
             ));
         }
@@ -176,15 +128,14 @@ pub fn read_points3d(path: &Path) -> Result<Vec<ColmapPoint3D>, ModelError> {
                 point2d_idx: c[1],
             })
             .collect();
-        out.push(ColmapPoint3D {
+        Ok(ColmapPoint3D {
             id,
             xyz,
             rgb,
             error,
             track,
-        });
-    }
-    Ok(out)
+        })
+    })
 }
 
 pub fn cameras_to_text<'a>(cameras: impl ExactSizeIterator<Item = &'a ColmapCamera>) -> String {
@@ -284,6 +235,24 @@ fn data_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
         .enumerate()
         .map(|(n, l)| (n + 1, l.trim()))
         .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'))
+}
+
+/// One item per data line of the file at `path` (blank and `#` lines skipped), each parsed
+/// by `item` from the line's fields.
+fn read_lines<T>(
+    path: &Path,
+    mut item: impl FnMut(&mut Fields) -> Result<T, ModelError>,
+) -> Result<Vec<T>, ModelError> {
+    let text = read(path)?;
+    data_lines(&text)
+        .map(|(line, text)| {
+            item(&mut Fields {
+                it: text.split_whitespace(),
+                path,
+                line,
+            })
+        })
+        .collect()
 }
 
 fn malformed(path: &Path, line: usize, what: &str) -> ModelError {

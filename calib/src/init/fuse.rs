@@ -206,16 +206,16 @@ pub fn random_cloud(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use shared_types::{Intrinsics, WorldToCamera};
+    use crate::test_support::looking_at;
+    use shared_types::Intrinsics;
 
     fn cam(eye: DVec3) -> Camera {
-        Camera {
-            name: "c".into(),
-            intrinsics: Intrinsics::from_hfov(64, 48, 60.0),
-            distortion: Default::default(),
-            world_to_camera: WorldToCamera::look_at(eye, DVec3::new(0.0, 0.0, 0.5), DVec3::Z)
-                .unwrap(),
-        }
+        looking_at(
+            "c",
+            Intrinsics::from_hfov(64, 48, 60.0),
+            eye,
+            DVec3::new(0.0, 0.0, 0.5),
+        )
     }
 
     #[test]

@@ -1,18 +1,18 @@
 //! The `init` stage: the starting point cloud of the 4D Gaussians, from MASt3R-style point
 //! maps (an ONNX model run here with [`onnx`], or its outputs exported as `.npy`/`.npz`,
-//! [`npy`]), aligned to the posed cameras ([`align`]) and fused ([`fuse`]); with the
-//! fallback chain point maps → sparse COLMAP points → a random cloud in the cameras'
-//! common view volume, each fallback announced with `tracing::warn!`.
+//! [`npy`]), each pair scaled into the posed cameras' world frame ([`pair_scale`]) and
+//! fused ([`fuse`]); with the fallback chain point maps → sparse COLMAP points → a random
+//! cloud in the cameras' common view volume, each fallback announced with `tracing::warn!`.
 //!
 //! Call [`run_init`] with [`InitInputs`] and an [`InitConfig`]; it writes
 //! `<out_dir>/points.ply` (xyz, rgb, time; atomically) and returns an [`InitReport`].
 //! The user-facing description is `docs/init.md`. This module reads no pipeline files
 //! itself (frames index, stage manifests): the caller passes plain inputs.
 
-pub mod align;
 pub mod fuse;
 pub mod npy;
 pub mod onnx;
+pub mod pair_scale;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -24,10 +24,10 @@ use shared_types::points::{PlyError, read_points_ply, write_points_ply};
 use shared_types::{Camera, CameraSet, Progress};
 
 use crate::undistort::{Fit, UndistortMap};
-use align::{Relative, pixel_centre, ray_scale, sparse_scale};
 use fuse::{FusedPoint, colour_at, unproject};
 use npy::{NpyError, OutputNames, PairMaps, PointMap};
 use onnx::{ModelConfig, OnnxError, PointMapModel};
+use pair_scale::{Relative, pixel_centre, ray_scale, sparse_scale};
 
 /// Where the initial points should come from.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]

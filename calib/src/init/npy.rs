@@ -122,7 +122,7 @@ pub fn read_pair_npz(path: &Path, names: &OutputNames) -> Result<PairMaps, NpyEr
     };
     let mut archive = npyz::npz::NpzArchive::open(path).map_err(io)?;
     let found = archive.array_names().collect::<Vec<_>>().join(", ");
-    let mut get = |name: &str, required: bool| -> Result<Option<Array>, NpyError> {
+    let get = |name: &str, required: bool| -> Result<Option<Array>, NpyError> {
         let file = archive.by_name(name).map_err(io)?;
         match file {
             Some(f) => array_from(f, path).map(Some),
@@ -134,14 +134,7 @@ pub fn read_pair_npz(path: &Path, names: &OutputNames) -> Result<PairMaps, NpyEr
             None => Ok(None),
         }
     };
-    let pts1 = get(&names.pts1, true)?.unwrap_or_default();
-    let conf1 = get(&names.conf1, false)?;
-    let pts2 = get(&names.pts2, true)?.unwrap_or_default();
-    let conf2 = get(&names.conf2, false)?;
-    Ok(PairMaps {
-        first: point_map(pts1, conf1, path)?,
-        second: point_map(pts2, conf2, path)?,
-    })
+    pair_maps(names, path, get)
 }
 
 /// A pair stored as a directory of `.npy` files.
@@ -153,13 +146,23 @@ pub fn read_pair_dir(dir: &Path, names: &OutputNames) -> Result<PairMaps, NpyErr
         }
         read_npy(&path).map(Some)
     };
-    let pts1 = read(&names.pts1, true)?.unwrap_or_default();
-    let conf1 = read(&names.conf1, false)?;
-    let pts2 = read(&names.pts2, true)?.unwrap_or_default();
-    let conf2 = read(&names.conf2, false)?;
+    pair_maps(names, dir, read)
+}
+
+/// A pair's maps from its arrays, each fetched by `get(name, required)` (`None`: an
+/// optional array that is absent); `origin` names the pair in errors.
+fn pair_maps(
+    names: &OutputNames,
+    origin: &Path,
+    mut get: impl FnMut(&str, bool) -> Result<Option<Array>, NpyError>,
+) -> Result<PairMaps, NpyError> {
+    let pts1 = get(&names.pts1, true)?.unwrap_or_default();
+    let conf1 = get(&names.conf1, false)?;
+    let pts2 = get(&names.pts2, true)?.unwrap_or_default();
+    let conf2 = get(&names.conf2, false)?;
     Ok(PairMaps {
-        first: point_map(pts1, conf1, dir)?,
-        second: point_map(pts2, conf2, dir)?,
+        first: point_map(pts1, conf1, origin)?,
+        second: point_map(pts2, conf2, origin)?,
     })
 }
 
@@ -265,7 +268,7 @@ pub fn point_map(pts: Array, conf: Option<Array>, path: &Path) -> Result<PointMa
     })
 }
 
-/// Write a `float32` `.npy` file of `shape` (C order), atomically through `<path>.tmp`.
+/// Write a `float32` `.npy` file of `shape` (C order), atomically.
 pub fn write_npy(path: &Path, shape: &[usize], data: &[f32]) -> std::io::Result<()> {
     use npyz::WriterBuilder;
     let mut buf = Vec::new();
@@ -277,9 +280,28 @@ pub fn write_npy(path: &Path, shape: &[usize], data: &[f32]) -> std::io::Result<
         .begin_nd()?;
     w.extend(data.iter().copied())?;
     w.finish()?;
-    let tmp = path.with_extension("npy.tmp");
-    std::fs::write(&tmp, &buf)?;
-    std::fs::rename(&tmp, path)
+    shared_types::atomic::write_atomic(path, &buf)
+}
+
+/// The arrays of a pair as written, in order, each `(name, shape, data)`: the first view's
+/// points (`height × width × 3`) and confidences (`height × width`, when present), then the
+/// second view's.
+fn pair_arrays<'a>(
+    maps: &PairMaps,
+    names: &'a OutputNames,
+) -> Vec<(&'a str, Vec<usize>, Vec<f32>)> {
+    let mut arrays = Vec::new();
+    for (map, pn, cn) in [
+        (&maps.first, &names.pts1, &names.conf1),
+        (&maps.second, &names.pts2, &names.conf2),
+    ] {
+        let flat = map.points.iter().flatten().copied().collect::<Vec<_>>();
+        arrays.push((pn.as_str(), vec![map.height, map.width, 3], flat));
+        if let Some(c) = &map.confidence {
+            arrays.push((cn.as_str(), vec![map.height, map.width], c.clone()));
+        }
+    }
+    arrays
 }
 
 /// Write pair maps as `a__b/{pts1,conf1,pts2,conf2}.npy` under `dir` (confidences only
@@ -293,25 +315,14 @@ pub fn write_pair_dir(
 ) -> std::io::Result<()> {
     let sub = dir.join(pair_stem(first, second));
     std::fs::create_dir_all(&sub)?;
-    for (map, pn, cn) in [
-        (&maps.first, &names.pts1, &names.conf1),
-        (&maps.second, &names.pts2, &names.conf2),
-    ] {
-        let flat = map.points.iter().flatten().copied().collect::<Vec<_>>();
-        write_npy(
-            &sub.join(format!("{pn}.npy")),
-            &[map.height, map.width, 3],
-            &flat,
-        )?;
-        if let Some(c) = &map.confidence {
-            write_npy(&sub.join(format!("{cn}.npy")), &[map.height, map.width], c)?;
-        }
+    for (name, shape, data) in pair_arrays(maps, names) {
+        write_npy(&sub.join(format!("{name}.npy")), &shape, &data)?;
     }
     Ok(())
 }
 
 /// Write pair maps as one `a__b.npz` archive under `dir` (arrays named by `names`;
-/// confidences only when present), atomically through a `.tmp` name.
+/// confidences only when present), atomically.
 pub fn write_pair_npz(
     dir: &Path,
     first: &str,
@@ -321,34 +332,21 @@ pub fn write_pair_npz(
 ) -> std::io::Result<()> {
     use npyz::WriterBuilder;
     let path = dir.join(format!("{}.npz", pair_stem(first, second)));
-    let tmp = path.with_extension("npz.tmp");
-    {
-        let mut npz = npyz::npz::NpzWriter::create(&tmp)?;
-        for (map, pn, cn) in [
-            (&maps.first, &names.pts1, &names.conf1),
-            (&maps.second, &names.pts2, &names.conf2),
-        ] {
-            let mut arrays = vec![(
-                pn,
-                vec![map.height as u64, map.width as u64, 3],
-                map.points.iter().flatten().copied().collect::<Vec<_>>(),
-            )];
-            if let Some(c) = &map.confidence {
-                arrays.push((cn, vec![map.height as u64, map.width as u64], c.clone()));
-            }
-            for (name, shape, data) in arrays {
-                let mut w = npz
-                    .array::<f32>(name, Default::default())?
-                    .default_dtype()
-                    .shape(&shape)
-                    .begin_nd()?;
-                w.extend(data)?;
-                w.finish()?;
-            }
+    shared_types::atomic::write_with(&path, |tmp| {
+        let mut npz = npyz::npz::NpzWriter::create(tmp)?;
+        for (name, shape, data) in pair_arrays(maps, names) {
+            let shape: Vec<u64> = shape.iter().map(|&d| d as u64).collect();
+            let mut w = npz
+                .array::<f32>(name, Default::default())?
+                .default_dtype()
+                .shape(&shape)
+                .begin_nd()?;
+            w.extend(data)?;
+            w.finish()?;
         }
         npz.zip_writer().finish()?;
-    }
-    std::fs::rename(&tmp, &path)
+        Ok(())
+    })
 }
 
 /// What a perfect MASt3R-style model would output for the pair `(first, second)`: each

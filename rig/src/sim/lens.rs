@@ -136,69 +136,72 @@ impl LensPlan {
                 // Box filter over ss × ss samples; depth and id from the sample nearest the centre.
                 let cw = canvas.width;
                 let mid = ss / 2;
-                let mut out = Rendered {
-                    width: w,
-                    height: h,
-                    color: vec![[0.0; 3]; w * h],
-                    depth: vec![0.0; w * h],
-                    id: vec![0; w * h],
-                };
                 let norm = 1.0 / (ss * ss) as f32;
-                out.color.par_chunks_mut(w).zip(out.depth.par_chunks_mut(w)).zip(out.id.par_chunks_mut(w)).enumerate().for_each(
-                    |(j, ((color, depth), id))| {
-                        for i in 0..w {
-                            let mut acc = [0.0f32; 3];
-                            for b in 0..ss {
-                                for a in 0..ss {
-                                    let c = canvas.color[(j * ss + b) * cw + i * ss + a];
-                                    acc = [acc[0] + c[0], acc[1] + c[1], acc[2] + c[2]];
-                                }
+                image_by_rows(w, h, |j, color, depth, id| {
+                    for i in 0..w {
+                        let mut acc = [0.0f32; 3];
+                        for b in 0..ss {
+                            for a in 0..ss {
+                                let c = canvas.color[(j * ss + b) * cw + i * ss + a];
+                                acc = [acc[0] + c[0], acc[1] + c[1], acc[2] + c[2]];
                             }
-                            color[i] = acc.map(|v| v * norm);
-                            let k = (j * ss + mid) * cw + i * ss + mid;
-                            depth[i] = canvas.depth[k];
-                            id[i] = canvas.id[k];
                         }
-                    },
-                );
-                out
+                        color[i] = acc.map(|v| v * norm);
+                        let k = (j * ss + mid) * cw + i * ss + mid;
+                        depth[i] = canvas.depth[k];
+                        id[i] = canvas.id[k];
+                    }
+                })
             }
             Some((samples, centres)) => {
                 let n = ss * ss;
                 let norm = 1.0 / n as f32;
-                let mut out = Rendered {
-                    width: w,
-                    height: h,
-                    color: vec![[0.0; 3]; w * h],
-                    depth: vec![0.0; w * h],
-                    id: vec![0; w * h],
-                };
-                out.color.par_chunks_mut(w).zip(out.depth.par_chunks_mut(w)).zip(out.id.par_chunks_mut(w)).enumerate().for_each(
-                    |(j, ((color, depth), id))| {
-                        for i in 0..w {
-                            let k = j * w + i;
-                            let mut acc = [0.0f32; 3];
-                            for s in &samples[k * n..(k + 1) * n] {
-                                let c = bilinear(&canvas, s[0], s[1]);
-                                acc = [acc[0] + c[0], acc[1] + c[1], acc[2] + c[2]];
-                            }
-                            color[i] = acc.map(|v| v * norm);
-                            let [x, y] = centres[k];
-                            let (ci, cj) = (x.floor() as isize, y.floor() as isize);
-                            if ci >= 0 && cj >= 0 && (ci as usize) < canvas.width && (cj as usize) < canvas.height {
-                                let c = cj as usize * canvas.width + ci as usize;
-                                depth[i] = canvas.depth[c];
-                                id[i] = canvas.id[c];
-                            } else {
-                                depth[i] = f32::INFINITY;
-                            }
+                image_by_rows(w, h, |j, color, depth, id| {
+                    for i in 0..w {
+                        let k = j * w + i;
+                        let mut acc = [0.0f32; 3];
+                        for s in &samples[k * n..(k + 1) * n] {
+                            let c = bilinear(&canvas, s[0], s[1]);
+                            acc = [acc[0] + c[0], acc[1] + c[1], acc[2] + c[2]];
                         }
-                    },
-                );
-                out
+                        color[i] = acc.map(|v| v * norm);
+                        let [x, y] = centres[k];
+                        let (ci, cj) = (x.floor() as isize, y.floor() as isize);
+                        if ci >= 0 && cj >= 0 && (ci as usize) < canvas.width && (cj as usize) < canvas.height {
+                            let c = cj as usize * canvas.width + ci as usize;
+                            depth[i] = canvas.depth[c];
+                            id[i] = canvas.id[c];
+                        } else {
+                            depth[i] = f32::INFINITY;
+                        }
+                    }
+                })
             }
         }
     }
+}
+
+/// A `w × h` image (colour, depth, id all zero) whose rows `row(j, colour, depth, id)`
+/// fills in parallel.
+fn image_by_rows(
+    w: usize,
+    h: usize,
+    row: impl Fn(usize, &mut [[f32; 3]], &mut [f32], &mut [u16]) + Sync + Send,
+) -> Rendered {
+    let mut out = Rendered {
+        width: w,
+        height: h,
+        color: vec![[0.0; 3]; w * h],
+        depth: vec![0.0; w * h],
+        id: vec![0; w * h],
+    };
+    out.color
+        .par_chunks_mut(w)
+        .zip(out.depth.par_chunks_mut(w))
+        .zip(out.id.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(j, ((color, depth), id))| row(j, color, depth, id));
+    out
 }
 
 /// Bilinear sample of the canvas colour at continuous coordinates (centres at +0.5).

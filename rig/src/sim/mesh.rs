@@ -7,7 +7,8 @@
 
 use glam::{DQuat, DVec3, Vec3};
 
-use super::scene::{DeformKind, DeformSpec, ObjectSection, SceneFile};
+use super::animation::object_pose;
+use super::schema::{DeformKind, DeformSpec, ObjectSection, SceneFile};
 use super::texture::Texture;
 
 /// Object id of the background in masks; objects are numbered from 2.
@@ -45,9 +46,15 @@ impl Mesh {
                 self.push(origin + u * a + v * b, [ou + a * lu, ov + b * lv]);
             }
         }
-        let row = nu + 1;
-        for j in 0..nv {
-            for i in 0..nu {
+        self.quads(base, nu, nv);
+    }
+
+    /// Two triangles per quad of a `(cols + 1) × (rows + 1)` vertex lattice pushed row by
+    /// row from vertex `base`.
+    fn quads(&mut self, base: u32, cols: u32, rows: u32) {
+        let row = cols + 1;
+        for j in 0..rows {
+            for i in 0..cols {
                 let k = base + j * row + i;
                 self.triangles.push([k, k + 1, k + row + 1]);
                 self.triangles.push([k, k + row + 1, k + row]);
@@ -87,14 +94,7 @@ impl Mesh {
                 m.push(p, [lon * r, (lat + std::f64::consts::FRAC_PI_2) * r]);
             }
         }
-        let row = nlon + 1;
-        for j in 0..nlat {
-            for i in 0..nlon {
-                let k = j * row + i;
-                m.triangles.push([k, k + 1, k + row + 1]);
-                m.triangles.push([k, k + row + 1, k + row]);
-            }
-        }
+        m.quads(0, nlon, nlat);
         m
     }
 
@@ -109,14 +109,7 @@ impl Mesh {
                 m.push(DVec3::new(r * a.cos(), r * a.sin(), z), [a * r, z]);
             }
         }
-        let row = n + 1;
-        for j in 0..rings {
-            for i in 0..n {
-                let k = j * row + i;
-                m.triangles.push([k, k + 1, k + row + 1]);
-                m.triangles.push([k, k + row + 1, k + row]);
-            }
-        }
+        m.quads(0, n, rings);
         for z in [0.0, h] {
             let c = m.push(DVec3::new(0.0, 0.0, z), [0.0, 0.0]);
             let first = m.positions.len() as u32;
@@ -253,7 +246,7 @@ pub(crate) fn world_positions(file: &SceneFile, meshes: &[SceneMesh], t: f64) ->
         .iter()
         .map(|m| {
             let (rot, pos): (DQuat, DVec3) = match m.object {
-                Some(i) => super::scene::object_pose(&file.objects[i], t),
+                Some(i) => object_pose(&file.objects[i], t),
                 None => (DQuat::IDENTITY, DVec3::ZERO),
             };
             m.mesh

@@ -7,16 +7,19 @@
 //! must not be tested on data made by itself). See `docs/simulator.md` for the scene format
 //! and the exact meaning of every ground-truth file.
 
+mod animation;
 pub mod audio;
 pub mod encode;
 mod error;
-mod live;
 pub(crate) mod lens;
 pub mod mesh;
 pub mod output;
 pub mod raster;
 mod scene;
+mod schema;
+mod source;
 pub mod texture;
+mod validate;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -30,12 +33,14 @@ use serde::{Deserialize, Serialize};
 use shared_types::{CameraSet, Progress};
 
 pub use error::SimError;
-pub use live::SimSource;
-pub use scene::{CameraRole, DeformKind, DeformSpec, Keyframe, Scene, SimCamera, TextureSpec, VIDEO_CAMERAS};
+pub use scene::Scene;
+pub use schema::{CameraRole, DeformKind, DeformSpec, Keyframe, SimCamera, TextureSpec, VIDEO_CAMERAS};
+pub use source::SimSource;
 
 use lens::LensPlan;
 use mesh::SceneMesh;
 use raster::{Light, Rendered};
+use source::Shot;
 use texture::hash;
 
 /// What [`simulate`] wrote.
@@ -342,7 +347,7 @@ pub fn simulate(scene: &Scene, capture_dir: &Path, progress: &dyn Progress) -> R
 }
 
 /// The flash, when the scene has one switched on, with its row exposure time.
-fn flash_of(scene: &Scene) -> Option<(&scene::FlashSection, f64)> {
+fn flash_of(scene: &Scene) -> Option<(&schema::FlashSection, f64)> {
     scene
         .file
         .flash
@@ -450,7 +455,7 @@ fn video_camera(ctx: &Context, cam: &SimCamera, index: usize) -> Result<(CameraT
         let mut pushed = sample_at(first);
         let mut written = 0u32;
         for frame in first..last {
-            if let Some(live::Shot { img, rgb, .. }) = source.shot(frame) {
+            if let Some(Shot { img, rgb, .. }) = source.shot(frame) {
                 writer.push_video((frame - first) as i64, &rgb)?;
                 written += 1;
                 if frame == 0 {

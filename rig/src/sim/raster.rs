@@ -233,7 +233,7 @@ fn rasterise(t: &ScreenTri, w: usize, y0: usize, rows: usize, depth: &mut [f32],
 mod tests {
     use super::*;
     use crate::sim::mesh::{Mesh, SceneMesh};
-    use crate::sim::scene::TextureSpec;
+    use crate::sim::schema::TextureSpec;
     use crate::sim::texture::Texture;
 
     #[test]

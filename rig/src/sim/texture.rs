@@ -2,7 +2,7 @@
 //! checkers and glyph-like blocks, rich enough at image scale for SIFT matching.
 //! Deterministic: a texture is a pure function of its spec, the scene seed and its size.
 
-use super::scene::TextureSpec;
+use super::schema::TextureSpec;
 
 /// A baked, tileable RGB texture sampled with wrap-around bilinear filtering.
 #[derive(Clone, Debug)]

@@ -44,14 +44,34 @@ pub fn ffmpeg(args: &[&str]) {
     );
 }
 
-/// Analytic scene sound: ambient tones plus a band-limited clap at `CLAP_T`.
+/// ffmpeg's output options for a file as a camera writes it: H.264 video, AAC audio.
+pub const H264_AAC: [&str; 6] = ["-c:v", "libx264", "-preset", "ultrafast", "-c:a", "aac"];
+
+/// Cuts `len` seconds starting at `from` (seconds, as ffmpeg reads them) out of `input`
+/// into `out`, re-encoded as a camera writes it ([`H264_AAC`]).
+pub fn cut(input: &Path, from: &str, len: &str, out: &Path) {
+    let (input, out) = (input.to_string_lossy(), out.to_string_lossy());
+    let mut args = vec!["-ss", from, "-i", &input, "-t", len];
+    args.extend_from_slice(&H264_AAC);
+    args.push(&out);
+    ffmpeg(&args);
+}
+
+/// Analytic scene sound: ambient tones plus a band-limited clap at `clap_t` (`CLAP_T`).
 pub struct SceneSound {
     ambient: Vec<(f64, f64, f64)>,
     clap: Vec<(f64, f64, f64)>,
+    clap_t: f64,
 }
 
 impl SceneSound {
+    /// 20 ambient tones and a clap of 40 at [`CLAP_T`].
     pub fn new(seed: u64) -> Self {
+        Self::with_tones(seed, 20, 40, CLAP_T)
+    }
+
+    /// `ambient` random tones and a clap of `clap` tones at scene time `clap_t`.
+    pub fn with_tones(seed: u64, ambient: usize, clap: usize, clap_t: f64) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut tones = |n: usize, lo: f64, hi: f64, amp: f64| {
             (0..n)
@@ -65,8 +85,9 @@ impl SceneSound {
                 .collect::<Vec<_>>()
         };
         SceneSound {
-            ambient: tones(20, 80.0, 6000.0, 0.004),
-            clap: tones(40, 300.0, 12_000.0, 0.05),
+            ambient: tones(ambient, 80.0, 6000.0, 0.004),
+            clap: tones(clap, 300.0, 12_000.0, 0.05),
+            clap_t,
         }
     }
 
@@ -76,7 +97,7 @@ impl SceneSound {
             .iter()
             .map(|(f, a, p)| a * (TAU * f * t + p).sin())
             .sum();
-        let x = t - CLAP_T;
+        let x = t - self.clap_t;
         if x.abs() < 0.03 {
             let env = (-0.5 * (x / 0.004).powi(2)).exp();
             v += env

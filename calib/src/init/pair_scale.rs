@@ -1,4 +1,5 @@
-//! Putting one pair's point maps into the world frame with the known poses.
+//! The scale of one pair's point maps, from the known poses: what puts the maps into the
+//! world frame of the posed cameras.
 //!
 //! A MASt3R-style model returns both views' points in the first camera's frame at an
 //! unknown scale `s`. The poses fix everything else: with `R, t` taking camera `a`'s frame
@@ -197,15 +198,11 @@ pub fn sparse_scale(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use shared_types::{Intrinsics, WorldToCamera};
+    use crate::test_support::looking_at;
+    use shared_types::Intrinsics;
 
     fn camera(name: &str, eye: DVec3) -> Camera {
-        Camera {
-            name: name.into(),
-            intrinsics: Intrinsics::from_hfov(40, 30, 60.0),
-            distortion: Default::default(),
-            world_to_camera: WorldToCamera::look_at(eye, DVec3::ZERO, DVec3::Z).unwrap(),
-        }
+        looking_at(name, Intrinsics::from_hfov(40, 30, 60.0), eye, DVec3::ZERO)
     }
 
     /// Both views of a sphere-ish surface in camera a's frame, divided by `true_scale`.

@@ -113,9 +113,25 @@ pub fn compare(
     Some((sim, errors, radius))
 }
 
+/// A nalgebra 3×3 matrix (used for SVDs) as a glam matrix.
+pub(crate) fn to_dmat3(m: &nalgebra::Matrix3<f64>) -> DMat3 {
+    DMat3::from_cols_array(&[
+        m[(0, 0)],
+        m[(1, 0)],
+        m[(2, 0)],
+        m[(0, 1)],
+        m[(1, 1)],
+        m[(2, 1)],
+        m[(0, 2)],
+        m[(1, 2)],
+        m[(2, 2)],
+    ])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::looking_at;
     use shared_types::{Intrinsics, WorldToCamera};
 
     #[test]
@@ -136,12 +152,7 @@ mod tests {
         let reference: Vec<Camera> = eyes
             .iter()
             .enumerate()
-            .map(|(i, &e)| Camera {
-                name: format!("c{i}"),
-                intrinsics: intr,
-                distortion: Default::default(),
-                world_to_camera: WorldToCamera::look_at(e, DVec3::ZERO, DVec3::Z).unwrap(),
-            })
+            .map(|(i, &e)| looking_at(&format!("c{i}"), intr, e, DVec3::ZERO))
             .collect();
         // Solved = reference mapped by the inverse similarity: x_s = Rᵀ(x_r − t)/s.
         let solved: Vec<Camera> = reference
@@ -164,19 +175,4 @@ mod tests {
             assert!(e.rotation_deg < 1e-5 && e.centre < 1e-9, "{e:?}");
         }
     }
-}
-
-/// A nalgebra 3×3 matrix (used for SVDs) as a glam matrix.
-pub(crate) fn to_dmat3(m: &nalgebra::Matrix3<f64>) -> DMat3 {
-    DMat3::from_cols_array(&[
-        m[(0, 0)],
-        m[(1, 0)],
-        m[(2, 0)],
-        m[(0, 1)],
-        m[(1, 1)],
-        m[(2, 1)],
-        m[(0, 2)],
-        m[(1, 2)],
-        m[(2, 2)],
-    ])
 }

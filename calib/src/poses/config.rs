@@ -1,0 +1,62 @@
+//! Settings of the poses stage (`capture.toml [poses]`) and what the stage is given.
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+use crate::colmap_runner::ColmapConfig;
+
+/// Settings of the poses stage.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PosesConfig {
+    pub colmap: ColmapConfig,
+    /// Fewer stills than this is refused before COLMAP runs.
+    pub min_stills: usize,
+    /// Mean distance of the video cameras from the scene centre after normalisation.
+    pub radius: f64,
+}
+
+impl Default for PosesConfig {
+    fn default() -> Self {
+        Self {
+            colmap: ColmapConfig::default(),
+            min_stills: 4,
+            radius: 1.0,
+        }
+    }
+}
+
+/// What the poses stage is given.
+#[derive(Clone, Debug)]
+pub struct PosesInputs {
+    /// (camera name, its first aligned frame), e.g. `("cam0", "work/frames/cam0/000000.png")`.
+    pub video_frames: Vec<(String, PathBuf)>,
+    /// Extra photos of the scene (`stills/`).
+    pub stills: Vec<PathBuf>,
+    /// Size the engine will see the video frames at; `None`: the frames' own size.
+    pub working_size: Option<(u32, u32)>,
+    pub config: PosesConfig,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::colmap_runner::{StillsCameras, VideoCameras};
+
+    #[test]
+    fn config_reads_from_toml_with_defaults() {
+        let text = "min_stills = 6\n[colmap]\ncamera_model = \"OPENCV_FISHEYE\"\nvideo_cameras = \"shared\"\n";
+        let c: PosesConfig = toml::from_str(text).unwrap();
+        assert_eq!(c.min_stills, 6);
+        assert_eq!(c.radius, 1.0);
+        assert_eq!(
+            c.colmap.camera_model,
+            crate::colmap::CameraModel::OpencvFisheye
+        );
+        assert_eq!(c.colmap.video_cameras, VideoCameras::Shared);
+        assert_eq!(c.colmap.stills_cameras, StillsCameras::Shared);
+        assert!(toml::from_str::<PosesConfig>("min_still = 3").is_err());
+        assert!(toml::from_str::<PosesConfig>("[colmap]\ncamera_model = \"BROWN\"").is_err());
+    }
+}

@@ -1,0 +1,232 @@
+//! Writing the stage's outputs, for solved and imported cameras alike: normalise cameras
+//! and sparse points, then write `points3d.ply` and `cameras.json`, each atomically.
+//! `points3d.ply` is a binary little-endian PLY point cloud: `x y z` float, `red green
+//! blue` uchar, and the comment line `4C4D sparse points, normalised frame`.
+
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+use shared_types::atomic::write_atomic;
+use shared_types::ply::PlyTable;
+use shared_types::points::{PointCloud, points_table};
+use shared_types::{Camera, CameraSet, Intrinsics};
+
+use super::error::PosesError;
+use super::file::{PoseSource, PosesFile};
+use super::normalise::normalisation_for;
+
+/// The comment line of `points3d.ply`.
+const POINTS_COMMENT: &str = "4C4D sparse points, normalised frame";
+
+/// One sparse point, normalised frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SparsePoint {
+    pub xyz: [f64; 3],
+    pub rgb: [u8; 3],
+}
+
+/// What [`super::solve()`] or [`write_imported`] produced.
+#[derive(Clone, Debug)]
+pub struct PosesOutput {
+    pub file: PosesFile,
+    pub points: Vec<SparsePoint>,
+    pub cameras_json: PathBuf,
+    pub points_ply: Option<PathBuf>,
+}
+
+/// Normalise and write an imported (or otherwise known) camera set as the poses stage's
+/// output, with no sparse points; intrinsics scaled to `working_size` when given.
+pub fn write_imported(
+    set: &CameraSet,
+    from: &Path,
+    out_dir: &Path,
+    working_size: Option<(u32, u32)>,
+    radius: f64,
+) -> Result<PosesOutput, PosesError> {
+    let stale = out_dir.join("points3d.ply");
+    if stale.exists() {
+        std::fs::remove_file(&stale).map_err(|source| PosesError::Io {
+            path: stale,
+            source,
+        })?;
+    }
+    let mut cameras = set.cameras.clone();
+    for c in &mut cameras {
+        c.intrinsics = scale_intrinsics(&c.name, &c.intrinsics, working_size)?;
+    }
+    let source = PoseSource::Import {
+        path: from.to_path_buf(),
+    };
+    write_outputs(out_dir, cameras, Vec::new(), source, radius)
+}
+
+/// Intrinsics for the working size; refuses a change of aspect ratio (a crop, not a resize).
+pub fn scale_intrinsics(
+    camera: &str,
+    intr: &Intrinsics,
+    working_size: Option<(u32, u32)>,
+) -> Result<Intrinsics, PosesError> {
+    let Some((w, h)) = working_size else {
+        return Ok(*intr);
+    };
+    let (sx, sy) = (w as f64 / intr.width as f64, h as f64 / intr.height as f64);
+    if (sx / sy - 1.0).abs() > 0.01 {
+        return Err(PosesError::AspectMismatch {
+            camera: camera.to_string(),
+            calibrated: (intr.width, intr.height),
+            working: (w, h),
+        });
+    }
+    Ok(intr.scaled_to(w, h))
+}
+
+/// Normalise `cameras` and `points` (the video cameras at mean distance `radius` from
+/// their centre) and write `points3d.ply` (when there are points) and `cameras.json`.
+pub(super) fn write_outputs(
+    out_dir: &Path,
+    cameras: Vec<Camera>,
+    points: Vec<SparsePoint>,
+    source: PoseSource,
+    radius: f64,
+) -> Result<PosesOutput, PosesError> {
+    let xyz: Vec<DVec3> = points.iter().map(|p| DVec3::from_array(p.xyz)).collect();
+    let norm = normalisation_for(&cameras, &xyz, radius);
+    let cameras: Vec<Camera> = cameras
+        .into_iter()
+        .map(|c| Camera {
+            world_to_camera: norm.apply_to_pose(&c.world_to_camera),
+            ..c
+        })
+        .collect();
+    let points: Vec<SparsePoint> = points
+        .into_iter()
+        .map(|p| SparsePoint {
+            xyz: norm.apply(DVec3::from_array(p.xyz)).to_array(),
+            ..p
+        })
+        .collect();
+    std::fs::create_dir_all(out_dir).map_err(|source| PosesError::Io {
+        path: out_dir.to_path_buf(),
+        source,
+    })?;
+    let points_ply = (!points.is_empty()).then(|| out_dir.join("points3d.ply"));
+    if let Some(ply) = &points_ply {
+        write_atomic(ply, &sparse_points_table(&points).encode()).map_err(|source| {
+            PosesError::Io {
+                path: ply.clone(),
+                source,
+            }
+        })?;
+    }
+    let file = PosesFile {
+        set: CameraSet::new(cameras),
+        normalisation: norm,
+        source,
+        points_file: points_ply.as_ref().map(|_| "points3d.ply".to_string()),
+        num_points: points.len(),
+    };
+    let cameras_json = out_dir.join("cameras.json");
+    let text = serde_json::to_string_pretty(&file).map_err(|e| PosesError::Io {
+        path: cameras_json.clone(),
+        source: std::io::Error::other(e),
+    })?;
+    write_atomic(&cameras_json, text.as_bytes()).map_err(|source| PosesError::Io {
+        path: cameras_json.clone(),
+        source,
+    })?;
+    Ok(PosesOutput {
+        file,
+        points,
+        cameras_json,
+        points_ply,
+    })
+}
+
+/// The `points3d.ply` table of `points`.
+fn sparse_points_table(points: &[SparsePoint]) -> PlyTable {
+    let cloud = PointCloud {
+        xyz: points.iter().map(|p| p.xyz.map(|v| v as f32)).collect(),
+        rgb: points.iter().map(|p| p.rgb).collect(),
+        time: None,
+    };
+    points_table(&cloud, vec![POINTS_COMMENT.to_string()])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use shared_types::WorldToCamera;
+    use shared_types::ply::Scalar;
+
+    #[test]
+    fn points_ply_has_xyz_floats_rgb_bytes_and_its_comment() {
+        let pts = [
+            SparsePoint {
+                xyz: [1.0, -2.0, 0.5],
+                rgb: [255, 0, 7],
+            },
+            SparsePoint {
+                xyz: [0.0, 0.0, 0.0],
+                rgb: [1, 2, 3],
+            },
+        ];
+        let table = PlyTable::decode(&sparse_points_table(&pts).encode()).unwrap();
+        assert_eq!(table.comments, [POINTS_COMMENT]);
+        assert_eq!(table.names, ["x", "y", "z", "red", "green", "blue"]);
+        // 15 bytes per point: three floats, three bytes.
+        assert_eq!(
+            table.types,
+            [
+                Scalar::F32,
+                Scalar::F32,
+                Scalar::F32,
+                Scalar::U8,
+                Scalar::U8,
+                Scalar::U8
+            ]
+        );
+        assert_eq!(table.rows(), 2);
+        assert_eq!(table.data[1], -2.0);
+        assert_eq!(&table.data[3..6], &[255.0, 0.0, 7.0]);
+    }
+
+    #[test]
+    fn poses_file_round_trips_and_reads_as_a_camera_set() {
+        let dir = std::env::temp_dir().join(format!("calib_poses_file_{}", std::process::id()));
+        let cam = Camera {
+            name: "cam0".into(),
+            intrinsics: Intrinsics::from_hfov(64, 48, 60.0),
+            distortion: Default::default(),
+            world_to_camera: WorldToCamera::IDENTITY,
+        };
+        let other = Camera {
+            name: "cam1".into(),
+            world_to_camera: WorldToCamera::from_parts(
+                glam::DMat3::IDENTITY,
+                glam::DVec3::new(-2.0, 0.0, 0.0),
+            ),
+            ..cam.clone()
+        };
+        let out = write_outputs(
+            &dir,
+            vec![cam, other],
+            vec![SparsePoint {
+                xyz: [1.0, 0.0, 3.0],
+                rgb: [9, 9, 9],
+            }],
+            PoseSource::Import {
+                path: "x.json".into(),
+            },
+            1.0,
+        )
+        .unwrap();
+        let back = PosesFile::read(&out.cameras_json).unwrap();
+        assert_eq!(back.normalisation, out.file.normalisation);
+        assert_eq!(back.num_points, 1);
+        let set: CameraSet =
+            serde_json::from_str(&std::fs::read_to_string(&out.cameras_json).unwrap()).unwrap();
+        assert_eq!(set.cameras.len(), 2);
+        assert!(PosesFile::read(&dir.join("missing.json")).is_err());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
