@@ -74,7 +74,7 @@ fn align_truth(truth: &CameraSet, poses: &CameraSet) -> anyhow::Result<impl Fn(&
             dst.push(c.world_to_camera.centre());
         }
     }
-    let Some(s) = calib::align::umeyama(&src, &dst) else {
+    let Some(s) = calib::similarity::umeyama(&src, &dst) else {
         bail!(
             "cannot relate the ground-truth cameras to the solved ones (fewer than 3 shared, or collinear)"
         );

@@ -79,7 +79,7 @@ pub fn run_stages(
 /// The pose accuracy bound: every solved camera within 0.5° and 1 % of the rig
 /// radius of the truth after a similarity alignment (errors printed).
 pub fn assert_poses_close(solved: &[shared_types::Camera], truth: &[shared_types::Camera]) {
-    let (_, errors, radius) = calib::align::compare(solved, truth).unwrap();
+    let (_, errors, radius) = calib::similarity::compare(solved, truth).unwrap();
     assert_eq!(errors.len(), solved.len());
     for e in &errors {
         eprintln!(
