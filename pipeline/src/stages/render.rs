@@ -135,6 +135,11 @@ pub fn render(
 
 /// The `render` stage.
 pub fn run(ctx: &StageContext, settings: &RenderSettings) -> anyhow::Result<()> {
+    if !settings.video && !settings.png {
+        anyhow::bail!(
+            "capture.toml [render]: `video` and `png` are both false, so the stage would write nothing; set one of them to true"
+        );
+    }
     let model = load_trained_model(&ctx.capture.work_dir())?;
     let (index, cameras, heldout) = path_cameras(&ctx.capture.work_dir())?;
     let frames = render(
