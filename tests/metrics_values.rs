@@ -1,4 +1,4 @@
-//! Evaluation metrics against values computed by hand on tiny images (REFERENCE.md §3),
+//! Evaluation metrics against values computed by hand on tiny images,
 //! including the DSSIM₁ / DSSIM₂ difference (data range 1 vs 2).
 
 use splat4d::metrics::{MetricsError, dssim1, dssim2, image_metrics, psnr, ssim_with_range};
