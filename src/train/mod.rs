@@ -384,13 +384,15 @@ pub fn train(
         Ok::<PathBuf, TrainError>(p)
     };
 
+    // One view's gradients, reused across views and iterations: the backward resizes and
+    // overwrites it, so the large colour array is not faulted in afresh every view.
+    let mut g = Gradients::zeros_like(&model, false);
     for it in start..config.iterations {
         // `it` iterations are done; this step is iteration `it + 1`.
         let mut rng = iteration_rng(config.seed, it);
         model.active = colour_degrees_at(it, config.degree_every, model.capacity);
         let batch = sample_batch(&mut rng, dataset.views.len(), config.batch_size);
         let mut grads = Gradients::zeros_like(&model, false);
-        let mut g = Gradients::zeros_like(&model, false);
         let (mut loss_sum, mut l1_sum, mut ssim_sum, mut psnr_sum) = (0.0, 0.0, 0.0, 0.0);
         let scale = 1.0 / batch.len() as f32;
         for &vi in &batch {
