@@ -236,9 +236,9 @@ fn fisheye_video_cameras_solve_with_opencv_fisheye() {
             c.distortion
         );
         // The k's trade off against each other; the lens mapping itself must match: rays in
-        // the camera frame land on the same pixels (within 1.5 px over the image).
+        // the camera frame land on the same pixels.
         let truth = &rig.video[0];
-        let mut worst: f64 = 0.0;
+        let (mut worst, mut sum_sq, mut n) = (0.0f64, 0.0f64, 0usize);
         for y in (0..=360).step_by(30) {
             for x in (0..=480).step_by(30) {
                 let px = glam::DVec2::new(x as f64, y as f64);
@@ -246,11 +246,21 @@ fn fisheye_video_cameras_solve_with_opencv_fisheye() {
                     .distortion
                     .undistort(truth.intrinsics.to_normalised(px));
                 let solved = c.intrinsics.to_pixels(c.distortion.distort(ray));
-                worst = worst.max((solved - px).length());
+                let err = (solved - px).length();
+                worst = worst.max(err);
+                sum_sq += err * err;
+                n += 1;
             }
         }
-        eprintln!("{}: worst lens mapping error {worst:.2} px", c.name);
-        assert!(worst < 1.5, "{worst}");
+        let rms = (sum_sq / n as f64).sqrt();
+        eprintln!(
+            "{}: lens mapping error rms {rms:.2} px, worst {worst:.2} px",
+            c.name
+        );
+        // COLMAP's threaded matching and bundle adjustment are not deterministic: over five
+        // local runs and one CI run the same solve gave rms 0.59-0.68 px and worst (a corner)
+        // 0.72-1.59 px. Dropping the lens (k = 0) would be ~16 px off at the corners.
+        assert!(rms < 1.25 && worst < 2.5, "rms {rms}, worst {worst}");
     }
     // All four share one lens; the stills were solved with their own (OPENCV) camera.
     assert!(cams.iter().all(|c| c.distortion == cams[0].distortion));
