@@ -9,6 +9,7 @@
 //! [`crate::math`] (slice → colour → project) and the blending rules of [`cpu::blend`].
 
 pub mod cpu;
+pub mod gpu;
 pub mod reference;
 
 use crate::Camera;
@@ -49,10 +50,15 @@ pub enum RenderError {
         "backward called with a model of {got} Gaussians, but {expected} were rendered; pass the rendered model"
     )]
     ModelMismatch { expected: usize, got: usize },
-    #[error("backward called on a frame the {backend} backend did not render; render it with the same backend")]
+    #[error(
+        "backward called on a frame the {backend} backend did not render; render it with the same backend"
+    )]
     WrongBackend { backend: &'static str },
+    #[error("the {backend} backend has no backward pass yet; train with the CPU backend")]
+    BackwardUnsupported { backend: &'static str },
+    #[error("GPU: {0}")]
+    Gpu(String),
 }
-
 
 /// Options of one render.
 #[derive(Clone, Copy, Debug)]
@@ -120,7 +126,11 @@ pub trait RenderBackend: Send + Sync {
         t: f32,
         options: &RenderOptions<'_, f32>,
     ) -> Result<Rendered<f32>, RenderError> {
-        let views = [ViewRequest { camera, t, options: *options }];
+        let views = [ViewRequest {
+            camera,
+            t,
+            options: *options,
+        }];
         let mut frames = self.render_batch(model, &views)?;
         Ok(frames.remove(0))
     }
@@ -240,7 +250,10 @@ impl<F: Real> Gradients<F> {
 }
 /// The pinhole camera of `camera` for rendering, or why it cannot be drawn (distorted
 /// lens, empty image, bad focal lengths). Every backend starts from this check.
-pub(crate) fn checked_pinhole<F: Real>(camera: &Camera, near: F) -> Result<PinholeCamera<F>, RenderError> {
+pub(crate) fn checked_pinhole<F: Real>(
+    camera: &Camera,
+    near: F,
+) -> Result<PinholeCamera<F>, RenderError> {
     if !camera.distortion.is_none() {
         return Err(RenderError::DistortedCamera {
             camera: camera.name.clone(),
@@ -283,15 +296,24 @@ pub(crate) fn check_backward_inputs<F: Real>(
     let n = model.len();
     let rendered = frame.radii.len();
     if n != rendered || n != factor_len.unwrap_or(rendered) {
-        return Err(RenderError::ModelMismatch { expected: rendered, got: n });
+        return Err(RenderError::ModelMismatch {
+            expected: rendered,
+            got: n,
+        });
     }
-    model.check_consistent().map_err(RenderError::InconsistentModel)?;
+    model
+        .check_consistent()
+        .map_err(RenderError::InconsistentModel)?;
     let npix = frame.width as usize * frame.height as usize;
     let check = |what, got: usize, want| {
         if got == want {
             Ok(())
         } else {
-            Err(RenderError::GradientLength { what, expected: want, got })
+            Err(RenderError::GradientLength {
+                what,
+                expected: want,
+                got,
+            })
         }
     };
     check("rgb", up.rgb.len(), 3 * npix)?;

@@ -74,7 +74,7 @@ pub fn render(
     camera: &Camera,
     t: f32,
 ) -> Result<Rendered<f32>, RenderError> {
-    render_with(model, camera, t, &&RenderOptions::default())
+    render_with(model, camera, t, &RenderOptions::default())
 }
 pub(crate) fn tile_rect(bins: &TileBins, tile: usize, width: u32, height: u32) -> PixelRect {
     let tx = tile as u32 % bins.tiles_x;

@@ -1,0 +1,102 @@
+//! Finding a GPU: a wgpu device on a hardware adapter (or, only when asked, a software
+//! one such as Mesa's lavapipe, which is slower than the CPU engine and serves for tests).
+
+use std::sync::Arc;
+
+/// Which adapters may be used.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AdapterPolicy {
+    /// Discrete, integrated or virtual GPUs only.
+    HardwareOnly,
+    /// A hardware adapter if there is one, else a software (CPU) adapter.
+    AllowSoftware,
+}
+
+impl AdapterPolicy {
+    /// `HardwareOnly`, unless `SPLAT4D_GPU_SOFTWARE=1` asks for software adapters (tests).
+    pub fn from_env() -> Self {
+        match std::env::var("SPLAT4D_GPU_SOFTWARE") {
+            Ok(v) if v == "1" || v == "true" => Self::AllowSoftware,
+            _ => Self::HardwareOnly,
+        }
+    }
+}
+
+/// Why no GPU device could be had.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    #[error(
+        "no GPU adapter found (Vulkan, Metal or DX12); install the GPU's Vulkan driver, or use backend = \"cpu\""
+    )]
+    NoAdapter,
+    #[error(
+        "only software GPU adapters were found ({found}); they are slower than the CPU engine, so they are not used unless SPLAT4D_GPU_SOFTWARE=1 (tests); use backend = \"cpu\" or \"auto\""
+    )]
+    SoftwareOnly { found: String },
+    #[error("could not open the GPU device '{adapter}': {reason}")]
+    Device { adapter: String, reason: String },
+}
+
+/// An open device and what it is.
+pub struct Gpu {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub info: wgpu::AdapterInfo,
+    pub limits: wgpu::Limits,
+}
+
+impl Gpu {
+    /// Open the best adapter the policy allows: discrete before integrated before virtual,
+    /// software last (and only when allowed).
+    pub fn open(policy: AdapterPolicy) -> Result<Arc<Self>, GpuError> {
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
+            backends: wgpu::Backends::PRIMARY,
+            ..wgpu::InstanceDescriptor::new_without_display_handle_from_env()
+        });
+        let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::PRIMARY));
+        if adapters.is_empty() {
+            return Err(GpuError::NoAdapter);
+        }
+        let rank = |t: wgpu::DeviceType| match t {
+            wgpu::DeviceType::DiscreteGpu => 0,
+            wgpu::DeviceType::IntegratedGpu => 1,
+            wgpu::DeviceType::VirtualGpu => 2,
+            wgpu::DeviceType::Other => 3,
+            wgpu::DeviceType::Cpu => 4,
+        };
+        let best = adapters
+            .into_iter()
+            .min_by_key(|a| rank(a.get_info().device_type))
+            .ok_or(GpuError::NoAdapter)?;
+        let info = best.get_info();
+        if info.device_type == wgpu::DeviceType::Cpu && policy == AdapterPolicy::HardwareOnly {
+            return Err(GpuError::SoftwareOnly {
+                found: format!("{} ({:?})", info.name, info.backend),
+            });
+        }
+        let limits = best.limits();
+        let (device, queue) = pollster::block_on(best.request_device(&wgpu::DeviceDescriptor {
+            label: Some("splat4d"),
+            required_limits: limits.clone(),
+            ..Default::default()
+        }))
+        .map_err(|e| GpuError::Device {
+            adapter: info.name.clone(),
+            reason: e.to_string(),
+        })?;
+        Ok(Arc::new(Self {
+            device,
+            queue,
+            info,
+            limits,
+        }))
+    }
+
+    /// The adapter in words, e.g. `NVIDIA H100 (Vulkan, DiscreteGpu)`.
+    pub fn describe(&self) -> String {
+        format!(
+            "{} ({:?}, {:?})",
+            self.info.name, self.info.backend, self.info.device_type
+        )
+    }
+}

@@ -1,0 +1,489 @@
+//! The wgpu renderer: the CPU path's forward pass as WGSL compute kernels. Per view:
+//! `preprocess` (slice in time, opacity, EWA projection, spherindrical colour, support box
+//! and tile count per Gaussian) → inclusive scan of the tile counts → `emit` (one
+//! (tile, depth) key per touched tile) → stable radix sort → `tile_ranges` →
+//! `rasterise` (one 16×16 workgroup per tile, front to back, early termination).
+//!
+//! A batch of views costs two submissions and two small read-backs: the first pass learns
+//! how many (tile, splat) pairs each view has (to size the sort buffers), the second
+//! renders every view and copies the images back together. The model is uploaded once per
+//! batch. The backward pass is not on the GPU yet: [`RenderBackend::backward`] refuses.
+
+mod device;
+mod kernels;
+mod sort;
+
+pub use device::{AdapterPolicy, Gpu, GpuError};
+
+use super::{
+    Gradients, ImageGradients, RenderBackend, RenderError, RenderStats, Rendered, ViewRequest,
+    checked_pinhole, period_of,
+};
+use crate::math::project::PinholeCamera;
+use crate::model::Gaussians;
+use kernels::{Kernels, storage, storage_init, uniform};
+use sort::{Scan, SortBuffers, encode_sort};
+use std::sync::Arc;
+
+/// Tile side in pixels (as on the CPU).
+const TILE: u32 = 16;
+/// Bytes of one projected splat record (`Splat` in `shaders/common.wgsl`).
+const SPLAT_BYTES: u64 = 64;
+
+/// The GPU backend: an open device and the compiled kernels.
+pub struct GpuBackend {
+    gpu: Arc<Gpu>,
+    kernels: Kernels,
+}
+
+/// What a GPU frame keeps for a backward pass (nothing yet: the backward is not on the GPU).
+struct GpuFrame;
+
+/// The per-view constants (`View` in `shaders/common.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct ViewUniform {
+    rot: [[f32; 4]; 3],
+    trans: [f32; 4],
+    centre: [f32; 4],
+    focal: [f32; 4],
+    background: [f32; 4],
+    width: u32,
+    height: u32,
+    tiles_x: u32,
+    tiles_y: u32,
+    count: u32,
+    ns_active: u32,
+    nt_active: u32,
+    ns_capacity: u32,
+    t: f32,
+    period: f32,
+    near: f32,
+    colour_stride: u32,
+}
+
+/// One view, checked and ready to encode.
+struct Prepared {
+    uniform: ViewUniform,
+    factor: Option<wgpu::Buffer>,
+}
+
+impl GpuBackend {
+    /// Open a device allowed by `policy` and compile the kernels.
+    pub fn new(policy: AdapterPolicy) -> Result<Self, GpuError> {
+        let gpu = Gpu::open(policy)?;
+        let kernels = Kernels::new(&gpu.device);
+        Ok(Self { gpu, kernels })
+    }
+
+    /// The adapter this backend renders on.
+    pub fn adapter(&self) -> &wgpu::AdapterInfo {
+        &self.gpu.info
+    }
+
+    /// The largest storage buffer one kernel may bind on this device.
+    fn max_binding(&self) -> u64 {
+        self.gpu.limits.max_storage_buffer_binding_size
+    }
+
+    fn too_large(&self, what: &str, bytes: u64) -> Result<(), RenderError> {
+        let limit = self.max_binding();
+        if bytes > limit {
+            return Err(RenderError::Gpu(format!(
+                "{what} needs {:.0} MiB in one buffer, above this GPU's limit of {:.0} MiB; render at a lower resolution or with fewer Gaussians, or use the CPU backend",
+                bytes as f64 / 1048576.0,
+                limit as f64 / 1048576.0
+            )));
+        }
+        Ok(())
+    }
+
+    /// Run `f` inside a validation error scope; a wgpu validation error becomes a
+    /// [`RenderError::Gpu`] instead of a panic.
+    fn checked<T>(&self, f: impl FnOnce() -> Result<T, RenderError>) -> Result<T, RenderError> {
+        let scope = self
+            .gpu
+            .device
+            .push_error_scope(wgpu::ErrorFilter::Validation);
+        let out = f();
+        match pollster::block_on(scope.pop()) {
+            Some(e) => Err(RenderError::Gpu(e.to_string())),
+            None => out,
+        }
+    }
+
+    /// Submit `encoder` and read `bytes` of `staging` back as `u32` words.
+    fn read_back(
+        &self,
+        encoder: wgpu::CommandEncoder,
+        staging: &wgpu::Buffer,
+        bytes: u64,
+    ) -> Result<Vec<u32>, RenderError> {
+        self.gpu.queue.submit([encoder.finish()]);
+        if bytes == 0 {
+            return Ok(Vec::new());
+        }
+        let slice = staging.slice(..bytes);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.gpu
+            .device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| RenderError::Gpu(format!("waiting for the GPU: {e}")))?;
+        rx.recv()
+            .map_err(|_| RenderError::Gpu("the GPU read-back was dropped".into()))?
+            .map_err(|e| RenderError::Gpu(format!("reading the GPU result: {e}")))?;
+        let words = {
+            let view = slice
+                .get_mapped_range()
+                .map_err(|e| RenderError::Gpu(format!("reading the GPU result: {e}")))?;
+            bytemuck::pod_collect_to_vec::<u8, u32>(&view)
+        };
+        staging.unmap();
+        Ok(words)
+    }
+
+    fn prepare(
+        &self,
+        model: &Gaussians<f32>,
+        view: &ViewRequest<'_>,
+    ) -> Result<Prepared, RenderError> {
+        let n = model.len();
+        if let Some(f) = view.options.opacity_factor
+            && f.len() != n
+        {
+            return Err(RenderError::OpacityFactorLength {
+                expected: n,
+                got: f.len(),
+            });
+        }
+        let cam: PinholeCamera<f32> = checked_pinhole(view.camera, view.options.near_plane)?;
+        let active = model.active.min(model.capacity);
+        let r = cam.rotation;
+        let bg = view.options.background;
+        let uniform = ViewUniform {
+            rot: [0, 1, 2].map(|i| [r[i][0], r[i][1], r[i][2], 0.0]),
+            trans: [
+                cam.translation[0],
+                cam.translation[1],
+                cam.translation[2],
+                0.0,
+            ],
+            centre: [cam.centre[0], cam.centre[1], cam.centre[2], 0.0],
+            focal: [cam.fx, cam.fy, cam.cx, cam.cy],
+            background: [bg[0], bg[1], bg[2], 0.0],
+            width: cam.width,
+            height: cam.height,
+            tiles_x: cam.width.div_ceil(TILE),
+            tiles_y: cam.height.div_ceil(TILE),
+            count: n as u32,
+            ns_active: active.spatial_count() as u32,
+            nt_active: active.temporal_count() as u32,
+            ns_capacity: model.capacity.spatial_count() as u32,
+            t: view.t,
+            period: period_of(model),
+            near: view.options.near_plane,
+            colour_stride: 3 * model.coeffs_per_channel() as u32,
+        };
+        let factor = view
+            .options
+            .opacity_factor
+            .map(|f| storage_init(&self.gpu.device, f, "opacity factor"));
+        Ok(Prepared { uniform, factor })
+    }
+}
+
+/// Per-Gaussian buffers shared by the views of a batch (each view overwrites them).
+struct Scratch {
+    splats: wgpu::Buffer,
+    counts: wgpu::Buffer,
+    ends: wgpu::Buffer,
+    radii: wgpu::Buffer,
+    scan: Option<Scan>,
+}
+
+impl RenderBackend for GpuBackend {
+    fn describe(&self) -> String {
+        format!("gpu: {}", self.gpu.describe())
+    }
+
+    fn preferred_batch(&self) -> usize {
+        8
+    }
+
+    fn render_batch(
+        &self,
+        model: &Gaussians<f32>,
+        views: &[ViewRequest<'_>],
+    ) -> Result<Vec<Rendered<f32>>, RenderError> {
+        model
+            .check_consistent()
+            .map_err(RenderError::InconsistentModel)?;
+        if views.is_empty() {
+            return Ok(Vec::new());
+        }
+        let n = model.len();
+        let prepared = views
+            .iter()
+            .map(|v| self.prepare(model, v))
+            .collect::<Result<Vec<_>, _>>()?;
+        self.too_large("the model's parameters", 80 * n as u64)?;
+        self.too_large(
+            "the model's colour coefficients",
+            4 * model.colours.len() as u64,
+        )?;
+        self.too_large("the projected splats", SPLAT_BYTES * n as u64)?;
+        for p in &prepared {
+            let pixels = p.uniform.width as u64 * p.uniform.height as u64;
+            self.too_large("the RGB image", 12 * pixels)?;
+        }
+        self.checked(|| self.render_checked(model, views, &prepared))
+    }
+
+    fn backward(
+        &self,
+        _model: &Gaussians<f32>,
+        _frame: &Rendered<f32>,
+        _up: &ImageGradients<f32>,
+        _out: &mut Gradients<f32>,
+    ) -> Result<(), RenderError> {
+        Err(RenderError::BackwardUnsupported { backend: "gpu" })
+    }
+}
+
+impl GpuBackend {
+    fn render_checked(
+        &self,
+        model: &Gaussians<f32>,
+        views: &[ViewRequest<'_>],
+        prepared: &[Prepared],
+    ) -> Result<Vec<Rendered<f32>>, RenderError> {
+        let device = &self.gpu.device;
+        let k = &self.kernels;
+        let n = model.len();
+        let mut params: Vec<[f32; 4]> = Vec::with_capacity(5 * n);
+        for i in 0..n {
+            params.extend_from_slice(&[
+                model.means[i],
+                model.log_scales[i],
+                model.rot_left[i],
+                model.rot_right[i],
+                [model.opacity_logits[i], 0.0, 0.0, 0.0],
+            ]);
+        }
+        let params = storage_init(device, &params, "gaussians");
+        let colours = storage_init(device, &model.colours, "colours");
+        let ones = storage_init(device, &vec![1.0f32; n.max(1)], "no opacity factor");
+        let scratch = Scratch {
+            splats: storage(device, SPLAT_BYTES * n as u64, "splats"),
+            counts: storage(device, 4 * n as u64, "tile counts"),
+            ends: storage(device, 4 * n as u64, "tile ends"),
+            radii: storage(device, 4 * n as u64, "radii"),
+            scan: None,
+        };
+        let scratch = Scratch {
+            scan: (n > 0).then(|| Scan::new(device, k, &scratch.ends, n as u32)),
+            ..scratch
+        };
+        let view_uniforms: Vec<wgpu::Buffer> = prepared
+            .iter()
+            .map(|p| uniform(device, &p.uniform))
+            .collect();
+        let preprocess_groups: Vec<wgpu::BindGroup> = prepared
+            .iter()
+            .zip(&view_uniforms)
+            .map(|(p, u)| {
+                let factor = p.factor.as_ref().unwrap_or(&ones);
+                k.preprocess.bind(
+                    device,
+                    &[
+                        u,
+                        &params,
+                        &colours,
+                        factor,
+                        &scratch.splats,
+                        &scratch.counts,
+                        &scratch.radii,
+                    ],
+                )
+            })
+            .collect();
+
+        // Pass 1: how many (tile, splat) pairs each view has.
+        let totals = {
+            let staging = read_buffer(device, 4 * views.len() as u64);
+            let mut enc = device.create_command_encoder(&Default::default());
+            for (v, group) in preprocess_groups.iter().enumerate() {
+                self.encode_counts(&mut enc, group, &scratch, n);
+                if n > 0 {
+                    enc.copy_buffer_to_buffer(
+                        &scratch.ends,
+                        4 * (n as u64 - 1),
+                        &staging,
+                        4 * v as u64,
+                        4,
+                    );
+                }
+            }
+            let mut totals = self.read_back(enc, &staging, 4 * views.len() as u64)?;
+            if n == 0 {
+                totals.iter_mut().for_each(|t| *t = 0);
+            }
+            totals
+        };
+        let max_pairs = totals.iter().copied().max().unwrap_or(0) as u64;
+        self.too_large("the (tile, splat) pairs", 4 * max_pairs)?;
+
+        // Pass 2: render every view and copy its images into one read-back buffer.
+        let keys = SortBuffers::new(device, max_pairs);
+        let max_tiles = prepared
+            .iter()
+            .map(|p| (p.uniform.tiles_x * p.uniform.tiles_y) as u64)
+            .max()
+            .unwrap_or(1);
+        let max_pixels = prepared
+            .iter()
+            .map(|p| p.uniform.width as u64 * p.uniform.height as u64)
+            .max()
+            .unwrap_or(1);
+        let ranges = storage(device, 8 * max_tiles, "tile ranges");
+        let out_rgb = storage(device, 12 * max_pixels, "rgb");
+        let out_alpha = storage(device, 4 * max_pixels, "alpha");
+        let out_depth = storage(device, 4 * max_pixels, "depth");
+        let layout: Vec<(u64, u64)> = prepared
+            .iter()
+            .map(|p| (p.uniform.width as u64 * p.uniform.height as u64, n as u64))
+            .collect();
+        let words_per_view: Vec<u64> = layout.iter().map(|(px, g)| 5 * px + g).collect();
+        let total_words: u64 = words_per_view.iter().sum();
+        let staging = read_buffer(device, 4 * total_words);
+        let mut enc = device.create_command_encoder(&Default::default());
+        let mut at = 0u64;
+        for (v, (p, group)) in prepared.iter().zip(&preprocess_groups).enumerate() {
+            let u = &p.uniform;
+            let pairs = totals[v];
+            self.encode_counts(&mut enc, group, &scratch, n);
+            enc.clear_buffer(&ranges, 0, None);
+            let tiles = u.tiles_x * u.tiles_y;
+            let tile_bits = 32 - tiles.saturating_sub(1).leading_zeros();
+            {
+                let mut pass = enc.begin_compute_pass(&Default::default());
+                let emit = k.emit.bind(
+                    device,
+                    &[
+                        &view_uniforms[v],
+                        &scratch.splats,
+                        &scratch.counts,
+                        &scratch.ends,
+                        &keys.a[0],
+                        &keys.a[1],
+                        &keys.a[2],
+                    ],
+                );
+                k.emit.dispatch_items(&mut pass, &emit, n as u32);
+                let in_b = encode_sort(device, k, &mut pass, &keys, pairs, tile_bits);
+                let sorted = if in_b { &keys.b } else { &keys.a };
+                let len = uniform(device, &[pairs, 0, 0, 0]);
+                let rg = k.ranges.bind(device, &[&len, &sorted[0], &ranges]);
+                k.ranges.dispatch_items(&mut pass, &rg, pairs);
+                let raster = k.rasterise.bind(
+                    device,
+                    &[
+                        &view_uniforms[v],
+                        &scratch.splats,
+                        &sorted[2],
+                        &ranges,
+                        &out_rgb,
+                        &out_alpha,
+                        &out_depth,
+                    ],
+                );
+                pass.set_pipeline(&k.rasterise.pipeline);
+                pass.set_bind_group(0, &raster, &[]);
+                pass.dispatch_workgroups(u.tiles_x, u.tiles_y, 1);
+            }
+            let (px, g) = layout[v];
+            for (buf, words) in [
+                (&out_rgb, 3 * px),
+                (&out_alpha, px),
+                (&out_depth, px),
+                (&scratch.radii, g),
+            ] {
+                if words > 0 {
+                    enc.copy_buffer_to_buffer(buf, 0, &staging, 4 * at, 4 * words);
+                }
+                at += words;
+            }
+        }
+        let words = self.read_back(enc, &staging, 4 * total_words)?;
+        let floats: &[f32] = bytemuck::cast_slice(&words);
+
+        let mut frames = Vec::with_capacity(views.len());
+        let mut at = 0usize;
+        for (v, view) in views.iter().enumerate() {
+            let (px, g) = (layout[v].0 as usize, layout[v].1 as usize);
+            let mut take = |len: usize| {
+                let s = floats[at..at + len].to_vec();
+                at += len;
+                s
+            };
+            let rgb = take(3 * px);
+            let alpha = take(px);
+            let depth = take(px);
+            let radii = take(g);
+            let visible = radii.iter().filter(|r| **r > 0.0).count();
+            frames.push(Rendered {
+                width: prepared[v].uniform.width,
+                height: prepared[v].uniform.height,
+                rgb,
+                alpha,
+                depth,
+                radii,
+                time: view.t,
+                stats: RenderStats {
+                    visible,
+                    tile_pairs: totals[v] as usize,
+                    blend_evaluations: 0,
+                },
+                state: Arc::new(GpuFrame),
+            });
+        }
+        Ok(frames)
+    }
+
+    /// Record `preprocess` and the scan of its tile counts for one view.
+    fn encode_counts(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        group: &wgpu::BindGroup,
+        scratch: &Scratch,
+        n: usize,
+    ) {
+        if n == 0 {
+            return;
+        }
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            self.kernels
+                .preprocess
+                .dispatch_items(&mut pass, group, n as u32);
+        }
+        enc.copy_buffer_to_buffer(&scratch.counts, 0, &scratch.ends, 0, 4 * n as u64);
+        let mut pass = enc.begin_compute_pass(&Default::default());
+        if let Some(scan) = &scratch.scan {
+            scan.encode(&self.kernels, &mut pass);
+        }
+    }
+}
+
+/// A buffer the host can map and read, of at least 4 bytes.
+fn read_buffer(device: &wgpu::Device, bytes: u64) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("read-back"),
+        size: bytes.max(4),
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
+}
