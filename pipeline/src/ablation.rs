@@ -81,7 +81,7 @@ pub fn run(
     let train_config = config.train.with_iterations(iterations);
     let scale = iterations as f64 / config.train.iterations.max(1) as f64;
     let mut rows = Vec::new();
-    let backend = crate::engine_inputs::render_backend();
+    let backend = crate::engine_inputs::training_backend();
     for (label, mut decay) in DecayConfig::variants_for_ablation() {
         decay.warmup = (decay.warmup as f64 * scale).round() as u64;
         reporter.say(&format!(

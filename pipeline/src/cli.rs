@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand, builder::PossibleValuesParser};
 
+use crate::engine_inputs::BackendChoice;
 use crate::stages::pipeline;
 
 /// Turn four cameras' recordings into a 4D Gaussian model you can render from any
@@ -56,6 +57,9 @@ pub enum Command {
         /// Where to write the simulated capture and its outputs.
         #[arg(default_value = "4c4d-demo")]
         out_dir: PathBuf,
+        /// Renderer of the `render` and `eval` stages (overrides `[engine] backend`).
+        #[arg(long, value_enum)]
+        backend: Option<BackendChoice>,
     },
     /// Record up to four V4L2 webcams at once into a new capture directory
     /// (raw/camN/capture.mov + kernel timestamps per frame). Stop with Ctrl-C or --seconds.
@@ -108,6 +112,9 @@ pub struct RunArgs {
     /// Rerun the selected stages even if they are up to date.
     #[arg(long)]
     pub force: bool,
+    /// Renderer of the `render` and `eval` stages (overrides `[engine] backend`).
+    #[arg(long, value_enum)]
+    pub backend: Option<BackendChoice>,
 }
 
 #[derive(Debug, Args)]
@@ -156,6 +163,10 @@ pub struct RenderArgs {
     /// Output: a `.mp4` file (H.264), or a folder for PNG frames (rgb/, depth/, alpha/).
     #[arg(long)]
     pub out: PathBuf,
+    /// Renderer: auto (a hardware GPU if there is one), cpu or gpu (default: `[engine]
+    /// backend` of capture.toml).
+    #[arg(long, value_enum)]
+    pub backend: Option<BackendChoice>,
 }
 
 /// The stages in order, from the one list of them (`stages::pipeline`).

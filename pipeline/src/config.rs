@@ -38,6 +38,8 @@ pub struct CaptureConfig {
     pub render: render::RenderSettings,
     pub eval: eval::EvalSettings,
     pub export: export::ExportSettings,
+    /// The compute backend of the stages that render (not a stage parameter).
+    pub engine: crate::engine_inputs::EngineSettings,
 }
 
 /// `[capture]`: the rig itself.

@@ -12,15 +12,62 @@ use calib::poses::PosesFile;
 use calib::undistort::{Fit, UndistortMap};
 use rayon::prelude::*;
 use rig::frames::FramesIndex;
+use serde::{Deserialize, Serialize};
 use shared_types::{Camera, CameraSet, Progress};
+use splat4d::render::gpu::{AdapterPolicy, GpuBackend};
 use splat4d::train::{Dataset, ImageU8, View};
 use splat4d::{Gaussians, RenderBackend, TimeMapping};
 
-/// The render backend every stage and command draws with (training, eval, render),
-/// logged once per use. The one place a backend is chosen.
-pub fn render_backend() -> Box<dyn RenderBackend> {
-    let backend = Box::new(splat4d::CpuBackend);
+/// Which renderer draws images: `[engine] backend` in `capture.toml`, `--backend` on the
+/// command line.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum BackendChoice {
+    /// A hardware GPU when there is one, else the CPU (never a software GPU adapter, which
+    /// is slower than the CPU engine).
+    #[default]
+    Auto,
+    /// The CPU engine (the reference).
+    Cpu,
+    /// A hardware GPU through wgpu; an error when there is none.
+    Gpu,
+}
+
+/// `[engine]`: the compute backend of the stages that render (`render`, `eval`). Not a
+/// stage parameter: both backends draw the same images (within 1e-4), so switching does
+/// not rerun anything; the backend used is recorded in each stage's `stage.json`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EngineSettings {
+    pub backend: BackendChoice,
+}
+
+/// The backend that renders for `render`, `eval` and `pipeline render`, as `choice` asks,
+/// logged. `SPLAT4D_GPU_SOFTWARE=1` lets `gpu` and `auto` use a software adapter (tests).
+pub fn render_backend(choice: BackendChoice) -> anyhow::Result<Box<dyn RenderBackend>> {
+    let policy = AdapterPolicy::from_env();
+    let backend: Box<dyn RenderBackend> = match choice {
+        BackendChoice::Cpu => Box::new(splat4d::CpuBackend),
+        BackendChoice::Gpu => Box::new(
+            GpuBackend::new(policy).context("[engine] backend = \"gpu\" (or --backend gpu)")?,
+        ),
+        BackendChoice::Auto => match GpuBackend::new(policy) {
+            Ok(gpu) => Box::new(gpu),
+            Err(e) => {
+                tracing::info!("no GPU backend ({e}); rendering on the CPU");
+                Box::new(splat4d::CpuBackend)
+            }
+        },
+    };
     tracing::info!("render backend: {}", backend.describe());
+    Ok(backend)
+}
+
+/// The backend that trains: the CPU, whose backward pass the trainer needs (the GPU
+/// backward is not written yet).
+pub fn training_backend() -> Box<dyn RenderBackend> {
+    let backend = Box::new(splat4d::CpuBackend);
+    tracing::info!("training backend: {}", backend.describe());
     backend
 }
 

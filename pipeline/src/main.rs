@@ -55,7 +55,7 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Command::Demo { out_dir } => demo(&out_dir, reporter),
+        Command::Demo { out_dir, backend } => demo(&out_dir, backend, reporter),
         Command::Render(args) => render(args, reporter),
         Command::Bench(BenchCommand::Ablation {
             scene,
@@ -102,7 +102,10 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
 }
 
 fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
-    let (capture, config) = open_capture(&args.capture_dir)?;
+    let (capture, mut config) = open_capture(&args.capture_dir)?;
+    if let Some(b) = args.backend {
+        config.engine.backend = b;
+    }
     let selection = Selection {
         from: args.from,
         to: args.to,
@@ -123,7 +126,9 @@ fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
 /// Render the trained model along a path into an MP4 file or a folder of PNGs; the
 /// output appears only when complete.
 fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
-    let (capture, _) = open_capture(&args.capture_dir)?;
+    let (capture, config) = open_capture(&args.capture_dir)?;
+    let backend =
+        pipeline::engine_inputs::render_backend(args.backend.unwrap_or(config.engine.backend))?;
     let work = capture.work_dir();
     let model = pipeline::engine_inputs::load_trained_model(&work)?;
     let (index, cameras, heldout) = pipeline::stages::render::path_cameras(&work)?;
@@ -148,6 +153,7 @@ fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     let frames = build_fresh(&staging, |staging| {
         let progress = reporter.progress("render");
         let frames = pipeline::stages::render::render(
+            backend.as_ref(),
             &model,
             &cameras,
             &heldout,
@@ -231,7 +237,11 @@ fn capture_summary(capture: &pipeline::layout::Capture) -> String {
 
 /// Simulate the built-in scene (once) and run every stage on it. Stages that are not
 /// implemented yet are reported but do not make the demo fail; a failing stage does.
-fn demo(out_dir: &std::path::Path, reporter: &Reporter) -> anyhow::Result<ExitCode> {
+fn demo(
+    out_dir: &std::path::Path,
+    backend: Option<pipeline::engine_inputs::BackendChoice>,
+    reporter: &Reporter,
+) -> anyhow::Result<ExitCode> {
     if out_dir.join("raw").exists() {
         reporter.say(&format!(
             "reusing the simulated capture in {} (delete it to simulate again)",
@@ -248,7 +258,10 @@ fn demo(out_dir: &std::path::Path, reporter: &Reporter) -> anyhow::Result<ExitCo
         shared_types::atomic::write_atomic(&settings, simulate::demo_settings(&scene).as_bytes())
             .with_context(|| format!("cannot write {}", settings.display()))?;
     }
-    let (capture, config) = open_capture(out_dir)?;
+    let (capture, mut config) = open_capture(out_dir)?;
+    if let Some(b) = backend {
+        config.engine.backend = b;
+    }
     let summary = stages::pipeline().run(&capture, &config, &Selection::default(), reporter)?;
     report_summary(&summary, reporter);
     reporter.say(&format!(

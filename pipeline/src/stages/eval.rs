@@ -16,7 +16,9 @@ use shared_types::{Camera, CameraSet, WorldToCamera};
 use splat4d::TimeMapping;
 use splat4d::eval::EvalView;
 
-use crate::engine_inputs::{load_frame, load_trained_model, pinhole_cameras, time_mapping};
+use crate::engine_inputs::{
+    EngineSettings, load_frame, load_trained_model, pinhole_cameras, time_mapping,
+};
 use crate::heldout::HELDOUT_FILE;
 use crate::layout::Capture;
 use crate::stage_context::StageContext;
@@ -309,6 +311,7 @@ pub fn run(
     ctx: &StageContext,
     settings: &EvalSettings,
     heldout_cameras: &[String],
+    engine: &EngineSettings,
 ) -> anyhow::Result<()> {
     let model = load_trained_model(&ctx.capture.work_dir())?;
     let poses = PosesFile::read(&ctx.stage_dir("poses").join("cameras.json"))?;
@@ -348,16 +351,19 @@ pub fn run(
     let lpips = match &settings.lpips {
         Some(path) => {
             let path = ctx.capture.resolve(path);
-            Some(splat4d::metrics::lpips::Lpips::load(&path).with_context(|| {
-                format!(
-                    "[eval] lpips = {}: cannot load the LPIPS model",
-                    path.display()
-                )
-            })?)
+            Some(
+                splat4d::metrics::lpips::Lpips::load(&path).with_context(|| {
+                    format!(
+                        "[eval] lpips = {}: cannot load the LPIPS model",
+                        path.display()
+                    )
+                })?,
+            )
         }
         None => None,
     };
-    let backend = crate::engine_inputs::render_backend();
+    let backend = crate::engine_inputs::render_backend(engine.backend)?;
+    ctx.record_tool("render backend", &backend.describe());
     let report = splat4d::eval::evaluate(
         backend.as_ref(),
         &model,

@@ -104,7 +104,7 @@ pub fn pipeline() -> Pipeline {
             StageDef::new("render", "render videos along camera paths")
                 .after(&["frames", "poses", "train"])
                 .output_one_of(&render::OUTPUTS)
-                .run(|ctx, config| render::run(ctx, &config.render)),
+                .run(|ctx, config| render::run(ctx, &config.render, &config.engine)),
             StageDef::new(
                 "eval",
                 "metrics on held-out views (PSNR, SSIM, DSSIM, LPIPS)",
@@ -113,7 +113,9 @@ pub fn pipeline() -> Pipeline {
             .inputs(|c, config| eval::inputs(c, &config.eval))
             .params(with_heldout("eval"))
             .outputs(&["metrics.json", "per_frame.csv"])
-            .run(|ctx, config| eval::run(ctx, &config.eval, &config.capture.heldout)),
+            .run(|ctx, config| {
+                eval::run(ctx, &config.eval, &config.capture.heldout, &config.engine)
+            }),
             StageDef::new("export", "PLY / .splatv exports and a browser viewer")
                 .after(&["frames", "poses", "train"])
                 .outputs(&["export.json"])

@@ -10,11 +10,11 @@ use calib::poses::PosesFile;
 use rig::frames::FramesIndex;
 use serde::{Deserialize, Serialize};
 use shared_types::{Camera, Progress};
-use splat4d::Gaussians;
 use splat4d::eval::FrameOutputs;
 use splat4d::trajectories::{PathKind, PathSpec, TimeMode, camera_path};
+use splat4d::{Gaussians, RenderBackend};
 
-use crate::engine_inputs::{load_trained_model, pinhole_cameras};
+use crate::engine_inputs::{EngineSettings, load_trained_model, pinhole_cameras, render_backend};
 use crate::heldout::pinhole_heldout_cameras;
 use crate::stage_context::StageContext;
 
@@ -70,9 +70,11 @@ pub fn path_cameras(work_dir: &Path) -> anyhow::Result<(FramesIndex, Vec<Camera>
 }
 
 /// Render `model` along the path of `settings` into `out_dir` (`render.mp4` and/or PNG
-/// folders). `cameras` are the pinhole training cameras, `heldout` the held-out ones.
+/// folders) with `backend`. `cameras` are the pinhole training cameras, `heldout` the
+/// held-out ones.
 #[allow(clippy::too_many_arguments)]
 pub fn render(
+    backend: &dyn RenderBackend,
     model: &Gaussians<f32>,
     cameras: &[Camera],
     heldout: &[Camera],
@@ -119,7 +121,7 @@ pub fn render(
         }
     };
     let rendered = splat4d::eval::render_path(
-        crate::engine_inputs::render_backend().as_ref(),
+        backend,
         model,
         &path,
         out_dir,
@@ -134,7 +136,11 @@ pub fn render(
 }
 
 /// The `render` stage.
-pub fn run(ctx: &StageContext, settings: &RenderSettings) -> anyhow::Result<()> {
+pub fn run(
+    ctx: &StageContext,
+    settings: &RenderSettings,
+    engine: &EngineSettings,
+) -> anyhow::Result<()> {
     if !settings.video && !settings.png {
         anyhow::bail!(
             "capture.toml [render]: `video` and `png` are both false, so the stage would write nothing; set one of them to true"
@@ -142,7 +148,10 @@ pub fn run(ctx: &StageContext, settings: &RenderSettings) -> anyhow::Result<()> 
     }
     let model = load_trained_model(&ctx.capture.work_dir())?;
     let (index, cameras, heldout) = path_cameras(&ctx.capture.work_dir())?;
+    let backend = render_backend(engine.backend)?;
+    ctx.record_tool("render backend", &backend.describe());
     let frames = render(
+        backend.as_ref(),
         &model,
         &cameras,
         &heldout,

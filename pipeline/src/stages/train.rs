@@ -90,7 +90,7 @@ pub fn run(
     tracing::info!("opacity decay: {:?}", decay.variant);
     let mut hooks = StageHooks { inner: &mut method };
     let _graceful = Graceful::enter();
-    let backend = crate::engine_inputs::render_backend();
+    let backend = crate::engine_inputs::training_backend();
     let summary = match splat4d::train::train(
         backend.as_ref(),
         settings,
