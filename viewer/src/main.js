@@ -35,6 +35,11 @@ const qrotate = (q, v) => qmul(qmul(q, [v[0], v[1], v[2], 0]), qconj(q)).slice(0
 async function fetchBytes(url, onBytes) {
   const res = await fetch(url);
   if (!res.ok) throw new Error(`${url}: HTTP ${res.status}`);
+  if (!res.body) {
+    const whole = await res.arrayBuffer();
+    onBytes(whole.byteLength);
+    return whole;
+  }
   const reader = res.body.getReader();
   const chunks = [];
   let size = 0;
@@ -363,11 +368,18 @@ async function main() {
     }
   });
   window.addEventListener("resize", () => {
+    const height = canvas.height;
     renderer.resize();
     if (pinned !== null) pin(pinned);
+    else if (intrinsics) {
+      // Orbiting: keep the vertical field of view.
+      const s = canvas.height / height;
+      intrinsics = { fx: intrinsics.fx * s, fy: intrinsics.fy * s, cx: canvas.width / 2, cy: canvas.height / 2 };
+    }
   });
 
   if (startCamera !== null) pin(startCamera);
+  else unpin(); // no training cameras listed: orbit the scene centre
   let gotoFrame = params.has("goto") ? clampFrame(params.get("goto")) : null;
   setPosition(mode === "frames" ? startFrame : params.has("frame") || params.has("t") ? (params.has("frame") ? Number(params.get("frame")) : Number(params.get("t")) * last) : 0);
   setPlaying(params.get("play") !== "0");
