@@ -169,6 +169,56 @@ fn report_files_hold_per_frame_and_mean_metrics_with_definitions() {
     );
 }
 
+/// A stage evaluates into a temporary folder (`work/.eval.partial`) that is renamed to
+/// `work/eval` when complete, and its undistorted ground-truth copies live inside that
+/// folder: `per_frame.csv` must name every image relative to its own folder, so that the
+/// names hold after the rename (they used to be absolute paths into `.eval.partial`).
+#[test]
+fn per_frame_csv_names_images_relative_to_its_folder_and_survives_the_rename() {
+    let s = setup();
+    let work = s.dir.path().join("work");
+    let partial = work.join(".eval.partial");
+    let model = scene();
+    // One image inside the output folder (an undistorted copy), one beside it (a frame of
+    // another stage).
+    let inside = partial.join("groundtruth/train/cam0/000000.png");
+    let beside = work.join("frames/cam2/000003.png");
+    for (path, view) in [(&inside, &s.train[0]), (&beside, &s.train[1])] {
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        std::fs::copy(&view.image_path, path).unwrap();
+    }
+    let mut train = s.train.clone();
+    train[0].image_path = inside.clone();
+    train[1].image_path = work.join("frames/./cam2/../cam2/000003.png");
+    evaluate(
+        &CpuBackend,
+        &model,
+        &s.heldout,
+        &train,
+        &partial,
+        None,
+        &NoProgress,
+    )
+    .unwrap();
+    std::fs::rename(&partial, work.join("eval")).unwrap();
+    let csv = std::fs::read_to_string(work.join("eval/per_frame.csv")).unwrap();
+    let images: Vec<&str> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(3).unwrap())
+        .collect();
+    assert_eq!(images[2], "groundtruth/train/cam0/000000.png", "{csv}");
+    assert_eq!(images[3], "../frames/cam2/000003.png", "{csv}");
+    assert_eq!(images[0], "../../h0.png", "{csv}");
+    for image in images {
+        assert!(
+            !image.contains(".partial") && !image.starts_with('/'),
+            "{image}"
+        );
+        assert!(work.join("eval").join(image).is_file(), "{image} resolves");
+    }
+}
+
 #[test]
 fn lpips_is_computed_with_an_onnx_model() {
     let s = setup();

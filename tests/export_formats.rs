@@ -7,7 +7,7 @@
 mod common;
 
 use common::{SceneSpec, camera, random_scene};
-use glam::{DMat3, DQuat};
+use glam::{DMat3, DQuat, DVec3};
 use splat4d::export::splatv::{self, SplatvCamera};
 use splat4d::export::{
     ExportError, ExportOptions, Splat3d, bake_frame, export_all, read_frame_ply, read_model_ply,
@@ -169,7 +169,10 @@ fn model4d_ply_reimports_bit_exactly() {
 
 #[test]
 fn splatv_decodes_to_what_was_written_and_moves_like_the_model() {
-    let m = model(21, 50);
+    let mut m = model(21, 50);
+    // A sequence longer than one model unit: the `.splatv` stores times as fractions of
+    // it (players run τ over [0, 1]), so every time and velocity below is rescaled.
+    m.time.duration = 1.6;
     let cams = CameraSet::new(vec![camera(64, 48)]);
     let scams: Vec<SplatvCamera> = cams
         .cameras
@@ -219,7 +222,7 @@ fn splatv_decodes_to_what_was_written_and_moves_like_the_model() {
             ) else {
                 continue;
             };
-            let dt = t - s.t_centre as f64;
+            let dt = t / m.time.duration - s.t_centre as f64;
             for k in 0..3 {
                 let p = s.position[k] as f64 + s.velocity[k] as f64 * dt;
                 assert!(
@@ -234,6 +237,8 @@ fn splatv_decodes_to_what_was_written_and_moves_like_the_model() {
         }
     }
     assert!(checked > 50);
+    // The whole sequence lies in the player's [0, 1].
+    assert!(back.iter().all(|s| (0.0..=1.0).contains(&s.t_centre)));
     assert!(splatv::decode(&bytes[..100]).is_err());
     assert!(splatv::decode(b"not a splatv file").is_err());
 }
@@ -264,7 +269,10 @@ fn export_all_writes_the_documented_tree() {
     );
     let leftovers: Vec<_> = walk(dir.path())
         .into_iter()
-        .filter(|p| p.file_name().is_some_and(|n| n.to_string_lossy().contains(".tmp")))
+        .filter(|p| {
+            p.file_name()
+                .is_some_and(|n| n.to_string_lossy().contains(".tmp"))
+        })
         .collect();
     assert!(leftovers.is_empty(), "{leftovers:?}");
 
@@ -307,27 +315,53 @@ fn viewer_export_copies_the_bundle_and_writes_equal_size_frames() {
     assert_eq!(frames.len(), 3);
     let ts: Vec<f64> = frames.iter().map(|f| f["t"].as_f64().unwrap()).collect();
     assert_eq!(ts, vec![times[0], times[3], times[6]]);
-    let counts: Vec<u64> = frames
-        .iter()
-        .map(|f| f["splats"].as_u64().unwrap())
-        .collect();
-    let max = *counts.iter().max().unwrap() as usize;
-    assert!(max > 0);
+    let rows = scene["rows"].as_u64().unwrap() as usize;
+    assert!(rows > 0 && rows <= m.len());
     for f in frames {
+        // One size and one row order for all frames; rows a frame does not draw are
+        // transparent.
         let bytes = std::fs::read(v.join(f["file"].as_str().unwrap())).unwrap();
-        // Padded to one size (gsplat's sort worker keeps its first buffer size).
-        assert_eq!(bytes.len(), 32 * max);
+        assert_eq!(bytes.len(), 32 * rows);
+        let drawn = bytes.chunks_exact(32).filter(|r| r[27] > 0).count();
+        let splats = f["splats"].as_u64().unwrap() as usize;
+        assert!(drawn <= splats && splats <= rows, "{drawn} {splats} {rows}");
+        // The colours seen from each training camera, RGB per row.
+        let colours = f["colours"].as_array().unwrap();
+        assert_eq!(colours.len(), 1);
+        let rgb = std::fs::read(v.join(colours[0].as_str().unwrap())).unwrap();
+        assert_eq!(rgb.len(), 3 * rows);
     }
-    let cam = scene["camera_position"].as_array().unwrap();
-    let r: f64 = cam
-        .iter()
-        .map(|c| c.as_f64().unwrap().powi(2))
-        .sum::<f64>()
-        .sqrt();
+    // The training camera in viewer space sees the viewer-space points where the engine's
+    // camera sees the world points.
+    let space = &scene["space"];
+    let vec3 =
+        |v: &serde_json::Value| DVec3::from_array(serde_json::from_value(v.clone()).unwrap());
+    let quat = |v: &serde_json::Value| {
+        let q: [f64; 4] = serde_json::from_value(v.clone()).unwrap();
+        DQuat::from_xyzw(q[0], q[1], q[2], q[3])
+    };
+    let (centre, to_viewer) = (vec3(&space["centre"]), quat(&space["rotation"]));
+    let cam = &scene["cameras"][0];
+    let (position, cam_to_viewer) = (vec3(&cam["position"]), quat(&cam["rotation"]));
+    assert_eq!(cam["name"], "test");
+    assert_eq!(cam["fx"].as_f64().unwrap(), cams.cameras[0].intrinsics.fx);
     assert!(
-        (r - 4.0).abs() < 0.5,
-        "camera distance to the scene centre {r}"
+        (position.length() - 4.0).abs() < 0.5,
+        "camera to the scene centre {position}"
     );
+    for mean in &m.means {
+        let world = DVec3::new(mean[0] as f64, mean[1] as f64, mean[2] as f64);
+        let seen = cams.cameras[0].world_to_camera.apply(world);
+        let viewer = to_viewer * (world - centre);
+        let seen_in_viewer = cam_to_viewer.inverse() * (viewer - position);
+        assert!(
+            (seen - seen_in_viewer).length() < 1e-9,
+            "{seen} vs {seen_in_viewer}"
+        );
+    }
+    // The cameras' up direction is −y in viewer space (gsplat's orbit controls).
+    let up = cam_to_viewer * DVec3::NEG_Y;
+    assert!(up.y < -0.9, "camera up in viewer space {up}");
 }
 
 fn walk(dir: &std::path::Path) -> Vec<std::path::PathBuf> {

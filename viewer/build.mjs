@@ -8,7 +8,7 @@ await build({
   entryPoints: ["src/main.js"],
   bundle: true,
   format: "esm",
-  minify: true,
+  minify: !process.env.VIEWER_DEBUG,
   target: "es2020",
   outfile: "dist/viewer.js",
   logLevel: "warning",

@@ -242,6 +242,14 @@ fn heldout_cameras_of_a_real_capture_are_posed_never_trained_and_measured() {
     for line in csv.lines().skip(1) {
         let fields: Vec<&str> = line.split(',').collect();
         let (set, camera) = (fields[0], fields[1]);
+        // The image column names the final file, relative to work/eval/ (the stage ran in
+        // work/.eval.partial/).
+        let image = fields[3];
+        assert!(
+            !image.contains(".partial") && !Path::new(image).is_absolute(),
+            "{line}"
+        );
+        assert!(work.join("eval").join(image).is_file(), "{line}");
         for value in &fields[4..8] {
             assert!(value.parse::<f64>().unwrap().is_finite(), "{line}");
         }

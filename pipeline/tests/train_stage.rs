@@ -111,6 +111,28 @@ fn train_stops_cleanly_resumes_identically_and_exports() {
         serde_json::from_str(&fs::read_to_string(root.join("work/export/export.json")).unwrap())
             .unwrap();
     assert_eq!(report["frames"].as_array().unwrap().len(), 3);
+    // The paths it records are the final ones, relative to work/export/ (the stage writes
+    // into work/.export.partial/, renamed when complete).
+    let mut paths: Vec<&str> = report["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["path"].as_str().unwrap())
+        .collect();
+    paths.extend(["model4d", "splatv"].map(|k| report[k].as_str().unwrap()));
+    assert_eq!(
+        paths,
+        [
+            "frames/0000.ply",
+            "frames/0001.ply",
+            "frames/0002.ply",
+            "model4d.ply",
+            "scene.splatv"
+        ]
+    );
+    for p in paths {
+        assert!(root.join("work/export").join(p).is_file(), "{p}");
+    }
     assert!(root.join("work/export/model4d.ply").is_file());
     assert!(root.join("work/export/scene.splatv").is_file());
     let reloaded = splat4d::export::read_model_ply(&root.join("work/export/model4d.ply")).unwrap();

@@ -322,7 +322,7 @@ pub fn evaluate(
                 "{name},{},{:.6},{},{:.4},{:.6},{:.6},{:.6},{lp}",
                 csv_field(&f.camera),
                 f.time,
-                csv_field(&f.image_path.display().to_string()),
+                csv_field(&relative_path(out_dir, &f.image_path).display().to_string()),
                 f.psnr,
                 f.ssim,
                 f.dssim1,
@@ -375,6 +375,47 @@ pub fn evaluate(
     report.files = vec![json_path, csv_path];
     report.files.extend(grids);
     Ok(report)
+}
+
+/// `to` relative to the folder `from` (`..` where it lies outside), so that a file of
+/// `from` can name it without naming `from` itself: a stage writes into a temporary
+/// folder that is renamed when complete, and the name must hold after the rename. Both
+/// are made absolute first (lexically, against the working directory); `to` is returned
+/// absolute when the two share no root.
+pub fn relative_path(from: &Path, to: &Path) -> PathBuf {
+    use std::path::Component;
+    let (Ok(from), Ok(to)) = (std::path::absolute(from), std::path::absolute(to)) else {
+        return to.to_path_buf();
+    };
+    // Lexical clean-up of `.` and `..` (absolute paths have no leading `..` to keep).
+    fn clean(p: &Path) -> Vec<Component<'_>> {
+        let mut out: Vec<Component<'_>> = Vec::new();
+        for c in p.components() {
+            match c {
+                Component::CurDir => {}
+                Component::ParentDir => {
+                    if matches!(out.last(), Some(Component::Normal(_))) {
+                        out.pop();
+                    }
+                }
+                other => out.push(other),
+            }
+        }
+        out
+    }
+    let (f, t) = (clean(&from), clean(&to));
+    let common = f.iter().zip(&t).take_while(|(a, b)| a == b).count();
+    if common == 0 || !matches!(f.first(), Some(Component::RootDir | Component::Prefix(_))) {
+        return to;
+    }
+    let mut rel = PathBuf::new();
+    for _ in common..f.len() {
+        rel.push("..");
+    }
+    for c in &t[common..] {
+        rel.push(c.as_os_str());
+    }
+    rel
 }
 
 /// Quote a CSV field when it holds a comma, quote or newline.

@@ -5,10 +5,10 @@
 //! contribute at `t` (culled by the temporal cutoff, or opacity below `min_opacity`) are
 //! dropped. Pure computation, no file IO.
 
-use crate::model::Gaussians;
 use crate::math::numerics::{MIN_TIME_VARIANCE, logit, scale_from_log, sigmoid};
 use crate::math::rotation4d::rotation;
 use crate::math::slice::slice;
+use crate::model::Gaussians;
 use glam::{DMat3, DQuat};
 use rayon::prelude::*;
 
@@ -105,10 +105,9 @@ pub fn covariance_to_scale_rotation(cov: [[f64; 3]; 3]) -> ([f64; 3], [f64; 4]) 
 /// Slice every Gaussian at `t` into a static 3D Gaussian; drop those with temporal weight
 /// at or below the renderer's cutoff or with `opacity · ω < min_opacity`.
 pub fn bake_frame(model: &Gaussians<f32>, t: f64, min_opacity: f64) -> Frame3d {
-    let splats: Vec<Splat3d> = (0..model.len())
-        .into_par_iter()
-        .with_min_len(512)
-        .filter_map(|i| bake_one(model, i, t, min_opacity))
+    let splats: Vec<Splat3d> = bake_rows(model, t, min_opacity)
+        .into_iter()
+        .flatten()
         .collect();
     Frame3d {
         t,
@@ -116,6 +115,16 @@ pub fn bake_frame(model: &Gaussians<f32>, t: f64, min_opacity: f64) -> Frame3d {
         splats,
         sh_degree: model.active.min(model.capacity).spatial,
     }
+}
+
+/// Every Gaussian of the model sliced at `t`, in model order: `None` where
+/// [`bake_frame`] drops it. The browser viewer keeps one row per Gaussian across frames.
+pub fn bake_rows(model: &Gaussians<f32>, t: f64, min_opacity: f64) -> Vec<Option<Splat3d>> {
+    (0..model.len())
+        .into_par_iter()
+        .with_min_len(512)
+        .map(|i| bake_one(model, i, t, min_opacity))
+        .collect()
 }
 
 fn bake_one(model: &Gaussians<f32>, i: usize, t: f64, min_opacity: f64) -> Option<Splat3d> {

@@ -117,6 +117,29 @@ pub struct ExportReport {
     pub seconds: f64,
 }
 
+impl ExportReport {
+    /// The same report with every path relative to `dir` (the folder the report is saved
+    /// in): a stage exports into a temporary folder that is renamed when complete, and the
+    /// paths it records must hold after the rename.
+    pub fn relative_to(&self, dir: &Path) -> ExportReport {
+        let rel = |p: &PathBuf| crate::eval::relative_path(dir, p);
+        ExportReport {
+            frames: self
+                .frames
+                .iter()
+                .map(|f| FrameReport {
+                    path: rel(&f.path),
+                    ..f.clone()
+                })
+                .collect(),
+            model4d: self.model4d.as_ref().map(rel),
+            splatv: self.splatv.as_ref().map(rel),
+            viewer_index: self.viewer_index.as_ref().map(rel),
+            ..self.clone()
+        }
+    }
+}
+
 impl ExportOptions {
     /// The model times to export: `steps` (or `default_steps`) evenly spanning the model.
     pub fn times(&self, model: &Gaussians<f32>, default_steps: usize) -> Vec<f64> {
@@ -250,40 +273,68 @@ pub fn export_all(
             .sum::<glam::DVec3>()
             / model.len().max(1) as f64;
         let space = viewer::ViewerSpace::from_cameras(cameras, fallback);
-        let first = cameras.cameras.first();
-        let camera_position = first
-            .map(|c| space.point(c.world_to_camera.centre()))
-            .unwrap_or(glam::DVec3::new(0.0, -1.0, -4.0));
-        let baked: Vec<Frame3d> = viewer_times
+        let viewer_cameras: Vec<viewer::ViewerCamera> = cameras
+            .cameras
             .iter()
-            .map(|&(_, t)| bake_frame(model, t, opts.min_opacity))
+            .map(|c| viewer::ViewerCamera::from_camera(c, &space))
             .collect();
-        let rows = baked.iter().map(|f| f.splats.len()).max().unwrap_or(0);
+        let sort_from = viewer_cameras
+            .first()
+            .map_or(glam::DVec3::new(0.0, -1.0, -4.0), |c| {
+                glam::DVec3::from_array(c.position)
+            });
+        // Pass 1: where each Gaussian first appears (for one row order of all frames);
+        // pass 2 bakes again frame by frame, so that one frame at a time is in memory.
+        let mut first_seen: Vec<Option<[f32; 3]>> = vec![None; model.len()];
+        for &(_, t) in &viewer_times {
+            for (seen, row) in
+                first_seen
+                    .iter_mut()
+                    .zip(bake::bake_rows(model, t, opts.min_opacity))
+            {
+                if seen.is_none() {
+                    *seen = row.map(|s| s.position);
+                }
+            }
+        }
+        let order = viewer::row_order(&first_seen, &space, sort_from);
         let mut frames = Vec::new();
-        for (k, frame) in baked.iter().enumerate() {
+        for (k, &(_, t)) in viewer_times.iter().enumerate() {
+            let rows = bake::bake_rows(model, t, opts.min_opacity);
             let file = format!("frames/{k:04}.splat");
-            let bytes = viewer::encode_splat(frame, &space, view, camera_position, rows);
+            let bytes = viewer::encode_frame(model, &rows, &order, t, &space, view);
             write_atomic(&dir.join(&file), &bytes)?;
+            let mut colours = Vec::new();
+            for (c, cam) in cameras.cameras.iter().enumerate() {
+                let name = format!("frames/{k:04}.cam{c}.rgb");
+                let eye = cam.world_to_camera.centre().to_array();
+                write_atomic(
+                    &dir.join(&name),
+                    &viewer::encode_colours(model, &rows, &order, t, eye),
+                )?;
+                colours.push(name);
+            }
             frames.push(viewer::ViewerFrame {
                 file,
-                t: frame.t,
-                seconds: model.time.seconds(frame.t),
-                splats: frame.splats.len(),
+                t,
+                seconds: model.time.seconds(t),
+                splats: rows.iter().flatten().count(),
+                colours,
             });
             progress.advance(1);
         }
-        let fov_y_deg = first
-            .map(|c| {
-                2.0 * (0.5 * c.intrinsics.height as f64 / c.intrinsics.fy)
-                    .atan()
-                    .to_degrees()
-            })
-            .unwrap_or(50.0);
         let scene = viewer::ViewerScene {
+            version: 2,
             frames,
-            camera_position: camera_position.to_array(),
-            fov_y_deg,
+            rows: order.len(),
+            cameras: viewer_cameras,
+            start_camera: 0,
             fps: opts.viewer_fps,
+            duration: bake::colour_period(model),
+            space: viewer::ViewerSpaceJson {
+                centre: space.centre.to_array(),
+                rotation: space.rotation.to_array(),
+            },
         };
         let json = serde_json::to_vec_pretty(&scene).unwrap_or_default();
         write_atomic(&dir.join("scene.json"), &json)?;

@@ -12,17 +12,21 @@
 //!   velocity, `[15]` half2(t_centre, t_scale). Scales are linear σ, the quaternion is
 //!   `(w, x, y, z)`; half2(a, b) puts `a` in the low 16 bits.
 //!
-//! The viewer draws a splat at `position + velocity·(t − t_centre)` with opacity
-//! `a · exp(−((t − t_centre)/t_scale)²)`. A 4D Gaussian maps onto this exactly
-//! (its conditional mean is linear in t, its conditional covariance constant,
-//! `t_scale = √(2 Σ44)`) except for colour, which is reduced to one RGB: the
+//! The viewer draws a splat at `position + velocity·(τ − t_centre)` with opacity
+//! `a · exp(−((τ − t_centre)/t_scale)²)`, and plays `τ` over `[0, 1]` (splaTV and gsplat.js
+//! drive it with `sin(clock)/2 + 1/2`). Times are therefore stored as fractions of the
+//! model's sequence, `τ = t / T` for model time `t ∈ [0, T]` (`T` = the model's duration),
+//! so that the player's `[0, 1]` is the whole clip: `t_centre = μt / T`,
+//! `t_scale = √(2 Σ44) / T` and velocities in world units per `τ` (`T · Σ12/Σ44`).
+//! A 4D Gaussian maps onto this exactly (its conditional mean is linear in t, its
+//! conditional covariance constant) except for colour, which is reduced to one RGB: the
 //! spherindrical colour at the Gaussian's own time centre, seen from `colour_view`.
 
 use super::bake::{colour_period, folded_sh, linear_motion};
 use super::{ExportError, write_atomic};
-use crate::model::{ColourDegrees, Gaussians};
 use crate::math::numerics::sigmoid;
 use crate::math::sh::{ColourInput, colour};
+use crate::model::{ColourDegrees, Gaussians};
 use half::f16;
 use std::path::Path;
 
@@ -40,10 +44,11 @@ pub struct SplatvSplat {
     /// Linear standard deviations.
     pub scale: [f32; 3],
     pub rgba: [u8; 4],
-    /// World units per model-time unit.
+    /// World units per unit of `τ` (the sequence played as `[0, 1]`).
     pub velocity: [f32; 3],
+    /// Time centre as a fraction `τ` of the sequence.
     pub t_centre: f32,
-    /// Opacity falls as `exp(−((t − t_centre)/t_scale)²)`.
+    /// Opacity falls as `exp(−((τ − t_centre)/t_scale)²)` (`τ` units).
     pub t_scale: f32,
 }
 
@@ -114,12 +119,14 @@ pub fn baked_rgb(
     rgb.map(|v| v.clamp(0.0, 1.0))
 }
 
-/// The dynamic splats of a 4D model (one per Gaussian; fully transparent ones dropped).
+/// The dynamic splats of a 4D model (one per Gaussian; fully transparent ones dropped),
+/// with times as fractions of the model's sequence (see the module docs).
 pub fn splats_from_model(
     model: &Gaussians<f32>,
     colour_view: Option<[f64; 3]>,
 ) -> Vec<SplatvSplat> {
     use rayon::prelude::*;
+    let duration = colour_period(model);
     (0..model.len())
         .into_par_iter()
         .with_min_len(512)
@@ -142,9 +149,9 @@ pub fn splats_from_model(
                 rotation: q.map(|v| v as f32),
                 scale: log_scale.map(|v| v.exp() as f32),
                 rgba: [c8[0], c8[1], c8[2], a8],
-                velocity: vel.map(|v| v as f32),
-                t_centre: t_centre as f32,
-                t_scale: (2.0 * s44).sqrt() as f32,
+                velocity: vel.map(|v| (v * duration) as f32),
+                t_centre: (t_centre / duration) as f32,
+                t_scale: ((2.0 * s44).sqrt() / duration) as f32,
             })
         })
         .collect()

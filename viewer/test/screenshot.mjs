@@ -1,18 +1,26 @@
 // Drive headless Chromium (Debian's /usr/bin/chromium, no browser download) with
 // playwright-core: open each URL, wait until the viewer reports the requested frame as
 // rendered (window.viewerState.ready), and save a screenshot of the page.
-// Usage: node test/screenshot.mjs CHROMIUM PROFILE_DIR URL OUT.png [URL OUT.png ...]
+// Usage: node test/screenshot.mjs [--viewport=WxH] CHROMIUM PROFILE_DIR URL OUT.png [URL OUT.png ...]
+// (default viewport 640x480; with ?ui=0 in the URL the screenshot is the canvas alone).
 import { chromium } from "playwright-core";
 
-const [executablePath, profile, ...pairs] = process.argv.slice(2);
+let args = process.argv.slice(2);
+let viewport = { width: 640, height: 480 };
+const size = args.length && /^--viewport=(\d+)x(\d+)$/.exec(args[0]);
+if (size) {
+  viewport = { width: Number(size[1]), height: Number(size[2]) };
+  args = args.slice(1);
+}
+const [executablePath, profile, ...pairs] = args;
 if (!executablePath || !profile || pairs.length < 2 || pairs.length % 2) {
-  console.error("usage: screenshot.mjs CHROMIUM PROFILE_DIR URL OUT.png [URL OUT.png ...]");
+  console.error("usage: screenshot.mjs [--viewport=WxH] CHROMIUM PROFILE_DIR URL OUT.png [URL OUT.png ...]");
   process.exit(2);
 }
 const context = await chromium.launchPersistentContext(profile, {
   executablePath,
   headless: true,
-  viewport: { width: 640, height: 480 },
+  viewport,
   args: [
     "--no-sandbox",
     "--disable-gpu",
@@ -29,7 +37,7 @@ let failed = false;
 try {
   const page = context.pages()[0] ?? (await context.newPage());
   page.on("console", (m) => console.log(`[page ${m.type()}] ${m.text()}`));
-  page.on("pageerror", (e) => console.log(`[page error] ${e.message}`));
+  page.on("pageerror", (e) => console.log(`[page error] ${e.stack || e.message}`));
   const renderer = await page.evaluate(() => {
     const gl = document.createElement("canvas").getContext("webgl2");
     if (!gl) return "no WebGL2";
@@ -40,10 +48,13 @@ try {
   for (let i = 0; i < pairs.length; i += 2) {
     const [url, out] = [pairs[i], pairs[i + 1]];
     await page.goto(url);
-    await page.waitForFunction(() => window.viewerState && window.viewerState.ready, null, {
-      timeout: 120000,
-      polling: 200,
-    });
+    await page.waitForFunction(
+      () => window.viewerState && (window.viewerState.ready || window.viewerState.error),
+      null,
+      { timeout: 120000, polling: 200 },
+    );
+    const error = await page.evaluate(() => window.viewerState.error);
+    if (error) throw new Error(`the viewer reports: ${error}`);
     await page.screenshot({ path: out });
     const state = await page.evaluate(() => JSON.stringify(window.viewerState));
     console.log(`${url} -> ${out} ${state}`);

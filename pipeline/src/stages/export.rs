@@ -1,14 +1,15 @@
 //! The `export` stage: the trained model as per-timestep 3DGS PLY frames, the native 4D
 //! PLY, a `.splatv` and the browser viewer (`splat4d::export`, docs/export.md), listed
-//! in `export.json`.
+//! in `export.json` (paths relative to `work/export/`).
 
 use anyhow::Context;
 use calib::poses::PosesFile;
 use rig::frames::FramesIndex;
+use shared_types::CameraSet;
 use shared_types::atomic::write_atomic;
 use splat4d::export::ExportOptions;
 
-use crate::engine_inputs::load_trained_model;
+use crate::engine_inputs::{load_trained_model, pinhole_cameras};
 use crate::stage_context::StageContext;
 
 /// `[export]` settings: the exporter's own (time steps, which files, viewer options).
@@ -17,12 +18,21 @@ pub type ExportSettings = ExportOptions;
 /// The `export` stage.
 pub fn run(ctx: &StageContext, options: &ExportSettings) -> anyhow::Result<()> {
     let model = load_trained_model(&ctx.capture.work_dir())?;
-    let poses = PosesFile::read(&ctx.stage_dir("poses").join("cameras.json"))?;
+    let cameras_file = ctx.stage_dir("poses").join("cameras.json");
+    let poses = PosesFile::read(&cameras_file)?;
     let index = FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
+    // The cameras the engine renders with (undistorted, at the frames' size): the viewer
+    // opens at the first and shows exactly what the render and eval stages draw there.
+    let cameras = CameraSet::new(
+        pinhole_cameras(&index, &poses.set, &cameras_file)?
+            .into_iter()
+            .map(|(camera, _)| camera)
+            .collect(),
+    );
     let times = options.times(&model, index.frames.len());
     let report = splat4d::export::export_all(
         &model,
-        &poses.set,
+        &cameras,
         &times,
         &ctx.out_dir,
         options,
@@ -43,7 +53,7 @@ pub fn run(ctx: &StageContext, options: &ExportSettings) -> anyhow::Result<()> {
     );
     write_atomic(
         &ctx.output("export.json"),
-        &serde_json::to_vec_pretty(&report)?,
+        &serde_json::to_vec_pretty(&report.relative_to(&ctx.out_dir))?,
     )
     .context("cannot write export.json")?;
     Ok(())
