@@ -8,14 +8,12 @@
 
 mod common;
 
-use common::{Rng, SceneSpec, camera, random_scene};
+use common::{Rng, SceneSpec, at_camera, camera, hard_model, random_scene};
 use glam::DVec3;
 use splat4d::model::ColourDegrees;
 use splat4d::render::gpu::{AdapterPolicy, GpuBackend};
 use splat4d::render::{CpuBackend, RenderBackend, Rendered, ViewRequest};
-use splat4d::{
-    Camera, Distortion, Gaussians, ImageGradients, RenderError, RenderOptions, TimeMapping,
-};
+use splat4d::{Camera, Distortion, Gaussians, ImageGradients, RenderError, RenderOptions};
 use std::sync::OnceLock;
 
 fn gpu() -> Option<&'static GpuBackend> {
@@ -97,23 +95,6 @@ fn check(model: &Gaussians<f64>, cam: &Camera, t: f64, what: &str) -> Option<f64
     let c = CpuBackend.render(&m, cam, t as f32, &options).unwrap();
     let g = gpu.render(&m, cam, t as f32, &options).unwrap();
     Some(compare(&c, &g, what))
-}
-
-fn hard_model() -> Gaussians<f64> {
-    let mut g = Gaussians::new(
-        ColourDegrees {
-            spatial: 1,
-            temporal: 1,
-        },
-        TimeMapping::default(),
-    );
-    g.active = g.capacity;
-    g
-}
-
-fn at_camera(cam: &Camera, x: f64, y: f64, z: f64, t: f64) -> [f64; 4] {
-    let p = cam.world_to_camera.inverse_apply(DVec3::new(x, y, z));
-    [p.x, p.y, p.z, t]
 }
 
 #[test]

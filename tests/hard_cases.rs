@@ -4,32 +4,10 @@
 
 mod common;
 
-use common::{camera, weights};
-use glam::DVec3;
-use splat4d::model::ColourDegrees;
+use common::{at_camera, camera, hard_model as model, weights};
 use splat4d::render::cpu::{self, render_with};
 use splat4d::render::reference::render_reference;
-use splat4d::{
-    Camera, Distortion, Gaussians, ImageGradients, RenderError, RenderOptions, TimeMapping,
-};
-
-fn model() -> Gaussians<f64> {
-    let mut g = Gaussians::new(
-        ColourDegrees {
-            spatial: 1,
-            temporal: 1,
-        },
-        TimeMapping::default(),
-    );
-    g.active = g.capacity;
-    g
-}
-
-/// A world point at camera coordinates `(x, y, z)`.
-fn at_camera(cam: &Camera, x: f64, y: f64, z: f64, t: f64) -> [f64; 4] {
-    let p = cam.world_to_camera.inverse_apply(DVec3::new(x, y, z));
-    [p.x, p.y, p.z, t]
-}
+use splat4d::{Camera, Distortion, Gaussians, ImageGradients, RenderError, RenderOptions};
 
 struct Outcome {
     mean_err: f64,

@@ -236,13 +236,10 @@ pub struct ViewerFrame {
 #[derive(Clone, Debug, Serialize)]
 pub struct ViewerCamera {
     pub name: String,
-    /// Image size the intrinsics apply to (the page fits it into its canvas).
-    pub width: u32,
-    pub height: u32,
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
+    /// Image size and pinhole intrinsics (the page fits the image into its canvas);
+    /// written as the flat keys `width, height, fx, fy, cx, cy`.
+    #[serde(flatten)]
+    pub intrinsics: crate::Intrinsics,
     /// Camera centre in viewer space.
     pub position: [f64; 3],
     /// Camera-to-viewer-space rotation as a quaternion `(x, y, z, w)`; camera axes x
@@ -255,15 +252,9 @@ impl ViewerCamera {
     pub fn from_camera(cam: &crate::Camera, space: &ViewerSpace) -> Self {
         let c2w = cam.world_to_camera.rotation().transpose();
         let q = (space.rotation * DQuat::from_mat3(&c2w)).normalize();
-        let i = &cam.intrinsics;
         Self {
             name: cam.name.clone(),
-            width: i.width,
-            height: i.height,
-            fx: i.fx,
-            fy: i.fy,
-            cx: i.cx,
-            cy: i.cy,
+            intrinsics: cam.intrinsics,
             position: space.point(cam.world_to_camera.centre()).to_array(),
             rotation: [q.x, q.y, q.z, q.w],
         }

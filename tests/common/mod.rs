@@ -152,3 +152,22 @@ pub fn rel_err(analytic: &[f64], numeric: &[f64], floor: f64) -> f64 {
     let nb: f64 = numeric.iter().map(|a| a * a).sum::<f64>().sqrt();
     diff / na.max(nb).max(floor)
 }
+
+/// An empty model with spatial and temporal colour degree 1 (the hard-case tests' model).
+pub fn hard_model() -> Gaussians<f64> {
+    let mut g = Gaussians::new(
+        ColourDegrees {
+            spatial: 1,
+            temporal: 1,
+        },
+        TimeMapping::default(),
+    );
+    g.active = g.capacity;
+    g
+}
+
+/// A world point (with time `t`) at camera coordinates `(x, y, z)` of `cam`.
+pub fn at_camera(cam: &Camera, x: f64, y: f64, z: f64, t: f64) -> [f64; 4] {
+    let p = cam.world_to_camera.inverse_apply(DVec3::new(x, y, z));
+    [p.x, p.y, p.z, t]
+}
