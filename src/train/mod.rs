@@ -12,6 +12,7 @@ pub mod densify;
 pub mod log;
 pub mod loss;
 pub mod optim;
+pub mod regularise;
 
 pub use crate::model::init::PointCloud;
 pub use dataset::{Dataset, FrameSource, ImageLoadError, ImageU8, View};
@@ -52,6 +53,9 @@ pub struct TrainConfig {
     pub init_opacity: f64,
     /// Initial temporal σ as a fraction of the sequence duration.
     pub init_time_scale: f64,
+    /// Largest allowed ratio of a Gaussian's longest spatial axis to its middle one
+    /// (needles are reshaped into ribbons after every step; 0: no limit).
+    pub max_anisotropy: f64,
     pub lr: LearningRates,
     pub densify: DensifyConfig,
     /// Write a checkpoint every this many iterations (0: only at the end).
@@ -74,6 +78,7 @@ impl Default for TrainConfig {
             degree_every: 1000,
             init_opacity: 0.1,
             init_time_scale: 0.2,
+            max_anisotropy: 0.0,
             lr: LearningRates::default(),
             densify: DensifyConfig::default(),
             checkpoint_every: 1000,
@@ -214,6 +219,9 @@ fn validate(config: &TrainConfig, dataset: &Dataset) -> Result<(), TrainError> {
     }
     if !(config.init_opacity > 0.0 && config.init_opacity < 1.0) {
         return bad("init_opacity must be in (0, 1)");
+    }
+    if !(config.max_anisotropy == 0.0 || config.max_anisotropy > 1.0) {
+        return bad("max_anisotropy must be 0 (no limit) or greater than 1");
     }
     if dataset.views.is_empty() {
         return Err(TrainError::NoViews);
@@ -447,6 +455,7 @@ pub fn train(
         let nb = batch.len() as f64;
         let rates = config.lr.at(it, config.iterations, extent as f64);
         adam.step(&mut model, &grads, &rates);
+        regularise::cap_anisotropy(&mut model, config.max_anisotropy);
         hooks.after_step(it + 1, &mut model);
         let done = it + 1;
         let what = if !loss_sum.is_finite() {
