@@ -103,7 +103,9 @@ impl MaskSource {
                 if frame < 0.0 {
                     return None;
                 }
-                self.dir.join(camera).join(format!("{:06}.png", frame as u64))
+                self.dir
+                    .join(camera)
+                    .join(format!("{:06}.png", frame as u64))
             }
         };
         path.is_file().then_some(path)
@@ -133,18 +135,24 @@ pub fn prepare(
     let (width, height) = image::image_dimensions(image)
         .with_context(|| format!("cannot read the size of {}", image.display()))?;
     let grey = image::open(mask)
-        .with_context(|| format!("cannot read the moving-region mask {}; give an 8-bit grey PNG", mask.display()))?
+        .with_context(|| {
+            format!(
+                "cannot read the moving-region mask {}; give an 8-bit grey PNG",
+                mask.display()
+            )
+        })?
         .to_luma8();
     if grey.dimensions() == (width, height) && map.is_none() {
         return Ok(mask.to_path_buf());
     }
-    let scaled = scale_to(grey, width, height).with_context(|| {
-        format!(
-            "the moving-region mask {} does not fit its image {} ({width}×{height}); give masks of the image's size",
+    let (w, h) = grey.dimensions();
+    let Some(scaled) = scale_to(grey, width, height) else {
+        bail!(
+            "the moving-region mask {} is {w}×{h} but its image {} is {width}×{height}; give masks of the image's size",
             mask.display(),
             image.display()
-        )
-    })?;
+        );
+    };
     let fitted = match map {
         Some(map) => threshold(
             map.apply(&scaled)
@@ -162,17 +170,17 @@ pub fn prepare(
 }
 
 /// `mask` at `width × height`: itself, or scaled by nearest neighbour when its aspect
-/// ratio is the same (within [`ASPECT_TOLERANCE`]).
-fn scale_to(mask: GrayImage, width: u32, height: u32) -> anyhow::Result<GrayImage> {
+/// ratio is the same (within [`ASPECT_TOLERANCE`]); `None` for another aspect ratio.
+fn scale_to(mask: GrayImage, width: u32, height: u32) -> Option<GrayImage> {
     let (w, h) = mask.dimensions();
     if (w, h) == (width, height) {
-        return Ok(mask);
+        return Some(mask);
     }
     let aspect = |w: u32, h: u32| f64::from(w) / f64::from(h.max(1));
     if w == 0 || h == 0 || (aspect(w, h) / aspect(width, height) - 1.0).abs() > ASPECT_TOLERANCE {
-        bail!("the mask is {w}×{h}, another aspect ratio");
+        return None;
     }
-    Ok(image::imageops::resize(
+    Some(image::imageops::resize(
         &mask,
         width,
         height,
@@ -223,9 +231,16 @@ mod tests {
         // cam1's frame at 0.2 + 7/15 s on the common timeline is its video frame 7.
         touch(&sim.dir.join("cam1/000007.png"));
         let v = view("cam1/000003.png", 0.2 + 7.0 / 15.0 + 0.003);
-        assert_eq!(sim.for_view("cam1", &v), Some(sim.dir.join("cam1/000007.png")));
+        assert_eq!(
+            sim.for_view("cam1", &v),
+            Some(sim.dir.join("cam1/000007.png"))
+        );
         assert_eq!(sim.for_view("cam2", &v), None, "no sync offset");
-        assert_eq!(sim.for_view("cam1", &view("cam1/000004.png", 0.9)), None, "no file");
+        assert_eq!(
+            sim.for_view("cam1", &view("cam1/000004.png", 0.9)),
+            None,
+            "no file"
+        );
         touch(&sim.dir.join("heldout0/000002.png"));
         assert!(sim.for_simulated_image("heldout0", 2).is_some());
 
@@ -234,7 +249,10 @@ mod tests {
             numbering: Numbering::Aligned,
         };
         touch(&user.dir.join("cam1/000003.png"));
-        assert_eq!(user.for_view("cam1", &v), Some(user.dir.join("cam1/000003.png")));
+        assert_eq!(
+            user.for_view("cam1", &v),
+            Some(user.dir.join("cam1/000003.png"))
+        );
         assert_eq!(user.for_simulated_image("cam1", 3), None);
     }
 
@@ -257,13 +275,19 @@ mod tests {
         assert_eq!(got, out);
         let scaled = image::open(&got).unwrap().to_luma8();
         assert_eq!(scaled.dimensions(), (8, 6));
-        assert_eq!((scaled.get_pixel(3, 2).0[0], scaled.get_pixel(4, 2).0[0]), (255, 0));
+        assert_eq!(
+            (scaled.get_pixel(3, 2).0[0], scaled.get_pixel(4, 2).0[0]),
+            (255, 0)
+        );
         // Another aspect ratio: an error naming the mask, the image and its size.
         let wide = tmp.path().join("wide.png");
         GrayImage::new(10, 6).save(&wide).unwrap();
         let err = format!("{:#}", prepare(&wide, &image, None, &out).unwrap_err());
         assert!(
-            err.contains("wide.png") && err.contains("frame.png") && err.contains("8×6") && err.contains("10×6"),
+            err.contains("wide.png")
+                && err.contains("frame.png")
+                && err.contains("8×6")
+                && err.contains("10×6"),
             "{err}"
         );
     }
