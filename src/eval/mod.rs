@@ -383,7 +383,7 @@ pub fn evaluate(
                     Some(net) => Some(net.distance(&rendered, &truth, w as usize, h as usize)?),
                     None => None,
                 };
-                let moving = moving_metrics(view, &rendered, &truth, w, h, &label)?;
+                let moving = moving_metrics(view, &rendered, &truth, w, h, label)?;
                 if wanted_grids.contains(&i) {
                     let grid = side_by_side(&[
                         &rgb8_from(&truth, w, h),
