@@ -37,6 +37,7 @@ fn setup() -> Setup {
             camera: cam.clone(),
             time: t,
             image_path: path,
+            mask: None,
         }
     };
     let heldout = vec![
@@ -116,6 +117,8 @@ fn report_files_hold_per_frame_and_mean_metrics_with_definitions() {
         "never a number without weights"
     );
     assert_eq!(json["heldout"]["frames"], 2);
+    // No masks: nothing about the moving region.
+    assert!(json["heldout"].get("moving").is_none() && json["definitions"].get("moving").is_none());
     assert!((json["heldout"]["mean"]["psnr"].as_f64().unwrap() - mean_psnr).abs() < 1e-9);
     assert!(
         (json["train"]["mean"]["ssim"].as_f64().unwrap() - report.train.ssim.unwrap()).abs()
@@ -260,6 +263,135 @@ fn lpips_is_computed_with_an_onnx_model() {
         serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
     assert!(json["heldout"]["mean"]["lpips"].as_f64().is_some());
     assert!(json["train"]["mean"]["psnr"].is_null());
+}
+
+/// A grey mask of `width × height` with `inside(x, y)` set to 255.
+fn write_mask(path: &std::path::Path, width: u32, height: u32, inside: impl Fn(u32, u32) -> bool) {
+    image::GrayImage::from_fn(width, height, |x, y| {
+        image::Luma([if inside(x, y) { 255 } else { 0 }])
+    })
+    .save(path)
+    .unwrap();
+}
+
+#[test]
+fn moving_region_metrics_are_reported_where_views_have_masks() {
+    let mut s = setup();
+    let model = scene();
+    let dir = s.dir.path().to_path_buf();
+    // Held-out view 1: the left half; view 0: no mask. Training: an empty and a full mask.
+    for (name, inside) in [
+        (
+            "m_left.png",
+            &(|x: u32, _: u32| x < 32) as &dyn Fn(u32, u32) -> bool,
+        ),
+        ("m_empty.png", &|_, _| false),
+        ("m_full.png", &|_, _| true),
+    ] {
+        write_mask(&dir.join(name), 64, 48, inside);
+    }
+    s.heldout[1].mask = Some(dir.join("m_left.png"));
+    s.train[0].mask = Some(dir.join("m_empty.png"));
+    s.train[1].mask = Some(dir.join("m_full.png"));
+    let out = dir.join("eval");
+    let report = evaluate(
+        &CpuBackend,
+        &model,
+        &s.heldout,
+        &s.train,
+        &out,
+        None,
+        &NoProgress,
+    )
+    .unwrap();
+
+    // Held-out view 1, recomputed: PSNR over the left half.
+    let r = splat4d::render::cpu::render(&model, &s.heldout[1].camera, 0.0).unwrap();
+    let rendered: Vec<f32> = r.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect();
+    let truth: Vec<f32> = image::open(&s.heldout[1].image_path)
+        .unwrap()
+        .to_rgb8()
+        .into_raw()
+        .iter()
+        .map(|&v| v as f32 / 255.0)
+        .collect();
+    let mask: Vec<bool> = (0..64 * 48).map(|i| i % 64 < 32).collect();
+    let want = splat4d::metrics::masked_metrics(&rendered, &truth, &mask, 64, 48)
+        .unwrap()
+        .unwrap();
+    let held = report.heldout.frames[1].moving.unwrap();
+    assert_eq!(
+        (held.psnr, held.ssim, held.mask_fraction),
+        (Some(want.psnr), Some(want.ssim), 0.5)
+    );
+    assert!(held.psnr.unwrap() != report.heldout.frames[1].psnr);
+    assert_eq!(report.heldout.frames[0].moving, None);
+    let moving = report.heldout.moving.unwrap();
+    assert_eq!(
+        (moving.frames, moving.empty_masks, moving.psnr),
+        (1, 0, Some(want.psnr))
+    );
+    // Training: the empty mask is left out (and counted); the full mask is the whole image.
+    let train = report.train.moving.unwrap();
+    assert_eq!(
+        (train.frames, train.empty_masks, train.mask_fraction),
+        (1, 1, Some(1.0))
+    );
+    let full = &report.train.frames[1];
+    let exact = |a: f64, b: f64| (a - b).abs() < 1e-9 || a == b;
+    assert!(
+        exact(full.moving.unwrap().psnr.unwrap(), full.psnr),
+        "{full:?}"
+    );
+    assert!((full.moving.unwrap().ssim.unwrap() - full.ssim).abs() < 1e-5);
+
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
+    assert!(
+        json["definitions"]["moving"]
+            .as_str()
+            .is_some_and(|d| d.contains("mask"))
+    );
+    assert_eq!(json["heldout"]["moving"]["frames"], 1);
+    assert_eq!(json["train"]["moving"]["empty_masks"], 1);
+    assert!((json["heldout"]["moving"]["mean"]["psnr"].as_f64().unwrap() - want.psnr).abs() < 1e-9);
+    assert_eq!(json["heldout"]["moving"]["mask_fraction"], 0.5);
+    let csv = std::fs::read_to_string(out.join("per_frame.csv")).unwrap();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(
+        lines[0],
+        "set,camera,time,image,psnr,ssim,dssim1,dssim2,lpips,moving_psnr,moving_ssim,mask_fraction"
+    );
+    assert!(lines[1].ends_with(",skipped,,,"), "no mask: {}", lines[1]);
+    assert!(lines[2].ends_with(",0.500000"), "{}", lines[2]);
+    assert!(
+        lines[3].ends_with(",skipped,,,0.000000"),
+        "empty mask: {}",
+        lines[3]
+    );
+
+    // A mask of another size names both files and sizes.
+    write_mask(&dir.join("m_small.png"), 32, 24, |_, _| true);
+    s.heldout[1].mask = Some(dir.join("m_small.png"));
+    let e = evaluate(
+        &CpuBackend,
+        &model,
+        &s.heldout,
+        &[],
+        &dir.join("e"),
+        None,
+        &NoProgress,
+    )
+    .unwrap_err();
+    let text = e.to_string();
+    assert!(matches!(e, EvalError::MaskSize { .. }), "{text}");
+    assert!(
+        text.contains("m_small.png")
+            && text.contains("32×24")
+            && text.contains("h1.png")
+            && text.contains("64×48"),
+        "{text}"
+    );
 }
 
 #[test]

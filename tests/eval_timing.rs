@@ -111,6 +111,7 @@ fn render_and_eval_timing() {
                 camera: cam.clone(),
                 time: t,
                 image_path: path,
+                mask: None,
             });
         }
     }

@@ -77,6 +77,7 @@ pub fn run(
         &poses.set,
         &crate::engine_inputs::time_mapping(&index),
         &bench.join("heldout-groundtruth"),
+        None,
     )?;
     let train_config = config.train.with_iterations(iterations);
     let scale = iterations as f64 / config.train.iterations.max(1) as f64;

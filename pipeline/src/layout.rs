@@ -10,6 +10,7 @@
 //!   stills/               extra photos for pose solving (*.jpg, *.png)
 //!   calibration.*         optional calibration to import instead of solving poses
 //!                         (calibration.json|yaml|toml, camera_array.toml, calibration/ COLMAP)
+//!   masks/<camera>/       optional moving-region masks for eval (`crate::masks`)
 //!   groundtruth/          written by the simulator only
 //!   work/<stage>/         outputs of each stage, with work/<stage>/stage.json
 //! ```

@@ -7,7 +7,8 @@
 //!   what a running stage sees.
 //! - Shared by several stages: `engine_inputs` (earlier stages' outputs loaded for the
 //!   engine: frames, pinhole cameras, the trained model), `heldout` (held-out cameras
-//!   split off the training ones), `interrupt` (Ctrl-C stops training cleanly).
+//!   split off the training ones), `masks` (moving-region masks for eval), `interrupt`
+//!   (Ctrl-C stops training cleanly).
 //! - `runner` decides what is stale and runs it, with `manifest` (`stage.json`),
 //!   `partial_dir` (outputs appear only when complete) and `lock` (one run per capture).
 //! - `report` shows progress, `status` prints the table, `cli` is the command line;
@@ -21,6 +22,7 @@ pub mod heldout;
 pub mod interrupt;
 pub mod layout;
 pub mod lock;
+pub mod masks;
 pub mod manifest;
 pub mod partial_dir;
 pub mod report;

@@ -302,6 +302,7 @@ fn heldout_cameras_of_a_real_capture_are_posed_never_trained_and_measured() {
         &settings,
         &model.time,
         &tmp.path().join("swapped_gt"),
+        None,
     )
     .unwrap();
     assert_eq!(views.len(), 2 * per_camera);

@@ -201,6 +201,7 @@ fn every_capture_file_a_stage_reads_is_an_input() {
     );
     let eval = inputs("eval");
     assert!(eval.contains(&root.join("groundtruth")), "{eval:?}");
+    assert!(eval.contains(&root.join("masks")), "{eval:?}");
     assert!(eval.contains(&root.join("w/lpips.onnx")), "{eval:?}");
     for stage in ["train", "render", "export"] {
         assert!(

@@ -1,7 +1,8 @@
 //! Rendering and evaluating a trained model: render camera paths to frames
 //! ([`render_path`]) and measure renders against ground-truth images ([`evaluate`]):
 //! PSNR, SSIM, DSSIM₁, DSSIM₂ and (with user-supplied weights) LPIPS per frame and mean,
-//! held-out and training views reported separately, written as `metrics.json`,
+//! PSNR and SSIM inside the moving region where a view has a mask, held-out and training
+//! views reported separately, written as `metrics.json`,
 //! `per_frame.csv` and side-by-side PNG grids. Every file is written under a temporary
 //! name and renamed. Every render goes through a [`RenderBackend`], in batches of its
 //! preferred size. The metric maths is in `metrics`, the camera paths in `trajectories`.
@@ -16,7 +17,7 @@ pub use frames::{FrameOutputs, FrameSink, RenderedPath, render_path};
 
 use crate::camera::Camera;
 use crate::metrics::lpips::{Lpips, LpipsError};
-use crate::metrics::{MetricsError, image_metrics};
+use crate::metrics::{MetricsError, image_metrics, masked_metrics};
 use crate::model::Gaussians;
 use crate::progress::Progress;
 use crate::render::{RenderBackend, RenderError, RenderOptions, ViewRequest};
@@ -42,6 +43,22 @@ pub enum EvalError {
     Render { view: String, source: RenderError },
     #[error("cannot compare {view}: {source}")]
     Metrics { view: String, source: MetricsError },
+    #[error("cannot read the moving-region mask {path}: {source}; give an 8-bit grey PNG")]
+    ReadMask {
+        path: PathBuf,
+        source: image::ImageError,
+    },
+    #[error(
+        "the moving-region mask {mask} is {mask_width}×{mask_height} but its image {image} is {width}×{height}; give a mask of the image's size"
+    )]
+    MaskSize {
+        mask: PathBuf,
+        mask_width: u32,
+        mask_height: u32,
+        image: PathBuf,
+        width: u32,
+        height: u32,
+    },
     #[error(transparent)]
     Lpips(#[from] LpipsError),
     #[error("cannot write {path}: {source}")]
@@ -69,6 +86,9 @@ pub struct EvalView {
     pub time: f64,
     /// The ground-truth image (PNG or JPEG, 8-bit RGB).
     pub image_path: PathBuf,
+    /// Where moving or deforming objects are in the image: an 8-bit grey image of the
+    /// same size, inside where ≥ 128. `None`: no mask for this view.
+    pub mask: Option<PathBuf>,
 }
 
 /// Metrics of one view.
@@ -84,6 +104,50 @@ pub struct FrameMetrics {
     pub dssim2: f64,
     /// `None` when LPIPS was skipped (no weights).
     pub lpips: Option<f64>,
+    /// Inside the view's moving-region mask; `None` when the view has no mask.
+    pub moving: Option<MovingMetrics>,
+}
+
+/// PSNR and SSIM of one view inside its moving-region mask.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MovingMetrics {
+    /// Fraction of the image inside the mask (0 for an empty mask).
+    pub mask_fraction: f64,
+    /// dB, MSE over the masked pixels and RGB; `None` for an empty mask.
+    pub psnr: Option<f64>,
+    /// Mean of the SSIM map over the masked pixels and RGB; `None` for an empty mask.
+    pub ssim: Option<f64>,
+}
+
+/// Means over the views of a set whose moving-region mask is not empty.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct MovingSummary {
+    /// Views in the means.
+    pub frames: usize,
+    /// Views whose mask was empty (left out of the means).
+    pub empty_masks: usize,
+    pub psnr: Option<f64>,
+    pub ssim: Option<f64>,
+    /// Mean mask fraction of the views in the means.
+    pub mask_fraction: Option<f64>,
+}
+
+impl MovingSummary {
+    /// The summary of `frames`; `None` when none of them has a mask.
+    fn of(frames: &[FrameMetrics]) -> Option<Self> {
+        let masked: Vec<&MovingMetrics> = frames.iter().filter_map(|f| f.moving.as_ref()).collect();
+        if masked.is_empty() {
+            return None;
+        }
+        let measured: Vec<&&MovingMetrics> = masked.iter().filter(|m| m.psnr.is_some()).collect();
+        Some(Self {
+            frames: measured.len(),
+            empty_masks: masked.len() - measured.len(),
+            psnr: mean(measured.iter().filter_map(|m| m.psnr)),
+            ssim: mean(measured.iter().filter_map(|m| m.ssim)),
+            mask_fraction: mean(measured.iter().map(|m| m.mask_fraction)),
+        })
+    }
 }
 
 /// Means over the views of one set (`None` for an empty set). PSNR is the mean of the
@@ -96,6 +160,8 @@ pub struct SetMetrics {
     pub dssim1: Option<f64>,
     pub dssim2: Option<f64>,
     pub lpips: Option<f64>,
+    /// Inside the moving-region masks; `None` when no view of the set has a mask.
+    pub moving: Option<MovingSummary>,
 }
 
 /// Result of [`evaluate`]; the same numbers are in `metrics.json` and `per_frame.csv`.
@@ -122,6 +188,9 @@ fn definitions() -> serde_json::Value {
     })
 }
 
+/// The definition of the moving-region metrics, added when a view has a mask.
+const MOVING_DEFINITION: &str = "PSNR (MSE over the masked pixels, RGB) and SSIM (mean of the SSIM map over the masked pixels, RGB; windows also see the pixels around the mask) inside each view's moving-region mask, means over the views whose mask is not empty (empty_masks: views left out); mask_fraction = mean fraction of the image inside the mask";
+
 fn finite(v: Option<f64>) -> serde_json::Value {
     match v {
         Some(x) if x.is_finite() => serde_json::json!(x),
@@ -142,6 +211,54 @@ fn load_truth(path: &Path) -> Result<(Vec<f32>, u32, u32), EvalError> {
         w,
         h,
     ))
+}
+
+/// The mask of a view of size `width × height`: a pixel is inside where the grey value is
+/// ≥ 128. The error names both files and sizes when the sizes differ.
+fn load_mask(path: &Path, image: &Path, width: u32, height: u32) -> Result<Vec<bool>, EvalError> {
+    let mask = image::open(path)
+        .map_err(|source| EvalError::ReadMask {
+            path: path.to_path_buf(),
+            source,
+        })?
+        .to_luma8();
+    if mask.dimensions() != (width, height) {
+        return Err(EvalError::MaskSize {
+            mask: path.to_path_buf(),
+            mask_width: mask.width(),
+            mask_height: mask.height(),
+            image: image.to_path_buf(),
+            width,
+            height,
+        });
+    }
+    Ok(mask.into_raw().into_iter().map(|v| v >= 128).collect())
+}
+
+/// PSNR and SSIM of `rendered` inside the mask of `view`; `None` when it has none.
+fn moving_metrics(
+    view: &EvalView,
+    rendered: &[f32],
+    truth: &[f32],
+    width: u32,
+    height: u32,
+    label: impl Fn() -> String,
+) -> Result<Option<MovingMetrics>, EvalError> {
+    let Some(path) = &view.mask else {
+        return Ok(None);
+    };
+    let mask = load_mask(path, &view.image_path, width, height)?;
+    let m = masked_metrics(rendered, truth, &mask, width as usize, height as usize).map_err(
+        |source| EvalError::Metrics {
+            view: label(),
+            source,
+        },
+    )?;
+    Ok(Some(MovingMetrics {
+        mask_fraction: m.map_or(0.0, |m| m.fraction),
+        psnr: m.map(|m| m.psnr),
+        ssim: m.map(|m| m.ssim),
+    }))
 }
 
 fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
@@ -266,6 +383,7 @@ pub fn evaluate(
                     Some(net) => Some(net.distance(&rendered, &truth, w as usize, h as usize)?),
                     None => None,
                 };
+                let moving = moving_metrics(view, &rendered, &truth, w, h, label)?;
                 if wanted_grids.contains(&i) {
                     let grid = side_by_side(&[
                         &rgb8_from(&truth, w, h),
@@ -287,6 +405,7 @@ pub fn evaluate(
                     dssim1: m.dssim1,
                     dssim2: m.dssim2,
                     lpips: lp,
+                    moving,
                 });
             }
         }
@@ -300,6 +419,7 @@ pub fn evaluate(
             } else {
                 None
             },
+            moving: MovingSummary::of(&frames),
             frames,
         };
         if set.name == "heldout" {
@@ -310,14 +430,20 @@ pub fn evaluate(
     }
 
     // per_frame.csv
-    let mut csv = String::from("set,camera,time,image,psnr,ssim,dssim1,dssim2,lpips\n");
+    let any_mask = report.heldout.moving.is_some() || report.train.moving.is_some();
+    let mut csv = String::from("set,camera,time,image,psnr,ssim,dssim1,dssim2,lpips");
+    csv.push_str(if any_mask {
+        ",moving_psnr,moving_ssim,mask_fraction\n"
+    } else {
+        "\n"
+    });
     for (name, set) in [("heldout", &report.heldout), ("train", &report.train)] {
         for f in &set.frames {
             let lp = f
                 .lpips
                 .map(|v| format!("{v:.6}"))
                 .unwrap_or_else(|| "skipped".into());
-            let _ = writeln!(
+            let _ = write!(
                 csv,
                 "{name},{},{:.6},{},{:.4},{:.6},{:.6},{:.6},{lp}",
                 csv_field(&f.camera),
@@ -328,6 +454,10 @@ pub fn evaluate(
                 f.dssim1,
                 f.dssim2,
             );
+            if any_mask {
+                csv.push_str(&moving_csv(f.moving.as_ref()));
+            }
+            csv.push('\n');
         }
     }
     let csv_path = out_dir.join("per_frame.csv");
@@ -335,7 +465,7 @@ pub fn evaluate(
 
     // metrics.json
     let set_json = |s: &SetMetrics| {
-        serde_json::json!({
+        let mut value = serde_json::json!({
             "frames": s.frames.len(),
             "mean": {
                 "psnr": finite(s.psnr),
@@ -347,14 +477,18 @@ pub fn evaluate(
                     (false, _) => serde_json::json!(LPIPS_SKIPPED),
                 },
             },
-        })
+        });
+        if let Some(moving) = &s.moving {
+            value["moving"] = moving_json(moving);
+        }
+        value
     };
     let file_name = |p: &PathBuf| {
         p.file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default()
     };
-    let json = serde_json::json!({
+    let mut json = serde_json::json!({
         "version": 1,
         "definitions": definitions(),
         "lpips": {
@@ -367,6 +501,9 @@ pub fn evaluate(
         "grids": grids.iter().map(file_name).collect::<Vec<_>>(),
         "grid_layout": format!("ground truth | render | mean absolute error (inferno, 0 to {})", images::ERROR_SCALE),
     });
+    if any_mask {
+        json["definitions"]["moving"] = MOVING_DEFINITION.into();
+    }
     let json_path = out_dir.join("metrics.json");
     let text = serde_json::to_string_pretty(&json).unwrap_or_default();
     write_atomic(&json_path, text.as_bytes())?;
@@ -375,6 +512,32 @@ pub fn evaluate(
     report.files = vec![json_path, csv_path];
     report.files.extend(grids);
     Ok(report)
+}
+
+/// The moving-region columns of a `per_frame.csv` row (empty where the view has no mask,
+/// or its mask is empty).
+fn moving_csv(m: Option<&MovingMetrics>) -> String {
+    let value =
+        |v: Option<f64>, digits: usize| v.map_or(String::new(), |v| format!("{v:.digits$}"));
+    match m {
+        None => ",,,".into(),
+        Some(m) => format!(
+            ",{},{},{:.6}",
+            value(m.psnr, 4),
+            value(m.ssim, 6),
+            m.mask_fraction
+        ),
+    }
+}
+
+/// `metrics.json`'s `moving` object of a set.
+fn moving_json(m: &MovingSummary) -> serde_json::Value {
+    serde_json::json!({
+        "frames": m.frames,
+        "empty_masks": m.empty_masks,
+        "mean": { "psnr": finite(m.psnr), "ssim": finite(m.ssim) },
+        "mask_fraction": finite(m.mask_fraction),
+    })
 }
 
 /// `to` relative to the folder `from` (`..` where it lies outside), so that a file of

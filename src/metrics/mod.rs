@@ -1,6 +1,7 @@
 //! Image quality metrics: PSNR, SSIM, and the two
-//! structural dissimilarities DSSIM₁ and DSSIM₂. Images are interleaved RGB, row-major,
-//! values in `[0, 1]`; `f32` for renders, `f64` for reference checks.
+//! structural dissimilarities DSSIM₁ and DSSIM₂, over the whole image or inside a mask
+//! ([`masked_metrics`]). Images are interleaved RGB, row-major, values in `[0, 1]`; `f32`
+//! for renders, `f64` for reference checks; masks are one flag per pixel, row-major.
 //!
 //! SSIM is [`ssim::ssim`], shared with the training loss (11×11 Gaussian window, σ 1.5,
 //! zero-padded "same" filtering, mean over pixels and channels — the 3DGS convention).
@@ -13,7 +14,7 @@ pub mod lpips;
 pub mod ssim;
 
 use crate::math::numerics::Real;
-use crate::metrics::ssim::ssim;
+use crate::metrics::ssim::{masked_ssim, ssim};
 
 /// Why two images cannot be compared.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -21,6 +22,13 @@ pub enum MetricsError {
     #[error("image '{which}' has {got} values, expected {expected} for {width}×{height} RGB")]
     WrongSize {
         which: &'static str,
+        width: usize,
+        height: usize,
+        expected: usize,
+        got: usize,
+    },
+    #[error("the mask has {got} pixels, expected {expected} for a {width}×{height} image")]
+    WrongMaskSize {
         width: usize,
         height: usize,
         expected: usize,
@@ -139,4 +147,114 @@ pub fn image_metrics<F: Real>(
         dssim1: (1.0 - ssim1) / 2.0,
         dssim2: (1.0 - ssim2) / 2.0,
     })
+}
+
+/// PSNR and SSIM of a render inside a mask.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MaskedMetrics {
+    /// Fraction of the image's pixels inside the mask.
+    pub fraction: f64,
+    /// Mean squared error over the masked pixels, all three channels.
+    pub mse: f64,
+    /// `10·log10(1 / MSE)` of that error in dB; `+∞` when the masked pixels are identical.
+    pub psnr: f64,
+    /// Mean of the SSIM map (data range 1) over the masked pixels and channels.
+    pub ssim: f64,
+}
+
+/// PSNR and SSIM of `rendered` against `truth` inside `mask` (one flag per pixel); `None`
+/// when the mask is empty. SSIM windows still see the pixels around the mask.
+pub fn masked_metrics<F: Real>(
+    rendered: &[F],
+    truth: &[F],
+    mask: &[bool],
+    width: usize,
+    height: usize,
+) -> Result<Option<MaskedMetrics>, MetricsError> {
+    check(rendered, truth, width, height)?;
+    if mask.len() != width * height {
+        return Err(MetricsError::WrongMaskSize {
+            width,
+            height,
+            expected: width * height,
+            got: mask.len(),
+        });
+    }
+    let Some(ssim) = masked_ssim(rendered, truth, width, height, mask) else {
+        return Ok(None);
+    };
+    let (mut sum, mut inside) = (0.0f64, 0usize);
+    for ((r, t), _) in rendered
+        .chunks_exact(3)
+        .zip(truth.chunks_exact(3))
+        .zip(mask)
+        .filter(|(_, m)| **m)
+    {
+        sum += r
+            .iter()
+            .zip(t)
+            .map(|(&x, &y)| (x.f64() - y.f64()).powi(2))
+            .sum::<f64>();
+        inside += 1;
+    }
+    let mse = sum / (3 * inside) as f64;
+    Ok(Some(MaskedMetrics {
+        fraction: inside as f64 / (width * height) as f64,
+        mse,
+        psnr: psnr_from_mse(mse),
+        ssim,
+    }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ramp(n: usize, k: f64) -> Vec<f64> {
+        (0..n).map(|i| ((i as f64 * k).sin() + 1.0) / 2.0).collect()
+    }
+
+    #[test]
+    fn masked_psnr_counts_only_the_masked_pixels() {
+        let (w, h) = (6, 4);
+        let truth = ramp(3 * w * h, 0.37);
+        let mut rendered = truth.clone();
+        // Pixel 5 off by 0.1 in every channel, pixel 20 off by 0.3 in red only.
+        for c in 0..3 {
+            rendered[3 * 5 + c] += 0.1;
+        }
+        rendered[3 * 20] += 0.3;
+        let mut mask = vec![false; w * h];
+        mask[5] = true;
+        mask[6] = true;
+        let m = masked_metrics(&rendered, &truth, &mask, w, h)
+            .unwrap()
+            .unwrap();
+        // MSE over 2 pixels × 3 channels: three errors of 0.1², three zeros.
+        let mse = 3.0 * 0.01 / 6.0;
+        assert!((m.mse - mse).abs() < 1e-12, "{}", m.mse);
+        assert!((m.psnr - (-10.0 * mse.log10())).abs() < 1e-9);
+        assert!((m.fraction - 2.0 / 24.0).abs() < 1e-15);
+        // A full mask gives the whole-image values.
+        let full = masked_metrics(&rendered, &truth, &vec![true; w * h], w, h)
+            .unwrap()
+            .unwrap();
+        let whole = image_metrics(&rendered, &truth, w, h).unwrap();
+        assert!((full.psnr - whole.psnr).abs() < 1e-9);
+        assert!((full.ssim - whole.ssim).abs() < 1e-12);
+        assert_eq!(full.fraction, 1.0);
+        // An empty mask gives nothing; a mask of the wrong size is an error.
+        assert_eq!(
+            masked_metrics(&rendered, &truth, &vec![false; w * h], w, h),
+            Ok(None)
+        );
+        assert!(matches!(
+            masked_metrics(&rendered, &truth, &[true; 5], w, h),
+            Err(MetricsError::WrongMaskSize {
+                got: 5,
+                expected: 24,
+                ..
+            })
+        ));
+    }
 }

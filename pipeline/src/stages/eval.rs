@@ -1,7 +1,8 @@
 //! The `eval` stage: metrics of the trained model on held-out views and, separately, on a
 //! sample of the training views (`splat4d::eval`, docs/render-eval.md). Held-out views
 //! are the frames of the cameras listed in `[capture] heldout` (a real capture, see
-//! `crate::heldout`) or else the simulator's ground truth in `groundtruth/`.
+//! `crate::heldout`) or else the simulator's ground truth in `groundtruth/`. Where a view
+//! has a moving-region mask (`crate::masks`), PSNR and SSIM inside it are reported too.
 
 use std::path::{Path, PathBuf};
 
@@ -21,6 +22,7 @@ use crate::engine_inputs::{
 };
 use crate::heldout::HELDOUT_FILE;
 use crate::layout::Capture;
+use crate::masks::{self, CAPTURE_MASKS_DIR, MaskSource};
 use crate::stage_context::StageContext;
 
 /// The simulator's ground truth in a capture directory (cameras, offsets, held-out views).
@@ -51,9 +53,13 @@ impl Default for EvalSettings {
 }
 
 /// The capture files the stage reads: the simulator's ground truth (`groundtruth/`, when
-/// present) and the `lpips` weights, when set.
+/// present), the user's moving-region masks (`masks/`, when present) and the `lpips`
+/// weights, when set.
 pub fn inputs(capture: &Capture, settings: &EvalSettings) -> Vec<PathBuf> {
-    let mut inputs = vec![capture.root.join(GROUNDTRUTH_DIR)];
+    let mut inputs = vec![
+        capture.root.join(GROUNDTRUTH_DIR),
+        capture.root.join(CAPTURE_MASKS_DIR),
+    ];
     inputs.extend(settings.lpips.as_deref().map(|path| capture.resolve(path)));
     inputs
 }
@@ -90,14 +96,16 @@ fn align_truth(truth: &CameraSet, poses: &CameraSet) -> anyhow::Result<impl Fn(&
     })
 }
 
-/// Held-out views of a simulated capture (cameras moved into the poses' frame), undistorted into `gt_dir` when the held-out
-/// camera has a lens. Empty when the capture has no ground truth.
+/// Held-out views of a simulated capture (cameras moved into the poses' frame), undistorted
+/// into `gt_dir` when the held-out camera has a lens, with their `masks` where there are
+/// any. Empty when the capture has no ground truth.
 pub fn heldout_views(
     capture: &Capture,
     settings: &EvalSettings,
     poses: &CameraSet,
     mapping: &TimeMapping,
     gt_dir: &Path,
+    masks: Option<&MaskSource>,
 ) -> anyhow::Result<Vec<EvalView>> {
     let truth_dir = capture.root.join(GROUNDTRUTH_DIR);
     let heldout_dir = truth_dir.join("heldout");
@@ -159,6 +167,8 @@ pub fn heldout_views(
                 continue; // outside the trained sequence
             }
             let source = dir.join(format!("{k:06}.png"));
+            let found = masks.and_then(|m| m.for_simulated_image(&stamps.camera, k));
+            let mask = view_mask(found, &source, map.as_ref(), gt_dir, &stamps.camera, k)?;
             let image_path = match &map {
                 None => source,
                 Some(map) => write_undistorted(&source, map, gt_dir, &stamps.camera, k)?,
@@ -167,6 +177,7 @@ pub fn heldout_views(
                 camera: pinhole.clone(),
                 time,
                 image_path,
+                mask,
             });
         }
     }
@@ -177,13 +188,14 @@ pub fn heldout_views(
 /// those cameras (`frames_dir/heldout.json`, thinned to `heldout_per_camera` per camera),
 /// posed by `poses_dir/heldout.json`, undistorted to pinhole exactly as the train stage
 /// undistorts its frames (copies in `gt_dir/<camera>/` where a lens needs it), at the
-/// model time of each frame's exact timestamp.
+/// model time of each frame's exact timestamp, with their `masks` where there are any.
 pub fn capture_heldout_views(
     frames_dir: &Path,
     poses_dir: &Path,
     settings: &EvalSettings,
     mapping: &TimeMapping,
     gt_dir: &Path,
+    masks: Option<&MaskSource>,
 ) -> anyhow::Result<Vec<EvalView>> {
     let (index, _) = read_heldout_file(frames_dir, "frames", FramesIndex::read_json)?;
     let (poses, poses_path) = read_heldout_file(poses_dir, "poses", PosesFile::read)?;
@@ -195,7 +207,7 @@ pub fn capture_heldout_views(
                 .map(move |f| (f, c))
         })
         .collect::<Vec<_>>();
-    frame_views(frames_dir, &index, &cameras, picks, mapping, gt_dir)
+    frame_views(frames_dir, &index, &cameras, picks, mapping, gt_dir, masks)
 }
 
 /// `heldout.json` of the `stage` folder `dir` (the held-out cameras' frames or poses),
@@ -219,8 +231,8 @@ where
 }
 
 /// Eval views of the aligned frames `picks` (frame, camera index) of `index`, at the
-/// model time of each frame's exact timestamp; undistorted copies in `gt_dir` where the
-/// camera has a lens.
+/// model time of each frame's exact timestamp, with their `masks` where there are any;
+/// undistorted copies in `gt_dir` where the camera has a lens.
 fn frame_views(
     frames_dir: &Path,
     index: &FramesIndex,
@@ -228,12 +240,15 @@ fn frame_views(
     picks: Vec<(usize, usize)>,
     mapping: &TimeMapping,
     gt_dir: &Path,
+    masks: Option<&MaskSource>,
 ) -> anyhow::Result<Vec<EvalView>> {
     let mut views = Vec::new();
     for (f, c) in picks {
         let view = &index.frames[f].views[c];
         let (camera, map) = &cameras[c];
         let source = frames_dir.join(&view.file);
+        let found = masks.and_then(|m| m.for_view(&index.cameras[c].name, view));
+        let mask = view_mask(found, &source, map.as_ref(), gt_dir, &camera.name, f)?;
         let image_path = match map {
             None => source,
             Some(map) => write_undistorted(&source, map, gt_dir, &camera.name, f)?,
@@ -242,9 +257,28 @@ fn frame_views(
             camera: camera.clone(),
             time: mapping.model_time(view.timestamp_s),
             image_path,
+            mask,
         });
     }
     Ok(views)
+}
+
+/// The `found` mask of the ground-truth image `source` made ready for eval
+/// (`masks::prepare`; a fitted copy goes to `gt_dir/<camera>/NNNNNN_mask.png`).
+fn view_mask(
+    found: Option<PathBuf>,
+    source: &Path,
+    map: Option<&calib::undistort::UndistortMap>,
+    gt_dir: &Path,
+    camera: &str,
+    k: usize,
+) -> anyhow::Result<Option<PathBuf>> {
+    found
+        .map(|mask| {
+            let out = gt_dir.join(camera).join(format!("{k:06}_mask.png"));
+            masks::prepare(&mask, source, map, &out)
+        })
+        .transpose()
 }
 
 /// Undistort a ground-truth image into `gt_dir/<camera>/NNNNNN.png`.
@@ -281,7 +315,8 @@ fn train_picks(frames: usize, cameras: usize, n: usize) -> Vec<(usize, usize)> {
     picks
 }
 
-/// A spread of the training views (undistorted copies in `gt_dir` where needed).
+/// A spread of the training views (undistorted copies in `gt_dir` where needed), with
+/// their `masks` where there are any.
 fn train_views(
     ctx: &StageContext,
     settings: &EvalSettings,
@@ -289,6 +324,7 @@ fn train_views(
     index: &FramesIndex,
     mapping: &TimeMapping,
     gt_dir: &Path,
+    masks: Option<&MaskSource>,
 ) -> anyhow::Result<Vec<EvalView>> {
     let cameras = pinhole_cameras(index, poses, &ctx.stage_dir("poses").join("cameras.json"))?;
     let picks = train_picks(
@@ -303,6 +339,7 @@ fn train_views(
         picks,
         mapping,
         gt_dir,
+        masks,
     )
 }
 
@@ -318,6 +355,7 @@ pub fn run(
     let index = FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
     let mapping = time_mapping(&index);
     let gt_dir = ctx.output("groundtruth");
+    let masks = MaskSource::find(&ctx.capture.root, &ctx.stage_dir("sync").join("sync.json"))?;
     let heldout = if heldout_cameras.is_empty() {
         heldout_views(
             ctx.capture,
@@ -325,6 +363,7 @@ pub fn run(
             &poses.set,
             &mapping,
             &gt_dir.join("heldout"),
+            masks.as_ref(),
         )?
     } else {
         capture_heldout_views(
@@ -333,6 +372,7 @@ pub fn run(
             settings,
             &mapping,
             &gt_dir.join("heldout"),
+            masks.as_ref(),
         )?
     };
     if heldout.is_empty() {
@@ -347,7 +387,9 @@ pub fn run(
         &index,
         &mapping,
         &gt_dir.join("train"),
+        masks.as_ref(),
     )?;
+    log_masks(masks.as_ref(), &heldout, &train);
     let lpips = match &settings.lpips {
         Some(path) => {
             let path = ctx.capture.resolve(path);
@@ -387,7 +429,45 @@ pub fn run(
     };
     show("held-out", &report.heldout);
     show("training", &report.train);
+    for (set, m) in [("held-out", &report.heldout), ("training", &report.train)] {
+        if let Some(moving) = &m.moving {
+            show_moving(set, m, moving);
+        }
+    }
     Ok(())
+}
+
+/// Says where the moving-region masks come from and how many views have one, or that
+/// there are none (then `metrics.json` says nothing about the moving region).
+fn log_masks(source: Option<&MaskSource>, heldout: &[EvalView], train: &[EvalView]) {
+    let count = |views: &[EvalView]| views.iter().filter(|v| v.mask.is_some()).count();
+    let (h, t) = (count(heldout), count(train));
+    match source {
+        Some(source) if h + t > 0 => tracing::info!(
+            "moving-region masks from {}: {h} of {} held-out and {t} of {} training views",
+            source.dir().display(),
+            heldout.len(),
+            train.len()
+        ),
+        _ => tracing::info!(
+            "no moving-region masks (no {CAPTURE_MASKS_DIR}/<camera>/ in the capture, no groundtruth/masks/ for these views): moving-region metrics are not reported"
+        ),
+    }
+}
+
+/// Logs a set's moving-region means beside its whole-image ones.
+fn show_moving(set: &str, whole: &splat4d::eval::SetMetrics, m: &splat4d::eval::MovingSummary) {
+    let f = |v: Option<f64>, d: usize| v.map_or("–".to_string(), |v| format!("{v:.d$}"));
+    tracing::info!(
+        "{set} moving region: {} views ({} with an empty mask left out), PSNR {} dB (whole image {}), SSIM {} (whole image {}), mask fraction {}",
+        m.frames,
+        m.empty_masks,
+        f(m.psnr, 2),
+        f(whole.psnr, 2),
+        f(m.ssim, 4),
+        f(whole.ssim, 4),
+        f(m.mask_fraction, 3)
+    );
 }
 
 #[cfg(test)]

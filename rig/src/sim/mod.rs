@@ -445,8 +445,6 @@ fn video_camera(ctx: &Context, cam: &SimCamera, index: usize) -> Result<(CameraT
     let mut files = Vec::new();
     let mut chapters = Vec::new();
     let mut written_total = 0u64;
-    let mask_dir = ctx.dir.join("groundtruth").join("masks").join(name);
-    let moving: Vec<u16> = ctx.world.meshes.iter().filter(|m| m.moving).map(|m| m.id).collect();
     for (c, first) in (0..frames).step_by(per_chapter as usize).enumerate() {
         let last = (first + per_chapter).min(frames);
         let path = dir.join(format!("GX{:02}0001.MP4", c + 1));
@@ -463,10 +461,7 @@ fn video_camera(ctx: &Context, cam: &SimCamera, index: usize) -> Result<(CameraT
                     let p = ctx.dir.join("groundtruth").join("depth").join(format!("{name}.npy"));
                     output::write_atomic(&p, &output::npy_f32(img.height, img.width, &depth))?;
                 }
-                if f.groundtruth.masks {
-                    let mask: Vec<u8> = img.id.iter().map(|i| if moving.contains(i) { 255 } else { 0 }).collect();
-                    output::write_gray_png(&mask_dir.join(format!("{frame:06}.png")), k.width, k.height, &mask)?;
-                }
+                write_mask(ctx, name, frame, &img)?;
             }
             if let Some(tr) = &track {
                 let upto = sample_at(frame + 1).min(tr.samples.len());
@@ -502,6 +497,18 @@ fn video_camera(ctx: &Context, cam: &SimCamera, index: usize) -> Result<(CameraT
     Ok((timing, files, written_total))
 }
 
+/// `groundtruth/masks/<camera>/NNNNNN.png` of frame `frame` (255 where a moving or
+/// deforming object is visible), when the scene asks for masks.
+fn write_mask(ctx: &Context, camera: &str, frame: u32, img: &Rendered) -> Result<(), SimError> {
+    if !ctx.scene.file.groundtruth.masks {
+        return Ok(());
+    }
+    let moving: Vec<u16> = ctx.world.meshes.iter().filter(|m| m.moving).map(|m| m.id).collect();
+    let mask: Vec<u8> = img.id.iter().map(|i| if moving.contains(i) { 255 } else { 0 }).collect();
+    let path = ctx.dir.join("groundtruth").join("masks").join(camera).join(format!("{frame:06}.png"));
+    output::write_gray_png(&path, img.width as u32, img.height as u32, &mask)
+}
+
 fn heldout_camera(ctx: &Context, cam: &SimCamera) -> Result<u64, SimError> {
     let scene = ctx.scene;
     let name = &cam.camera.name;
@@ -513,6 +520,7 @@ fn heldout_camera(ctx: &Context, cam: &SimCamera) -> Result<u64, SimError> {
         let t = frame as f64 / scene.fps();
         let img = ctx.world.render(&plan, t);
         output::write_rgb(&dir.join(format!("{frame:06}.png")), k.width, k.height, &to_rgb8(&img.color), None)?;
+        write_mask(ctx, name, frame, &img)?;
         times.push(t);
         ctx.progress.advance(1);
     }
