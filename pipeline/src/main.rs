@@ -254,6 +254,13 @@ fn demo(
         ));
         let scene = simulate::demo_scene()?;
         simulate::simulate_into(&scene, out_dir, reporter)?;
+        // No MASt3R weights ship with the tool: the demo stands in for the point-map
+        // model with the simulator's true depth (docs/init.md).
+        let maps = simulate::write_truth_pointmaps(out_dir)?;
+        reporter.say(&format!(
+            "point maps of the simulated scene written to {} (they stand in for a MASt3R export)",
+            maps.display()
+        ));
         let settings = out_dir.join(pipeline::layout::CONFIG_FILE);
         shared_types::atomic::write_atomic(&settings, simulate::demo_settings(&scene).as_bytes())
             .with_context(|| format!("cannot write {}", settings.display()))?;
