@@ -69,12 +69,14 @@ fn without_point_maps_the_sparse_points_are_used_then_a_random_cloud() {
         xyz: vec![[0.0, 0.0, 0.5], [0.2, 0.1, 0.7], [-0.3, 0.2, 0.4]],
         rgb: vec![[10, 20, 30]; 3],
         time: None,
+        time_span: None,
     };
     shared_types::points::write_points_ply(&cloud, &sparse).unwrap();
     let mut inputs = InitInputs {
         cameras: rig(),
         images: vec![],
         sparse: Some(sparse),
+        moments: vec![],
     };
     let out = tmp.path().join("init");
     let report = run_init(&inputs, &InitConfig::default(), &out, &NoProgress).unwrap();
@@ -123,6 +125,7 @@ fn bad_settings_and_inputs_are_typed_errors() {
         cameras: rig(),
         images: vec![],
         sparse: None,
+        moments: vec![],
     };
     let out = tmp.path().join("init");
     let onnx = InitConfig {

@@ -136,6 +136,7 @@ fn the_whole_path_recovers_the_scale_and_the_predicted_points() {
         cameras: cameras.clone(),
         images: write_images(tmp.path()),
         sparse: None,
+        moments: vec![],
     };
     let out = tmp.path().join("init");
     let report = run_init(&inputs, &init_config(fixture()), &out, &NoProgress).unwrap();
@@ -247,6 +248,7 @@ fn corrupt_and_missing_models_are_typed_errors() {
         cameras: fixture_rig(1.0),
         images: write_images(tmp.path()),
         sparse: None,
+        moments: vec![],
     };
     let out = tmp.path().join("init");
     let e = run_init(&inputs, &init_config(p), &out, &NoProgress).unwrap_err();

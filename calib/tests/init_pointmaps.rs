@@ -53,6 +53,7 @@ fn truth() -> &'static Truth {
             xyz: vec![],
             rgb: vec![],
             time: None,
+            time_span: None,
         };
         for (k, cam) in cameras.cameras.iter().enumerate() {
             assert!(cam.distortion.is_none());
@@ -190,6 +191,7 @@ fn inputs(t: &Truth, sparse: bool) -> InitInputs {
         cameras: t.cameras.clone(),
         images: t.images.clone(),
         sparse: sparse.then(|| t.sparse.clone()),
+        moments: vec![],
     }
 }
 

@@ -1,8 +1,8 @@
 //! Point clouds with colour and optional model time, as the `init` stage writes them
 //! (`points.ply`) and the poses stage writes COLMAP's sparse points (`points3d.ply`):
-//! `x y z` float, `red green blue` uchar and an optional `t` float, through the one PLY
-//! codec ([`crate::ply`]). Reading takes `x y z` and `t` of any scalar type and skips other
-//! properties. Any other layout is a typed error naming the file, never a panic.
+//! `x y z` float, `red green blue` uchar, an optional `t` float and an optional
+//! `time_span` float, through the one PLY codec ([`crate::ply`]). Reading takes `x y z`,
+//! `t` and `time_span` of any scalar type and skips other properties. Any other layout is a typed error naming the file, never a panic.
 
 use crate::ply::{PlyFormatError, PlyTable, Scalar};
 use std::path::{Path, PathBuf};
@@ -14,6 +14,10 @@ pub struct PointCloud {
     pub rgb: Vec<[u8; 3]>,
     /// Model time of each point, when the points come from per-frame point maps.
     pub time: Option<Vec<f32>>,
+    /// How long each point was seen, in model time (PLY column `time_span`): 0 for a point
+    /// seen at one moment; for a static point, the span of the moments it was seen at, its
+    /// `time` then being the span's centre. `None` when the source does not say.
+    pub time_span: Option<Vec<f32>>,
 }
 
 /// Why a point-cloud PLY could not be read or written.
@@ -57,21 +61,27 @@ pub fn read_points_ply(path: &Path) -> Result<PointCloud, PlyError> {
     let xyz = [need("x")?, need("y")?, need("z")?];
     let rgb = [need("red")?, need("green")?, need("blue")?];
     let t = table.column("t");
+    let span = table.column("time_span");
     let rows = table.data.chunks_exact(table.names.len().max(1));
     Ok(PointCloud {
         xyz: rows.clone().map(|r| xyz.map(|i| r[i])).collect(),
         rgb: rows.clone().map(|r| rgb.map(|i| r[i].clamp(0.0, 255.0) as u8)).collect(),
-        time: t.map(|i| rows.map(|r| r[i]).collect()),
+        time: t.map(|i| rows.clone().map(|r| r[i]).collect()),
+        time_span: span.map(|i| rows.map(|r| r[i]).collect()),
     })
 }
 
-/// The PLY table of `cloud` (`x y z` float, `red green blue` uchar, `t` float when present),
-/// with `comments` in its header.
+/// The PLY table of `cloud` (`x y z` float, `red green blue` uchar, `t` and `time_span`
+/// float when present), with `comments` in its header.
 pub fn points_table(cloud: &PointCloud, comments: Vec<String>) -> PlyTable {
     let mut names: Vec<String> = ["x", "y", "z", "red", "green", "blue"].map(String::from).to_vec();
     let mut types = vec![Scalar::F32, Scalar::F32, Scalar::F32, Scalar::U8, Scalar::U8, Scalar::U8];
     if cloud.time.is_some() {
         names.push("t".into());
+        types.push(Scalar::F32);
+    }
+    if cloud.time_span.is_some() {
+        names.push("time_span".into());
         types.push(Scalar::F32);
     }
     let mut data = Vec::with_capacity(names.len() * cloud.xyz.len());
@@ -80,6 +90,9 @@ pub fn points_table(cloud: &PointCloud, comments: Vec<String>) -> PlyTable {
         data.extend(cloud.rgb.get(i).copied().unwrap_or([0; 3]).map(f32::from));
         if let Some(t) = &cloud.time {
             data.push(t.get(i).copied().unwrap_or(0.0));
+        }
+        if let Some(s) = &cloud.time_span {
+            data.push(s.get(i).copied().unwrap_or(0.0));
         }
     }
     PlyTable { comments, names, types, data }
@@ -96,16 +109,22 @@ mod tests {
     use super::*;
 
     #[test]
-    fn round_trip_with_and_without_time() {
+    fn round_trip_with_and_without_time_and_span() {
         let dir = tempfile::tempdir().unwrap();
-        for time in [None, Some(vec![0.5, 1.5])] {
+        let times = [None, Some(vec![0.5, 1.5])];
+        let spans = [None, Some(vec![0.0, 2.25])];
+        for (time, time_span) in times.iter().flat_map(|t| spans.iter().map(move |s| (t, s))) {
             let c = PointCloud {
                 xyz: vec![[1.0, 2.0, 3.0], [-1.0, 0.5, 9.0]],
                 rgb: vec![[1, 2, 3], [250, 0, 7]],
-                time,
+                time: time.clone(),
+                time_span: time_span.clone(),
             };
             let p = dir.path().join("points.ply");
             write_points_ply(&c, &p).unwrap();
+            let bytes = std::fs::read(&p).unwrap();
+            let header = String::from_utf8_lossy(&bytes[..bytes.len().min(300)]).into_owned();
+            assert_eq!(header.contains("property float time_span"), time_span.is_some());
             assert_eq!(read_points_ply(&p).unwrap(), c);
         }
     }
@@ -118,6 +137,7 @@ mod tests {
             xyz: vec![[1.0, 2.0, 3.0]; 4],
             rgb: vec![[1, 2, 3]; 4],
             time: None,
+            time_span: None,
         };
         write_points_ply(&c, &p).unwrap();
         let bytes = std::fs::read(&p).unwrap();

@@ -16,6 +16,7 @@
 
 pub mod database;
 pub mod diagnose;
+pub mod known_poses;
 pub mod quality;
 
 use std::ffi::OsString;

@@ -18,6 +18,8 @@ pub struct FusedPoint {
     /// Linear `[0, 255]` colour (averaged by downsampling).
     pub rgb: [f32; 3],
     pub time: f64,
+    /// Model time over which the point was seen (0: one moment); `time` is its centre.
+    pub time_span: f64,
 }
 
 /// Colour of `image` at a point-map pixel centre `p` of a `map_w × map_h` map covering the
@@ -48,26 +50,29 @@ pub fn voxel_downsample(points: &[FusedPoint], voxel: f64) -> Vec<FusedPoint> {
     if !(voxel > 0.0) {
         return points.to_vec();
     }
-    let mut cells: HashMap<[i64; 3], (DVec3, [f64; 3], f64, usize)> = HashMap::new();
+    type Cell = (DVec3, [f64; 3], f64, f64, usize);
+    let mut cells: HashMap<[i64; 3], Cell> = HashMap::new();
     for p in points {
         let key = (p.xyz / voxel).floor().as_i64vec3().to_array();
-        let e = cells.entry(key).or_insert((DVec3::ZERO, [0.0; 3], 0.0, 0));
+        let e = cells.entry(key).or_insert((DVec3::ZERO, [0.0; 3], 0.0, 0.0, 0));
         e.0 += p.xyz;
         for c in 0..3 {
             e.1[c] += p.rgb[c] as f64;
         }
         e.2 += p.time;
-        e.3 += 1;
+        e.3 += p.time_span;
+        e.4 += 1;
     }
     let mut out = cells.into_iter().collect::<Vec<_>>();
     out.sort_by_key(|(k, _)| *k);
     out.into_iter()
-        .map(|(_, (xyz, rgb, t, n))| {
+        .map(|(_, (xyz, rgb, t, span, n))| {
             let n = n as f64;
             FusedPoint {
                 xyz: xyz / n,
                 rgb: rgb.map(|c| (c / n) as f32),
                 time: t / n,
+                time_span: span / n,
             }
         })
         .collect()
@@ -90,7 +95,7 @@ pub fn cap(points: Vec<FusedPoint>, max: usize, seed: u64) -> Vec<FusedPoint> {
     keep.into_iter().map(|i| points[i]).collect()
 }
 
-/// As a `points.ply` cloud (`time` always present).
+/// As a `points.ply` cloud (`time` and `time_span` always present).
 pub fn to_cloud(points: &[FusedPoint]) -> PointCloud {
     PointCloud {
         xyz: points.iter().map(|p| p.xyz.as_vec3().to_array()).collect(),
@@ -99,6 +104,7 @@ pub fn to_cloud(points: &[FusedPoint]) -> PointCloud {
             .map(|p| p.rgb.map(|c| c.round().clamp(0.0, 255.0) as u8))
             .collect(),
         time: Some(points.iter().map(|p| p.time as f32).collect()),
+        time_span: Some(points.iter().map(|p| p.time_span as f32).collect()),
     }
 }
 
@@ -188,6 +194,7 @@ pub fn random_cloud(
                 xyz: p,
                 rgb: [128.0; 3],
                 time,
+                time_span: 0.0,
             });
         } else {
             misses += 1;
@@ -224,6 +231,7 @@ mod tests {
             xyz: DVec3::new(x, 0.1, 0.1),
             rgb: [10.0, 20.0, 30.0],
             time: t,
+            time_span: 0.0,
         };
         let out = voxel_downsample(&[p(0.1, 0.0), p(0.3, 1.0), p(1.5, 2.0)], 1.0);
         assert_eq!(out.len(), 2);

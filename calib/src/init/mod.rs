@@ -1,7 +1,9 @@
 //! The `init` stage: the starting point cloud of the 4D Gaussians, from MASt3R-style point
 //! maps (an ONNX model run here with [`onnx`], or its outputs exported as `.npy`/`.npz`,
 //! [`npy`]), each pair scaled into the posed cameras' world frame ([`pair_scale`]) and
-//! fused ([`fuse`]); with the fallback chain point maps → sparse COLMAP points → a random
+//! fused ([`fuse`]); or triangulated with COLMAP and the known cameras at several moments
+//! of the clip ([`moments`]), static points told from moving ones ([`statics`]); with the
+//! fallback chain point maps → triangulated moments → sparse COLMAP points → a random
 //! cloud in the cameras' common view volume, each fallback announced with `tracing::warn!`.
 //!
 //! Call [`run_init`] with [`InitInputs`] and an [`InitConfig`]; it writes
@@ -10,9 +12,11 @@
 //! itself (frames index, stage manifests): the caller passes plain inputs.
 
 pub mod fuse;
+pub mod moments;
 pub mod npy;
 pub mod onnx;
 pub mod pair_scale;
+pub mod statics;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -23,7 +27,10 @@ use serde::{Deserialize, Serialize};
 use shared_types::points::{PlyError, read_points_ply, write_points_ply};
 use shared_types::{Camera, CameraSet, Progress};
 
+use crate::colmap_runner::find_colmap;
 use crate::undistort::{Fit, UndistortMap};
+pub use moments::{Moment, MomentReport};
+use statics::StaticCounts;
 use fuse::{FusedPoint, colour_at, unproject};
 use npy::{NpyError, OutputNames, PairMaps, PointMap};
 use onnx::{ModelConfig, OnnxError, PointMapModel};
@@ -33,13 +40,17 @@ use pair_scale::{Relative, pixel_centre, ray_scale, sparse_scale};
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Source {
-    /// `model` if set, else `pointmaps` if set, else sparse points, else random.
+    /// `model` if set, else `pointmaps` if set, else triangulated moments (when `moments`
+    /// > 0 and COLMAP is found), else sparse points, else random.
     #[default]
     Auto,
     /// Run the ONNX model `model` (falls back when every pair is rejected).
     Onnx,
     /// Read exported point maps from `pointmaps` (falls back when every pair is rejected).
     Npy,
+    /// Triangulate the known cameras' frames at `moments` moments with COLMAP (falls back
+    /// to the sparse points when COLMAP is missing or no moment gives points).
+    Triangulate,
     /// The sparse COLMAP points (falls back to random when there are none).
     Sparse,
     /// A random cloud in the cameras' common view volume.
@@ -106,8 +117,19 @@ pub struct InitConfig {
     pub min_sparse_matches: usize,
     /// A pair is rejected when more than this fraction of its pixels is not finite.
     pub max_non_finite: f64,
-    /// Undistortion field of view for the images fed to the model.
+    /// Undistortion field of view for the images fed to the model (and to COLMAP).
     pub fit: Fit,
+    /// Moments of the clip to triangulate (evenly spread over the aligned frames; 0: off).
+    pub moments: usize,
+    /// Triangulated points must be seen by at least this many cameras (≥ 2).
+    pub min_track: usize,
+    /// A triangulated point with a point of another moment this close is static, × rig
+    /// radius; static points this close are merged.
+    pub static_radius: f64,
+    /// Add the poses stage's sparse points to the triangulated ones, as static points.
+    pub merge_sparse: bool,
+    /// The `colmap` binary for triangulation; `None`: `$COLMAP_BIN`, then `PATH`.
+    pub colmap: Option<PathBuf>,
 }
 
 impl Default for InitConfig {
@@ -131,6 +153,11 @@ impl Default for InitConfig {
             min_sparse_matches: 20,
             max_non_finite: 0.5,
             fit: Fit::ValidPixels,
+            moments: 6,
+            min_track: 2,
+            static_radius: 0.008,
+            merge_sparse: true,
+            colmap: None,
         }
     }
 }
@@ -164,6 +191,9 @@ pub struct InitInputs {
     pub images: Vec<ViewImage>,
     /// `work/poses/points3d.ply`, if the poses stage wrote one.
     pub sparse: Option<PathBuf>,
+    /// Frames of every training camera at each moment to triangulate (the first config
+    /// `moments` of them are used; empty: no triangulation).
+    pub moments: Vec<Moment>,
 }
 
 /// Which source produced `points.ply`.
@@ -172,6 +202,7 @@ pub struct InitInputs {
 pub enum UsedSource {
     Onnx,
     Npy,
+    Triangulated,
     Sparse,
     Random,
 }
@@ -207,6 +238,12 @@ pub struct InitReport {
     /// Each fallback taken, with its reason, in order.
     pub fallbacks: Vec<String>,
     pub pairs: Vec<PairReport>,
+    /// Each triangulated moment (empty when triangulation did not run).
+    #[serde(default)]
+    pub moments: Vec<MomentReport>,
+    /// Static/moving split of the triangulated points (zero unless triangulated).
+    #[serde(default)]
+    pub statics: StaticCounts,
     /// Points before downsampling (from the source), after voxel downsampling, written.
     pub points_before: usize,
     pub points_after_voxel: usize,
@@ -281,11 +318,7 @@ pub fn run_init(
     }
     let sparse = match &inputs.sparse {
         Some(p) if p.is_file() => read_points_ply(p)?,
-        _ => shared_types::PointCloud {
-            xyz: vec![],
-            rgb: vec![],
-            time: None,
-        },
+        _ => shared_types::PointCloud::default(),
     };
     let sparse_xyz = sparse
         .xyz
@@ -293,17 +326,25 @@ pub fn run_init(
         .map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
         .collect::<Vec<_>>();
     let times = inputs.images.iter().map(|i| i.time).collect::<Vec<_>>();
-    let t_range = if times.is_empty() {
+    let moment_times = inputs.moments.iter().map(|m| m.time);
+    let all_times = times.iter().copied().chain(moment_times).collect::<Vec<_>>();
+    let t_range = if all_times.is_empty() {
         (0.0, 0.0)
     } else {
         (
-            times.iter().copied().fold(f64::INFINITY, f64::min),
-            times.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            all_times.iter().copied().fold(f64::INFINITY, f64::min),
+            all_times.iter().copied().fold(f64::NEG_INFINITY, f64::max),
         )
     };
     let radius = fuse::rig_radius(cameras);
     let voxel = config.voxel_size.max(0.0) * radius;
 
+    // Auto triangulates only when the caller gave moments (library callers may not).
+    let triangulate = match config.source {
+        Source::Triangulate => true,
+        Source::Auto => config.moments > 0 && !inputs.moments.is_empty(),
+        _ => false,
+    };
     let mut fallbacks = Vec::new();
     let mut fall = |msg: String| {
         tracing::warn!("point init: {msg}");
@@ -326,11 +367,18 @@ pub fn run_init(
             (Some(m), _) => Some((UsedSource::Onnx, m.clone())),
             (None, Some(d)) => Some((UsedSource::Npy, d.clone())),
             (None, None) => {
-                fall("no point-map model or exported point maps configured; using the sparse COLMAP points".into());
+                let next = if triangulate {
+                    "triangulating moments"
+                } else {
+                    "using the sparse COLMAP points"
+                };
+                fall(format!(
+                    "no point-map model or exported point maps configured; {next}"
+                ));
                 None
             }
         },
-        Source::Sparse | Source::Random => None,
+        Source::Triangulate | Source::Sparse | Source::Random => None,
     };
 
     let mut pairs = Vec::new();
@@ -349,6 +397,72 @@ pub fn run_init(
         } else {
             fused = pts;
             used = Some(kind);
+        }
+    }
+    let mut moment_reports = Vec::new();
+    let mut statics = StaticCounts::default();
+    let mut raw_points = None;
+    if used.is_none() && triangulate {
+        let chosen = &inputs.moments[..inputs.moments.len().min(config.moments)];
+        let binary = find_colmap(config.colmap.as_deref());
+        match (chosen.is_empty(), binary) {
+            (true, _) => fall(
+                "no moments to triangulate (`[init] moments` = 0 or no frames); using the sparse COLMAP points"
+                    .into(),
+            ),
+            (false, Err(e)) => fall(format!(
+                "cannot triangulate moments: {e}; using the sparse COLMAP points"
+            )),
+            (false, Ok(binary)) => {
+                let work = out_dir.join("triangulate");
+                let (reports, points) = moments::triangulate_moments(
+                    chosen,
+                    &inputs.cameras,
+                    config,
+                    &binary,
+                    &work,
+                    progress,
+                )?;
+                moment_reports = reports;
+                if points.is_empty() {
+                    fall(format!(
+                        "no moment gave triangulated points ({} tried; logs in {}); using the sparse COLMAP points",
+                        chosen.len(),
+                        work.display()
+                    ));
+                } else {
+                    let extra: Vec<(DVec3, [f32; 3])> = if config.merge_sparse {
+                        sparse_xyz
+                            .iter()
+                            .zip(&sparse.rgb)
+                            .map(|(p, c)| (*p, c.map(f32::from)))
+                            .collect()
+                    } else {
+                        Vec::new()
+                    };
+                    let clip = (
+                        chosen.iter().map(|m| m.time).fold(f64::INFINITY, f64::min),
+                        chosen.iter().map(|m| m.time).fold(f64::NEG_INFINITY, f64::max),
+                    );
+                    let (pts, counts) = statics::split_static(
+                        &points,
+                        &extra,
+                        config.static_radius.max(0.0) * radius,
+                        voxel,
+                        clip,
+                    );
+                    tracing::info!(
+                        "point init: {} static points ({} sparse merged), {} moving points",
+                        counts.static_points,
+                        counts.sparse_merged,
+                        counts.dynamic_points
+                    );
+                    raw_points = Some(points.len() + counts.sparse_merged);
+                    statics = counts;
+                    fused = pts;
+                    used = Some(UsedSource::Triangulated);
+                }
+            }
         }
     }
     if used.is_none() && config.source != Source::Random {
@@ -370,12 +484,13 @@ pub fn run_init(
                     xyz: *p,
                     rgb: c.map(f32::from),
                     time: t,
+                    time_span: 0.0,
                 })
                 .collect();
             used = Some(UsedSource::Sparse);
         }
     }
-    let points_before = fused.len();
+    let points_before = raw_points.unwrap_or(fused.len());
     let (source, downsampled) = match used {
         Some(s @ (UsedSource::Onnx | UsedSource::Npy)) => {
             (s, fuse::voxel_downsample(&fused, voxel))
@@ -403,6 +518,8 @@ pub fn run_init(
         source,
         fallbacks,
         pairs,
+        moments: moment_reports,
+        statics,
         points_before,
         points_after_voxel,
         points_written: kept.len(),
@@ -428,30 +545,7 @@ fn load_views(inputs: &InitInputs, fit: Fit) -> Result<Vec<(String, View)>, Init
             );
             continue;
         };
-        let rgb = image::open(&img.path)
-            .map_err(|source| InitError::Image {
-                path: img.path.clone(),
-                source,
-            })?
-            .to_rgb8();
-        let want = (cam.intrinsics.width, cam.intrinsics.height);
-        if rgb.dimensions() != want {
-            return Err(InitError::ImageSize {
-                path: img.path.clone(),
-                camera: cam.name.clone(),
-                got: rgb.dimensions(),
-                want,
-            });
-        }
-        let (camera, image) = if cam.distortion.is_none() {
-            (cam.clone(), rgb)
-        } else {
-            let map = UndistortMap::new(cam, fit);
-            let out = map.apply(&rgb).map_err(|e| {
-                InitError::Config(format!("undistorting {}: {e}", img.path.display()))
-            })?;
-            (map.pinhole().clone(), out)
-        };
+        let (camera, image) = pinhole_view(cam, &img.path, fit)?;
         views.push((
             cam.name.clone(),
             View {
@@ -462,6 +556,38 @@ fn load_views(inputs: &InitInputs, fit: Fit) -> Result<Vec<(String, View)>, Init
         ));
     }
     Ok(views)
+}
+
+/// A frame of `cam` read from `path` (checked against the calibrated size), undistorted
+/// to the camera's pinhole twin when it has a lens; with that pinhole camera.
+pub(crate) fn pinhole_view(
+    cam: &Camera,
+    path: &Path,
+    fit: Fit,
+) -> Result<(Camera, RgbImage), InitError> {
+    let rgb = image::open(path)
+        .map_err(|source| InitError::Image {
+            path: path.into(),
+            source,
+        })?
+        .to_rgb8();
+    let want = (cam.intrinsics.width, cam.intrinsics.height);
+    if rgb.dimensions() != want {
+        return Err(InitError::ImageSize {
+            path: path.into(),
+            camera: cam.name.clone(),
+            got: rgb.dimensions(),
+            want,
+        });
+    }
+    if cam.distortion.is_none() {
+        return Ok((cam.clone(), rgb));
+    }
+    let map = UndistortMap::new(cam, fit);
+    let out = map
+        .apply(&rgb)
+        .map_err(|e| InitError::Config(format!("undistorting {}: {e}", path.display())))?;
+    Ok((map.pinhole().clone(), out))
 }
 
 /// The pairs to process, as indices into `views`.
@@ -687,6 +813,7 @@ fn align_pair(
                 xyz: unproject(&ca, pc, scale * p[2] as f64),
                 rgb: colour_at(&a.image, pc, m1.width, m1.height),
                 time: a.time,
+                time_span: 0.0,
             });
         }
     }
@@ -711,6 +838,7 @@ fn align_pair(
             xyz: unproject(&cb, pc, x.z),
             rgb: colour_at(&b.image, pc, m2.width, m2.height),
             time: b.time,
+            time_span: 0.0,
         });
     }
     report.accepted = true;

@@ -148,6 +148,7 @@ fn sparse_points_table(points: &[SparsePoint]) -> PlyTable {
         xyz: points.iter().map(|p| p.xyz.map(|v| v as f32)).collect(),
         rgb: points.iter().map(|p| p.rgb).collect(),
         time: None,
+        time_span: None,
     };
     points_table(&cloud, vec![POINTS_COMMENT.to_string()])
 }

@@ -1,12 +1,13 @@
 //! The `init` stage: the initial point cloud, from MASt3R-style point maps (an ONNX model
 //! run here on pairs of the first aligned frames, or point maps exported beforehand),
-//! else the poses stage's sparse points, else a random cloud (`calib::init`,
-//! docs/init.md), into `points.ply` and `init.json`.
+//! else points triangulated with COLMAP and the known cameras at `[init] moments` aligned
+//! frames spread over the clip, else the poses stage's sparse points, else a random cloud
+//! (`calib::init`, docs/init.md), into `points.ply` and `init.json`.
 
 use std::path::PathBuf;
 
 use anyhow::Context;
-use calib::init::{InitConfig, InitInputs, ViewImage};
+use calib::init::{InitConfig, InitInputs, Moment, ViewImage};
 use calib::poses::PosesFile;
 use rig::frames::FramesIndex;
 use shared_types::atomic::write_atomic;
@@ -39,14 +40,30 @@ pub fn run(ctx: &StageContext, settings: &InitSettings) -> anyhow::Result<()> {
         .first()
         .context("the frames stage wrote no frames; rerun it")?;
     let mapping = time_mapping(&index);
-    let images = index
-        .cameras
-        .iter()
-        .zip(&first.views)
-        .map(|(camera, view)| ViewImage {
-            camera: camera.name.clone(),
-            path: frames_dir.join(&view.file),
-            time: mapping.model_time(view.timestamp_s),
+    let views_of = |frame: &rig::frames::AlignedFrame| -> Vec<ViewImage> {
+        index
+            .cameras
+            .iter()
+            .zip(&frame.views)
+            .map(|(camera, view)| ViewImage {
+                camera: camera.name.clone(),
+                path: frames_dir.join(&view.file),
+                time: mapping.model_time(view.timestamp_s),
+            })
+            .collect()
+    };
+    let images = views_of(first);
+    let moments = moment_frames(index.frames.len(), settings.moments)
+        .into_iter()
+        .map(|i| {
+            let frame = &index.frames[i];
+            let views = views_of(frame);
+            let time = views.iter().map(|v| v.time).sum::<f64>() / views.len().max(1) as f64;
+            Moment {
+                frame: frame.index,
+                time,
+                views,
+            }
         })
         .collect();
     let sparse = poses
@@ -61,6 +78,7 @@ pub fn run(ctx: &StageContext, settings: &InitSettings) -> anyhow::Result<()> {
         cameras: poses.set,
         images,
         sparse,
+        moments,
     };
     let report = calib::init::run_init(&inputs, &config, &ctx.out_dir, ctx.progress)?;
     write_atomic(
@@ -69,4 +87,31 @@ pub fn run(ctx: &StageContext, settings: &InitSettings) -> anyhow::Result<()> {
     )
     .context("cannot write init.json")?;
     Ok(())
+}
+
+/// `count` aligned-frame indices spread evenly over `frames` frames, first and last
+/// included (clamped to the number of frames; one moment is the first frame).
+pub fn moment_frames(frames: usize, count: usize) -> Vec<usize> {
+    let count = count.min(frames);
+    match count {
+        0 => Vec::new(),
+        1 => vec![0],
+        _ => (0..count)
+            .map(|k| (k * (frames - 1) + (count - 1) / 2) / (count - 1))
+            .collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::moment_frames;
+
+    #[test]
+    fn moments_are_spread_over_the_frames_and_clamped() {
+        assert_eq!(moment_frames(36, 6), [0, 7, 14, 21, 28, 35]);
+        assert_eq!(moment_frames(3, 6), [0, 1, 2]);
+        assert_eq!(moment_frames(10, 1), [0]);
+        assert!(moment_frames(0, 6).is_empty());
+        assert!(moment_frames(10, 0).is_empty());
+    }
 }
