@@ -74,9 +74,22 @@ pub fn gaussians_from_points(
             what: "times",
         });
     }
+    if let Some(s) = &cloud.time_span
+        && s.len() != n
+    {
+        return Err(InitError::LengthMismatch {
+            xyz: n,
+            other: s.len(),
+            what: "time spans",
+        });
+    }
     for (i, p) in cloud.xyz.iter().enumerate() {
         let t_ok = cloud.time.as_ref().is_none_or(|t| t[i].is_finite());
-        if !p.iter().all(|v| v.is_finite()) || !t_ok {
+        let span_ok = cloud
+            .time_span
+            .as_ref()
+            .is_none_or(|s| s[i].is_finite() && s[i] >= 0.0);
+        if !p.iter().all(|v| v.is_finite()) || !t_ok || !span_ok {
             return Err(InitError::NonFinite { index: i });
         }
     }
@@ -86,7 +99,7 @@ pub fn gaussians_from_points(
     } else {
         1.0
     };
-    let log_t = ((duration * options.time_scale_fraction).max(1e-6)).ln() as f32;
+    let sigma_t = (duration * options.time_scale_fraction).max(1e-6);
     let logit_o = logit(options.opacity) as f32;
     let mut model = Gaussians::new(options.capacity, time);
     let mut rng = SplitMix(options.seed ^ 0x5EED_1417);
@@ -98,6 +111,9 @@ pub fn gaussians_from_points(
         let [x, y, z] = cloud.xyz[i];
         let s = scales[i].ln();
         let rgb = cloud.rgb[i].map(|c| c as f32 / 255.0);
+        // A point seen over a span of the clip (static) lives at least that long.
+        let span = cloud.time_span.as_ref().map_or(0.0, |s| s[i] as f64);
+        let log_t = sigma_t.max(span).ln() as f32;
         model.push([x, y, z, t], [s, s, s, log_t], logit_o, rgb);
     }
     Ok(model)
@@ -158,6 +174,7 @@ mod tests {
             rgb: vec![[255, 0, 128]; xyz.len()],
             xyz,
             time: None,
+            time_span: None,
         };
         let tm = TimeMapping {
             start_seconds: 0.0,
@@ -186,10 +203,46 @@ mod tests {
             xyz: vec![[0.0, f32::NAN, 0.0]],
             rgb: vec![[0; 3]],
             time: None,
+            time_span: None,
         };
         assert!(matches!(
             gaussians_from_points(&c, TimeMapping::default(), &InitOptions::default()),
             Err(InitError::NonFinite { index: 0 })
         ));
+        let spans = |s: Vec<f32>| PointCloud {
+            xyz: vec![[0.0; 3], [1.0; 3]],
+            rgb: vec![[0; 3]; 2],
+            time: None,
+            time_span: Some(s),
+        };
+        let refused = |c: &PointCloud| {
+            gaussians_from_points(c, TimeMapping::default(), &InitOptions::default()).is_err()
+        };
+        assert!(refused(&spans(vec![1.0])), "length mismatch");
+        assert!(refused(&spans(vec![1.0, -0.5])), "negative span");
+        assert!(refused(&spans(vec![f32::INFINITY, 0.0])), "infinite span");
+    }
+
+    #[test]
+    fn static_points_live_as_long_as_they_were_seen() {
+        let cloud = PointCloud {
+            xyz: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+            rgb: vec![[0; 3]; 3],
+            time: Some(vec![1.0, 1.0, 0.3]),
+            // Seen over the whole clip, over a short stretch, at one moment.
+            time_span: Some(vec![2.0, 0.1, 0.0]),
+        };
+        let tm = TimeMapping {
+            start_seconds: 0.0,
+            units_per_second: 1.0,
+            duration: 2.0,
+        };
+        let g = gaussians_from_points(&cloud, tm, &InitOptions::default()).unwrap();
+        let sigma_t = |i: usize| f64::from(g.log_scales[i][3]).exp();
+        // σ_t = max(fraction × duration, span): 2.0, then 0.2 × 2.0 = 0.4 twice.
+        assert!((sigma_t(0) - 2.0).abs() < 1e-5, "{}", sigma_t(0));
+        assert!((sigma_t(1) - 0.4).abs() < 1e-5);
+        assert!((sigma_t(2) - 0.4).abs() < 1e-5);
+        assert_eq!(g.means[2][3], 0.3);
     }
 }
