@@ -415,6 +415,10 @@ pub fn run_init(
             )),
             (false, Ok(binary)) => {
                 let work = out_dir.join("triangulate");
+                std::fs::create_dir_all(&work).map_err(|source| InitError::Io {
+                    path: work.clone(),
+                    source,
+                })?;
                 let (reports, points) = moments::triangulate_moments(
                     chosen,
                     &inputs.cameras,
@@ -426,9 +430,8 @@ pub fn run_init(
                 moment_reports = reports;
                 if points.is_empty() {
                     fall(format!(
-                        "no moment gave triangulated points ({} tried; logs in {}); using the sparse COLMAP points",
-                        chosen.len(),
-                        work.display()
+                        "no moment gave triangulated points ({} tried; COLMAP logs in triangulate/mNN/logs/ of the init output); using the sparse COLMAP points",
+                        chosen.len()
                     ));
                 } else {
                     let extra: Vec<(DVec3, [f32; 3])> = if config.merge_sparse {
