@@ -90,11 +90,9 @@ fn init_points_against_the_true_surfaces() {
         })
         .unzip();
     let sim = calib::similarity::umeyama(&src, &dst).unwrap();
-    let index =
-        rig::frames::FramesIndex::read_json(&root.join("work/frames/frames.json")).unwrap();
+    let index = rig::frames::FramesIndex::read_json(&root.join("work/frames/frames.json")).unwrap();
     let units_per_second = index.fps / 30.0;
-    let cloud =
-        shared_types::points::read_points_ply(&root.join("work/init/points.ply")).unwrap();
+    let cloud = shared_types::points::read_points_ply(&root.join("work/init/points.ply")).unwrap();
     let n = cloud.xyz.len();
     let times = cloud.time.clone().unwrap_or_else(|| vec![0.0; n]);
     let spans = cloud.time_span.clone().unwrap_or_else(|| vec![0.0; n]);
@@ -127,7 +125,12 @@ fn init_points_against_the_true_surfaces() {
                 .fold(f64::INFINITY, f64::min)
         })
         .collect();
-    let pick = |f: &dyn Fn(usize) -> bool| (0..n).filter(|&i| f(i)).map(|i| dist[i]).collect::<Vec<_>>();
+    let pick = |f: &dyn Fn(usize) -> bool| {
+        (0..n)
+            .filter(|&i| f(i))
+            .map(|i| dist[i])
+            .collect::<Vec<_>>()
+    };
     eprintln!("{}: {n} points", root.display());
     eprintln!("  all:     {}", quantiles(dist.clone()));
     eprintln!("  static:  {}", quantiles(pick(&|i| spans[i] > 0.0)));
@@ -136,7 +139,9 @@ fn init_points_against_the_true_surfaces() {
         if distinct.len() > 12 {
             break;
         }
-        let c = (0..n).filter(|&i| spans[i] == 0.0 && (times[i] - t).abs() < 1e-6).count();
+        let c = (0..n)
+            .filter(|&i| spans[i] == 0.0 && (times[i] - t).abs() < 1e-6)
+            .count();
         eprintln!("  moving points at t = {t:.3}: {c}");
     }
 }
