@@ -169,7 +169,11 @@ type Ids = BTreeMap<String, (u32, u32)>;
 
 /// Write each view's pinhole intrinsics into the database camera of its image (so that
 /// matching verifies with the essential matrix), and return every image's IDs by name.
-fn set_known_cameras(db_path: &Path, ws: &Workspace, views: &[KnownView]) -> Result<Ids, ColmapError> {
+fn set_known_cameras(
+    db_path: &Path,
+    ws: &Workspace,
+    views: &[KnownView],
+) -> Result<Ids, ColmapError> {
     let err = |source| {
         ColmapError::Database(DatabaseError {
             path: db_path.to_path_buf(),
@@ -183,7 +187,13 @@ fn set_known_cameras(db_path: &Path, ws: &Workspace, views: &[KnownView]) -> Res
             .prepare("SELECT image_id, camera_id, name FROM images")
             .map_err(err)?;
         let rows = q
-            .query_map([], |r| Ok((r.get::<_, u32>(0)?, r.get::<_, u32>(1)?, r.get::<_, String>(2)?)))
+            .query_map([], |r| {
+                Ok((
+                    r.get::<_, u32>(0)?,
+                    r.get::<_, u32>(1)?,
+                    r.get::<_, String>(2)?,
+                ))
+            })
             .map_err(err)?;
         for row in rows {
             let (image, camera, name) = row.map_err(err)?;

@@ -54,7 +54,9 @@ pub fn voxel_downsample(points: &[FusedPoint], voxel: f64) -> Vec<FusedPoint> {
     let mut cells: HashMap<[i64; 3], Cell> = HashMap::new();
     for p in points {
         let key = (p.xyz / voxel).floor().as_i64vec3().to_array();
-        let e = cells.entry(key).or_insert((DVec3::ZERO, [0.0; 3], 0.0, 0.0, 0));
+        let e = cells
+            .entry(key)
+            .or_insert((DVec3::ZERO, [0.0; 3], 0.0, 0.0, 0));
         e.0 += p.xyz;
         for c in 0..3 {
             e.1[c] += p.rgb[c] as f64;

@@ -29,12 +29,12 @@ use shared_types::{Camera, CameraSet, Progress};
 
 use crate::colmap_runner::find_colmap;
 use crate::undistort::{Fit, UndistortMap};
-pub use moments::{Moment, MomentReport};
-use statics::StaticCounts;
 use fuse::{FusedPoint, colour_at, unproject};
+pub use moments::{Moment, MomentReport};
 use npy::{NpyError, OutputNames, PairMaps, PointMap};
 use onnx::{ModelConfig, OnnxError, PointMapModel};
 use pair_scale::{Relative, pixel_centre, ray_scale, sparse_scale};
+use statics::StaticCounts;
 
 /// Where the initial points should come from.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -327,7 +327,11 @@ pub fn run_init(
         .collect::<Vec<_>>();
     let times = inputs.images.iter().map(|i| i.time).collect::<Vec<_>>();
     let moment_times = inputs.moments.iter().map(|m| m.time);
-    let all_times = times.iter().copied().chain(moment_times).collect::<Vec<_>>();
+    let all_times = times
+        .iter()
+        .copied()
+        .chain(moment_times)
+        .collect::<Vec<_>>();
     let t_range = if all_times.is_empty() {
         (0.0, 0.0)
     } else {
@@ -415,6 +419,10 @@ pub fn run_init(
             )),
             (false, Ok(binary)) => {
                 let work = out_dir.join("triangulate");
+                std::fs::create_dir_all(&work).map_err(|source| InitError::Io {
+                    path: work.clone(),
+                    source,
+                })?;
                 let (reports, points) = moments::triangulate_moments(
                     chosen,
                     &inputs.cameras,
@@ -426,9 +434,8 @@ pub fn run_init(
                 moment_reports = reports;
                 if points.is_empty() {
                     fall(format!(
-                        "no moment gave triangulated points ({} tried; logs in {}); using the sparse COLMAP points",
-                        chosen.len(),
-                        work.display()
+                        "no moment gave triangulated points ({} tried; COLMAP logs in triangulate/mNN/logs/ of the init output); using the sparse COLMAP points",
+                        chosen.len()
                     ));
                 } else {
                     let extra: Vec<(DVec3, [f32; 3])> = if config.merge_sparse {

@@ -83,7 +83,9 @@ pub fn triangulate_moments(
             seconds: 0.0,
             error: None,
         };
-        let views = known_views(moment, cameras, config, &root.join("undistorted"))?;
+        // Outside `root`: the workspace is created afresh from these images.
+        let staging = work.join(format!("m{k:02}-undistorted"));
+        let views = known_views(moment, cameras, config, &staging)?;
         report.views = views.len();
         match triangulate_known(binary, &root, &views, &options, progress) {
             Ok(model) => {
@@ -121,7 +123,7 @@ pub fn triangulate_moments(
                 report.error = Some(e.to_string());
             }
         }
-        for leftover in [root.join("images"), root.join("undistorted")] {
+        for leftover in [root.join("images"), staging] {
             let _ = std::fs::remove_dir_all(leftover);
         }
         let _ = std::fs::remove_file(root.join("database.db"));

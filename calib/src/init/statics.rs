@@ -61,7 +61,9 @@ impl Grid {
     fn near(&self, p: DVec3) -> impl Iterator<Item = usize> + '_ {
         let [x, y, z] = Self::key(p, self.cell);
         (-1..=1)
-            .flat_map(move |dx| (-1..=1).flat_map(move |dy| (-1..=1).map(move |dz| [x + dx, y + dy, z + dz])))
+            .flat_map(move |dx| {
+                (-1..=1).flat_map(move |dy| (-1..=1).map(move |dz| [x + dx, y + dy, z + dz]))
+            })
             .filter_map(|k| self.cells.get(&k))
             .flatten()
             .copied()
@@ -102,7 +104,8 @@ pub fn split_static(
         .collect();
     for &(xyz, rgb) in sparse {
         let beside_moving = grid.as_ref().is_some_and(|g| {
-            g.near(xyz).any(|j| !is_static[j] && within(points[j].xyz, xyz))
+            g.near(xyz)
+                .any(|j| !is_static[j] && within(points[j].xyz, xyz))
         });
         if beside_moving {
             counts.sparse_dropped += 1;
@@ -191,14 +194,24 @@ mod tests {
     #[test]
     fn repeated_points_are_static_and_merged_moving_ones_keep_their_time() {
         // A wall point seen at moments 0, 2, 3 (jittered); an object at x = 5, 6, 7.
-        let pts = [p(0.0, 0), p(0.01, 2), p(-0.01, 3), p(5.0, 0), p(6.0, 1), p(7.0, 2)];
+        let pts = [
+            p(0.0, 0),
+            p(0.01, 2),
+            p(-0.01, 3),
+            p(5.0, 0),
+            p(6.0, 1),
+            p(7.0, 2),
+        ];
         let (out, c) = split_static(&pts, &[], 0.05, 0.0, (0.0, 3.0));
         assert_eq!((c.static_tagged, c.static_points), (3, 1));
         assert_eq!((c.dynamic_tagged, c.dynamic_points), (3, 3));
         let wall = out[0];
         assert!(wall.xyz.length() < 1e-9);
         assert_eq!((wall.time, wall.time_span), (1.5, 3.0));
-        let mut moving: Vec<_> = out[1..].iter().map(|q| (q.xyz.x, q.time, q.time_span)).collect();
+        let mut moving: Vec<_> = out[1..]
+            .iter()
+            .map(|q| (q.xyz.x, q.time, q.time_span))
+            .collect();
         moving.sort_by(|a, b| a.0.total_cmp(&b.0));
         assert_eq!(moving, [(5.0, 0.0, 0.0), (6.0, 1.0, 0.0), (7.0, 2.0, 0.0)]);
     }
@@ -207,9 +220,9 @@ mod tests {
     fn sparse_points_join_static_ones_unless_beside_a_moving_point() {
         let pts = [p(0.0, 0), p(0.01, 1), p(5.0, 0)];
         let sparse = [
-            (DVec3::new(0.02, 0.0, 0.0), [1.0; 3]),  // merged with the wall point
-            (DVec3::new(5.01, 0.0, 0.0), [1.0; 3]),  // saw the moving object
-            (DVec3::new(-3.0, 0.0, 0.0), [1.0; 3]),  // alone: static over the clip
+            (DVec3::new(0.02, 0.0, 0.0), [1.0; 3]), // merged with the wall point
+            (DVec3::new(5.01, 0.0, 0.0), [1.0; 3]), // saw the moving object
+            (DVec3::new(-3.0, 0.0, 0.0), [1.0; 3]), // alone: static over the clip
         ];
         let (out, c) = split_static(&pts, &sparse, 0.05, 0.0, (0.0, 4.0));
         assert_eq!((c.sparse_merged, c.sparse_dropped), (2, 1));
