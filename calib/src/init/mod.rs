@@ -479,19 +479,16 @@ pub fn run_init(
                     .into(),
             );
         } else {
-            let t = if times.is_empty() {
-                0.0
-            } else {
-                times.iter().sum::<f64>() / times.len() as f64
-            };
+            // The solve's points carry no moment: static over the clip's known range.
+            let (t0, t1) = t_range;
             fused = sparse_xyz
                 .iter()
                 .zip(&sparse.rgb)
                 .map(|(p, c)| FusedPoint {
                     xyz: *p,
                     rgb: c.map(f32::from),
-                    time: t,
-                    time_span: 0.0,
+                    time: 0.5 * (t0 + t1),
+                    time_span: t1 - t0,
                 })
                 .collect();
             used = Some(UsedSource::Sparse);
