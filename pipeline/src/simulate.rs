@@ -186,3 +186,21 @@ pub fn write_truth_calibration(capture_dir: &Path) -> anyhow::Result<()> {
     )
     .with_context(|| format!("cannot write {}", out.display()))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn demo_settings_parse_into_the_measured_schedule() {
+        let scene = demo_scene().unwrap();
+        let text = demo_settings(&scene);
+        let config = crate::config::CaptureConfig::parse(&text, Path::new("capture.toml")).unwrap();
+        assert_eq!(config.capture.heldout.len(), 4);
+        assert_eq!(config.init.pointmaps.as_deref(), Some(Path::new("pointmaps")));
+        let t = &config.train;
+        assert_eq!((t.iterations, t.batch_size), (1000, 1));
+        assert!(t.densify.until_iteration < t.iterations);
+        assert!(t.densify.max_gaussians <= 80_000);
+    }
+}
