@@ -12,13 +12,7 @@ fn solves_the_rendered_rig_within_half_a_degree() {
     }
     let tmp = tempfile::tempdir().unwrap();
     // The video cameras have a real lens (barrel distortion); COLMAP solves it (OPENCV).
-    let lens = Distortion::Opencv {
-        k1: -0.12,
-        k2: 0.03,
-        p1: 0.0,
-        p2: 0.0,
-        k3: 0.0,
-    };
+    let lens = Distortion::radial_tangential(-0.12, 0.03, 0.0, 0.0, 0.0);
     let rig = common::render_rig_with_lens(&tmp.path().join("capture"), 8, (480, 360), lens);
     let inputs = PosesInputs {
         video_frames: rig.video_paths.clone(),

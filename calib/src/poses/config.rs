@@ -1,5 +1,6 @@
 //! Settings of the poses stage (`capture.toml [poses]`) and what the stage is given.
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
@@ -15,6 +16,10 @@ pub struct PosesConfig {
     pub min_stills: usize,
     /// Mean distance of the video cameras from the scene centre after normalisation.
     pub radius: f64,
+    /// Camera folder → its camera's name in an imported calibration, for folders whose
+    /// calibration camera has another name (`names = { cam0 = "cam01" }`).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub names: BTreeMap<String, String>,
 }
 
 impl Default for PosesConfig {
@@ -23,6 +28,7 @@ impl Default for PosesConfig {
             colmap: ColmapConfig::default(),
             min_stills: 4,
             radius: 1.0,
+            names: BTreeMap::new(),
         }
     }
 }
@@ -56,6 +62,11 @@ mod tests {
         );
         assert_eq!(c.colmap.video_cameras, VideoCameras::Shared);
         assert_eq!(c.colmap.stills_cameras, StillsCameras::Shared);
+        assert!(c.names.is_empty());
+        // An empty `names` leaves the stage's parameters (its JSON) as they were.
+        assert!(!serde_json::to_string(&c).unwrap().contains("names"));
+        let c: PosesConfig = toml::from_str("names = { cam0 = \"cam01\" }").unwrap();
+        assert_eq!(c.names["cam0"], "cam01");
         assert!(toml::from_str::<PosesConfig>("min_still = 3").is_err());
         assert!(toml::from_str::<PosesConfig>("[colmap]\ncamera_model = \"BROWN\"").is_err());
     }

@@ -3,6 +3,7 @@
 //! `points3d.ply` is a binary little-endian PLY point cloud: `x y z` float, `red green
 //! blue` uchar, and the comment line `4C4D sparse points, normalised frame`.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use glam::DVec3;
@@ -11,6 +12,7 @@ use shared_types::ply::PlyTable;
 use shared_types::points::{PointCloud, points_table};
 use shared_types::{Camera, CameraSet, Intrinsics};
 
+use super::capture_cameras::{CaptureCamera, select_cameras};
 use super::error::PosesError;
 use super::file::{PoseSource, PosesFile};
 use super::normalise::normalisation_for;
@@ -35,12 +37,15 @@ pub struct PosesOutput {
 }
 
 /// Normalise and write an imported (or otherwise known) camera set as the poses stage's
-/// output, with no sparse points; intrinsics scaled to `working_size` when given.
+/// output, with no sparse points: the calibration's camera of each of the capture's camera
+/// `folders` (through `names`, see [`select_cameras`]), renamed to its folder, intrinsics
+/// fitted to its video and working sizes. `from` is the calibration file.
 pub fn write_imported(
     set: &CameraSet,
     from: &Path,
     out_dir: &Path,
-    working_size: Option<(u32, u32)>,
+    folders: &[CaptureCamera],
+    names: &BTreeMap<String, String>,
     radius: f64,
 ) -> Result<PosesOutput, PosesError> {
     let stale = out_dir.join("points3d.ply");
@@ -50,10 +55,7 @@ pub fn write_imported(
             source,
         })?;
     }
-    let mut cameras = set.cameras.clone();
-    for c in &mut cameras {
-        c.intrinsics = scale_intrinsics(&c.name, &c.intrinsics, working_size)?;
-    }
+    let cameras = select_cameras(set, folders, names, from)?;
     let source = PoseSource::Import {
         path: from.to_path_buf(),
     };

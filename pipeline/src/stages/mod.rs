@@ -78,7 +78,7 @@ pub fn pipeline() -> Pipeline {
                 "poses",
                 "solve camera poses with COLMAP (4 views + stills) or import a calibration",
             )
-            .after(&["frames"])
+            .after(&["ingest", "frames"])
             .params(with_heldout("poses"))
             .inputs(|c, _| {
                 let mut inputs = c.stills.clone();

@@ -7,13 +7,15 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use calib::poses::PosesConfig;
+use calib::poses::{CaptureCamera, PosesConfig};
 use rig::frames::FramesIndex;
 
 use crate::heldout::{HELDOUT_FILE, split_poses};
 use crate::stage_context::StageContext;
+use crate::stages::ingest::read_streams;
 
-/// `[poses]` settings: the pose solver's own (COLMAP options, minimum stills, rig radius).
+/// `[poses]` settings: the pose solver's own (COLMAP options, minimum stills, rig radius,
+/// the names of the camera folders in an imported calibration).
 pub type PosesSettings = PosesConfig;
 
 /// The `poses` stage; `heldout` are the held-out camera names of `[capture] heldout`.
@@ -27,13 +29,28 @@ pub fn run(ctx: &StageContext, settings: &PosesSettings, heldout: &[String]) -> 
         );
         let set = calib::import::import_calibration(calibration)
             .with_context(|| format!("cannot import {}", calibration.display()))?;
-        // The calibration is for the recorded size; the engine sees the working size.
-        let working_size = index.cameras.first().map(|c| (c.width, c.height));
+        // Every camera folder, training and held-out, with its own recorded and working size.
+        let mut folders = index.cameras.clone();
+        if !heldout.is_empty() {
+            folders.extend(FramesIndex::read_json(&frames_dir.join(HELDOUT_FILE))?.cameras);
+        }
+        let streams = read_streams(ctx)?;
+        let folders: Vec<CaptureCamera> = folders
+            .into_iter()
+            .map(|c| CaptureCamera {
+                recorded: streams
+                    .camera(&c.name)
+                    .map(|s| (s.video.width, s.video.height)),
+                working: (c.width, c.height),
+                name: c.name,
+            })
+            .collect();
         calib::poses::write_imported(
             &set,
             calibration,
             &ctx.out_dir,
-            working_size,
+            &folders,
+            &settings.names,
             settings.radius,
         )?;
         return split_poses(

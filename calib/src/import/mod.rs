@@ -1,6 +1,8 @@
 //! Calibration import instead of solving with COLMAP: a COLMAP model folder, an
-//! OpenCV-style JSON or YAML file (`K`, `dist`, `R` or `rvec`, `t`), or a Caliscope
-//! `camera_array.toml`. The result is a [`CameraSet`] in the engine's convention
+//! OpenCV-style JSON or YAML file (`K`, `dist`, `R` or `rvec`, `t`), a Caliscope
+//! `camera_array.toml`, or a Pose2Sim `Calib_scene.toml` ([`pose2sim`], recognised by its
+//! shape). Distortion vectors are OpenCV's full model (4, 5, 8, 12 or 14 coefficients) or
+//! fisheye `k1..k4`. The result is a [`CameraSet`] in the engine's convention
 //! (world-to-camera, OpenCV axes, translations in metres).
 //!
 //! Checks: `K` is upper-triangular without skew; `R` is a rotation (orthonormal,
@@ -16,6 +18,8 @@ use shared_types::{Camera, CameraSet, Distortion, Intrinsics, WorldToCamera};
 
 use crate::colmap::ColmapModel;
 use crate::convert;
+
+mod pose2sim;
 
 /// Length units of translations / camera centres in a calibration file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -69,8 +73,8 @@ pub enum ImportError {
         message: String,
     },
     #[error(
-        "{path}: unknown calibration format; use a COLMAP model folder, .json, .yaml/.yml, or a \
-         Caliscope camera_array.toml"
+        "{path}: unknown calibration format; use a COLMAP model folder, .json, .yaml/.yml, a \
+         Caliscope camera_array.toml or a Pose2Sim Calib_scene.toml"
     )]
     UnknownFormat { path: PathBuf },
     #[error("{path}: camera {camera}: {message}")]
@@ -88,12 +92,13 @@ pub enum ImportError {
 }
 
 /// Names a calibration is looked for under in a capture directory, in order.
-pub const CALIBRATION_NAMES: [&str; 6] = [
+pub const CALIBRATION_NAMES: [&str; 7] = [
     "calibration.json",
     "calibration.yaml",
     "calibration.yml",
     "calibration.toml",
     "camera_array.toml",
+    "Calib_scene.toml",
     "calibration",
 ];
 
@@ -149,7 +154,13 @@ pub fn import_calibration_with(
             "toml" => {
                 let t: toml::Value =
                     toml::from_str(&text).map_err(|e| syntax("TOML", e.to_string()))?;
-                serde_json::to_value(t).map_err(|e| syntax("TOML", e.to_string()))?
+                let value = serde_json::to_value(t).map_err(|e| syntax("TOML", e.to_string()))?;
+                if pose2sim::is_pose2sim(&value) {
+                    let set = from_pose2sim(path, &value)?;
+                    check_scale(path, &set)?;
+                    return Ok(set);
+                }
+                value
             }
             _ => {
                 return Err(ImportError::UnknownFormat {
@@ -161,6 +172,18 @@ pub fn import_calibration_with(
     };
     check_scale(path, &set)?;
     Ok(set)
+}
+
+/// A Pose2Sim calibration (always metres).
+fn from_pose2sim(path: &Path, value: &Value) -> Result<CameraSet, ImportError> {
+    let mut cameras =
+        pose2sim::cameras(value).map_err(|(camera, message)| ImportError::Camera {
+            path: path.to_path_buf(),
+            camera,
+            message,
+        })?;
+    cameras.sort_by(|a, b| a.name.cmp(&b.name));
+    Ok(CameraSet::new(cameras))
 }
 
 /// A COLMAP model folder: one camera per image, named by the image's file stem.
@@ -455,31 +478,9 @@ fn distortion_from(d: &[f64], fisheye: bool) -> Result<Distortion, String> {
             k4: at(3),
         });
     }
-    match d.len() {
-        4 | 5 => Ok(Distortion::Opencv {
-            k1: at(0),
-            k2: at(1),
-            p1: at(2),
-            p2: at(3),
-            k3: at(4),
-        }),
-        n if n > 5 && d[5..].iter().all(|&x| x == 0.0) => Ok(Distortion::Opencv {
-            k1: at(0),
-            k2: at(1),
-            p1: at(2),
-            p2: at(3),
-            k3: at(4),
-        }),
-        n => Err(format!(
-            "distortion has {n} coefficients{}; the engine supports OpenCV's k1 k2 p1 p2 [k3] or fisheye k1..k4 \
-             (set model = \"fisheye\" for the latter)",
-            if n > 5 {
-                " with non-zero rational/thin-prism terms"
-            } else {
-                ""
-            }
-        )),
-    }
+    Distortion::from_opencv_coefficients(d).map_err(|e| {
+        format!("{e}; for a fisheye lens (4 coefficients k1..k4) set model = \"fisheye\"")
+    })
 }
 
 /// Rotation matrix of a Rodrigues vector (axis × angle in radians).
