@@ -294,3 +294,73 @@ fn an_imported_calibration_becomes_the_poses_output() {
         "{e}"
     );
 }
+
+#[test]
+fn panoptic_five_views_through_the_poses_import() {
+    let Some(dir) = shared_data("panoptic-5view") else {
+        return;
+    };
+    let path = dir.join("camera_parameters.json");
+    let set = import_calibration_with(
+        &path,
+        &ImportOptions {
+            units: Some(Units::Centimetres),
+        },
+    )
+    .unwrap();
+    // The five HD views of the data set, as camera folders cam0..cam4.
+    let views = ["00_03", "00_06", "00_12", "00_13", "00_23"];
+    let folders: Vec<CaptureCamera> = (0..5)
+        .map(|i| CaptureCamera {
+            name: format!("cam{i}"),
+            recorded: Some((1920, 1080)),
+            working: (960, 540),
+        })
+        .collect();
+    let names: BTreeMap<String, String> = views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| (format!("cam{i}"), v.to_string()))
+        .collect();
+    let tmp = tempfile::tempdir().unwrap();
+    let out = calib::poses::write_imported(&set, &path, tmp.path(), &folders, &names, 1.0).unwrap();
+    let cams = &out.file.set.cameras;
+    // Only the capture's five cameras, not the file's 31.
+    assert_eq!(cams.len(), 5);
+    // A metre above the dome's floor centre (Panoptic's y points down) is in view of every
+    // camera, at the same place as in the full-size calibration, halved (both in the
+    // engine's pixel convention).
+    let target = DVec3::new(0.0, -1.0, 0.0);
+    for (cam, view) in cams.iter().zip(views) {
+        let full = set.get(view).unwrap();
+        let (a, _) = full.project(target).unwrap();
+        let (b, _) = cam.project(out.file.normalisation.apply(target)).unwrap();
+        assert!((a * 0.5 - b).length() < 1e-9, "{view}");
+        assert!(
+            b.x > 0.0 && b.y > 0.0 && b.x < 960.0 && b.y < 540.0,
+            "{view}: {b}"
+        );
+    }
+}
+
+#[test]
+fn opencv_principal_points_move_half_a_pixel_into_the_engine_convention() {
+    let tmp = tempfile::tempdir().unwrap();
+    let camera = r#"{"K": [[500,0,320],[0,500,240],[0,0,1]], "R": [[1,0,0],[0,1,0],[0,0,1]], "t": [0,0,0], "size": [640,480]}"#;
+    let cx = |top: &str| {
+        let p = write(
+            tmp.path(),
+            "c.json",
+            &format!(r#"{{{top} "cameras": {{"a": {camera}}}}}"#),
+        );
+        import_calibration(&p)
+            .map(|s| (s.cameras[0].intrinsics.cx, s.cameras[0].intrinsics.cy))
+            .map_err(|e| e.to_string())
+    };
+    // OpenCV: the first pixel's centre is 0; the engine's (COLMAP's) is 0.5.
+    assert_eq!(cx(""), Ok((320.5, 240.5)));
+    assert_eq!(cx(r#""pixel_centre": "integer","#), Ok((320.5, 240.5)));
+    assert_eq!(cx(r#""pixel_centre": "half","#), Ok((320.0, 240.0)));
+    let e = cx(r#""pixel_centre": "corner","#).unwrap_err();
+    assert!(e.contains("pixel_centre") && e.contains("c.json"), "{e}");
+}

@@ -99,7 +99,8 @@ fn pose2sim_calibration_imports_and_projects_like_opencv() {
         let cv = opencv_projection(&file[&cam.name], &pts);
         for (p, q) in pts.iter().zip(&cv) {
             let (ours, _) = cam.project(*p).unwrap();
-            worst = worst.max((ours - *q).length());
+            // Ours puts pixel centres at integer + 0.5, OpenCV at the integer.
+            worst = worst.max((ours - DVec2::splat(0.5) - *q).length());
         }
     }
     eprintln!("Pose2Sim fixture: worst |ours − cv::projectPoints| = {worst:.2e} px");

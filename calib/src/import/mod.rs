@@ -5,6 +5,12 @@
 //! fisheye `k1..k4`. The result is a [`CameraSet`] in the engine's convention
 //! (world-to-camera, OpenCV axes, translations in metres).
 //!
+//! Pixel convention: OpenCV-style files (and Caliscope's, Pose2Sim's) put a pixel's centre
+//! at its integer coordinates; the engine puts it at integer + 0.5, so their principal
+//! point is shifted by [`OPENCV_PIXEL_OFFSET`] on import (`pixel_centre = "half"` in a
+//! JSON/YAML file says it is already in the engine's convention). COLMAP models are taken
+//! as they are (COLMAP's convention is the engine's).
+//!
 //! Checks: `K` is upper-triangular without skew; `R` is a rotation (orthonormal,
 //! determinant +1: a −1 means a left-handed/OpenGL-style frame); the rig's size is
 //! plausible for the declared units (a rig wider than 100 m or smaller than 1 cm is refused
@@ -303,6 +309,11 @@ fn from_value(path: &Path, v: &Value, options: &ImportOptions) -> Result<CameraS
         (None, None) => Units::Metres,
     };
     let top_convention = v.get("convention").and_then(Value::as_str);
+    let pixel_offset =
+        pixel_offset(v.get("pixel_centre")).map_err(|message| ImportError::Invalid {
+            path: path.to_path_buf(),
+            message,
+        })?;
     let entries = camera_entries(v);
     if entries.is_empty() {
         return Err(ImportError::Invalid {
@@ -326,12 +337,33 @@ fn from_value(path: &Path, v: &Value, options: &ImportOptions) -> Result<CameraS
             .and_then(Value::as_str)
             .or(top_convention)
             .unwrap_or("world_to_camera");
-        let cam = camera_from_value(&name, c, units, convention).map_err(err)?;
+        let mut cam = camera_from_value(&name, c, units, convention).map_err(err)?;
+        cam.intrinsics.cx += pixel_offset;
+        cam.intrinsics.cy += pixel_offset;
         cameras.push(cam);
     }
     cameras.sort_by(|a, b| a.name.cmp(&b.name));
     Ok(CameraSet::new(cameras))
 }
+
+/// What to add to a file's principal point to put pixel centres at integer + 0.5, the
+/// engine's (and COLMAP's) convention: `pixel_centre = "integer"` (OpenCV's, the default
+/// for these files) adds 0.5, `"half"` (files written in the engine's convention, such as
+/// the simulator's truth) nothing.
+fn pixel_offset(key: Option<&Value>) -> Result<f64, String> {
+    match key.map(|k| k.as_str().unwrap_or("")) {
+        None | Some("integer") => Ok(OPENCV_PIXEL_OFFSET),
+        Some("half") => Ok(0.0),
+        Some(other) => Err(format!(
+            "unknown pixel_centre {other:?}; use \"integer\" (OpenCV: the first pixel's centre \
+             is 0) or \"half\" (COLMAP: it is 0.5)"
+        )),
+    }
+}
+
+/// OpenCV puts a pixel's centre at its integer coordinates, the engine at integer + 0.5:
+/// an OpenCV principal point is this much smaller than the engine's.
+pub const OPENCV_PIXEL_OFFSET: f64 = 0.5;
 
 fn camera_from_value(
     name: &str,

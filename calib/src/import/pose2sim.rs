@@ -13,7 +13,7 @@ use serde::Deserialize;
 use serde_json::Value;
 use shared_types::{Camera, Distortion, Intrinsics, WorldToCamera};
 
-use super::{check_rotation, rodrigues};
+use super::{OPENCV_PIXEL_OFFSET, check_rotation, rodrigues};
 
 /// One camera table of a Pose2Sim calibration.
 #[derive(Debug, Deserialize)]
@@ -116,8 +116,9 @@ fn camera(table: &str, c: Pose2SimCamera) -> Result<Camera, String> {
             height: h as u32,
             fx: k[0][0],
             fy: k[1][1],
-            cx: k[0][2],
-            cy: k[1][2],
+            // Pose2Sim calibrates with OpenCV: pixel centres at integers.
+            cx: k[0][2] + OPENCV_PIXEL_OFFSET,
+            cy: k[1][2] + OPENCV_PIXEL_OFFSET,
         },
         distortion,
         world_to_camera: WorldToCamera::from_parts(r, glam::DVec3::from_array(c.translation)),

@@ -16,6 +16,7 @@ use super::capture_cameras::{CaptureCamera, select_cameras};
 use super::error::PosesError;
 use super::file::{PoseSource, PosesFile};
 use super::normalise::normalisation_for;
+use super::sizes::{SizeRelation, size_relation};
 
 /// The comment line of `points3d.ply`.
 const POINTS_COMMENT: &str = "4C4D sparse points, normalised frame";
@@ -62,7 +63,10 @@ pub fn write_imported(
     write_outputs(out_dir, cameras, Vec::new(), source, radius)
 }
 
-/// Intrinsics for the working size; refuses a change of aspect ratio (a crop, not a resize).
+/// Intrinsics for the working size: a resize (same aspect ratio up to a pixel of rounding)
+/// is scaled; any other change of aspect ratio is refused (it would be a crop, not a
+/// resize). Calibration imports go through [`super::fit_intrinsics`] instead, which also
+/// knows codec padding.
 pub fn scale_intrinsics(
     camera: &str,
     intr: &Intrinsics,
@@ -71,15 +75,14 @@ pub fn scale_intrinsics(
     let Some((w, h)) = working_size else {
         return Ok(*intr);
     };
-    let (sx, sy) = (w as f64 / intr.width as f64, h as f64 / intr.height as f64);
-    if (sx / sy - 1.0).abs() > 0.01 {
-        return Err(PosesError::AspectMismatch {
+    match size_relation((intr.width, intr.height), (w, h)) {
+        SizeRelation::Same | SizeRelation::Resized => Ok(intr.scaled_to(w, h)),
+        SizeRelation::CodecPadding | SizeRelation::Different => Err(PosesError::AspectMismatch {
             camera: camera.to_string(),
             calibrated: (intr.width, intr.height),
             working: (w, h),
-        });
+        }),
     }
-    Ok(intr.scaled_to(w, h))
 }
 
 /// Normalise `cameras` and `points` (the video cameras at mean distance `radius` from

@@ -2,7 +2,10 @@
 //! first aligned frame plus the stills, or imported from the capture's calibration file
 //! when there is one (`calib::poses`, `calib::import`), into `cameras.json`. With
 //! held-out cameras they are posed with the training cameras and then split off into
-//! `heldout.json` (see `crate::heldout`).
+//! `heldout.json` (see `crate::heldout`). An imported calibration must hold every camera
+//! folder, training and held-out (`[poses] names` maps folders to its names), and each
+//! camera's intrinsics are fitted to that camera's own video size (`streams.json`) and
+//! working size (`frames.json`), see `calib::poses::select_cameras`.
 
 use std::path::{Path, PathBuf};
 
