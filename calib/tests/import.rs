@@ -364,3 +364,22 @@ fn opencv_principal_points_move_half_a_pixel_into_the_engine_convention() {
     let e = cx(r#""pixel_centre": "corner","#).unwrap_err();
     assert!(e.contains("pixel_centre") && e.contains("c.json"), "{e}");
 }
+
+#[test]
+fn a_lens_file_without_poses_is_read_by_import_lenses_only() {
+    let tmp = tempfile::tempdir().unwrap();
+    let p = write(
+        tmp.path(),
+        "lens.yaml",
+        "%YAML:1.0\n---\ncameras:\n  cam0:\n    image_width: 1920\n    image_height: 1080\n    camera_matrix: !!opencv-matrix\n      rows: 3\n      cols: 3\n      dt: d\n      data: [ 1000., 0., 959.5, 0., 1000., 539.5, 0., 0., 1. ]\n    distortion_coefficients: [ 0.6, 0.2, 8e-4, -4e-4, 0.004, 0.95, 0.38, 0.03 ]\n",
+    );
+    let e = import_calibration(&p).unwrap_err().to_string();
+    assert!(
+        e.contains("rotation missing") && e.contains("lens.yaml"),
+        "{e}"
+    );
+    let set = calib::import::import_lenses(&p).unwrap();
+    let cam = &set.cameras[0];
+    assert_eq!((cam.intrinsics.cx, cam.intrinsics.cy), (960.0, 540.0));
+    assert_eq!(cam.distortion.coefficients().len(), 8);
+}

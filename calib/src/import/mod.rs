@@ -132,6 +132,21 @@ pub fn import_calibration_with(
     path: &Path,
     options: &ImportOptions,
 ) -> Result<CameraSet, ImportError> {
+    import(path, options, false)
+}
+
+/// Import only the lenses of a calibration file (`[poses] intrinsics`): as
+/// [`import_calibration`], but a camera without rotation or translation is accepted (its
+/// pose is the identity and means nothing), and the rig's size is not checked.
+pub fn import_lenses(path: &Path) -> Result<CameraSet, ImportError> {
+    import(path, &ImportOptions::default(), true)
+}
+
+fn import(
+    path: &Path,
+    options: &ImportOptions,
+    lenses_only: bool,
+) -> Result<CameraSet, ImportError> {
     if path.is_dir() {
         // COLMAP's scale is arbitrary: no unit check.
         return from_colmap(path);
@@ -163,7 +178,9 @@ pub fn import_calibration_with(
                 let value = serde_json::to_value(t).map_err(|e| syntax("TOML", e.to_string()))?;
                 if pose2sim::is_pose2sim(&value) {
                     let set = from_pose2sim(path, &value)?;
-                    check_scale(path, &set)?;
+                    if !lenses_only {
+                        check_scale(path, &set)?;
+                    }
                     return Ok(set);
                 }
                 value
@@ -174,9 +191,11 @@ pub fn import_calibration_with(
                 });
             }
         };
-        from_value(path, &value, options)?
+        from_value(path, &value, options, lenses_only)?
     };
-    check_scale(path, &set)?;
+    if !lenses_only {
+        check_scale(path, &set)?;
+    }
     Ok(set)
 }
 
@@ -298,7 +317,12 @@ fn numbers(v: &Value) -> Option<Vec<f64>> {
     }
 }
 
-fn from_value(path: &Path, v: &Value, options: &ImportOptions) -> Result<CameraSet, ImportError> {
+fn from_value(
+    path: &Path,
+    v: &Value,
+    options: &ImportOptions,
+    lenses_only: bool,
+) -> Result<CameraSet, ImportError> {
     let file_units = v.get("units").and_then(Value::as_str);
     let units = match (options.units, file_units) {
         (Some(u), _) => u,
@@ -337,7 +361,7 @@ fn from_value(path: &Path, v: &Value, options: &ImportOptions) -> Result<CameraS
             .and_then(Value::as_str)
             .or(top_convention)
             .unwrap_or("world_to_camera");
-        let mut cam = camera_from_value(&name, c, units, convention).map_err(err)?;
+        let mut cam = camera_from_value(&name, c, units, convention, lenses_only).map_err(err)?;
         cam.intrinsics.cx += pixel_offset;
         cam.intrinsics.cy += pixel_offset;
         cameras.push(cam);
@@ -365,11 +389,14 @@ fn pixel_offset(key: Option<&Value>) -> Result<f64, String> {
 /// an OpenCV principal point is this much smaller than the engine's.
 pub const OPENCV_PIXEL_OFFSET: f64 = 0.5;
 
+/// One camera of a parsed file; with `lenses_only`, a missing rotation or translation is
+/// the identity.
 fn camera_from_value(
     name: &str,
     c: &Value,
     units: Units,
     convention: &str,
+    lenses_only: bool,
 ) -> Result<Camera, String> {
     let k = get(c, &K_KEYS)
         .and_then(numbers)
@@ -439,6 +466,8 @@ fn camera_from_value(
         .filter(|v| v.len() == 3)
     {
         rodrigues(DVec3::new(rv[0], rv[1], rv[2]))
+    } else if lenses_only {
+        DMat3::IDENTITY
     } else {
         return Err("rotation missing: give R (3×3) or rvec (3)".into());
     };
@@ -461,6 +490,7 @@ fn camera_from_value(
             let t = match (translation, centre) {
                 (Some(t), _) => t,
                 (None, Some(c)) => -(r * c),
+                (None, None) if lenses_only => DVec3::ZERO,
                 (None, None) => {
                     return Err(
                         "translation missing: give t (world-to-camera) or C (camera centre)".into(),

@@ -4,6 +4,7 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
+use shared_types::{Distortion, Intrinsics};
 
 use crate::colmap_runner::ColmapConfig;
 
@@ -20,6 +21,11 @@ pub struct PosesConfig {
     /// calibration camera has another name (`names = { cam0 = "cam01" }`).
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub names: BTreeMap<String, String>,
+    /// A calibration file (relative to the capture directory) whose lenses are known:
+    /// COLMAP solves only the poses of the video cameras it holds, keeping their
+    /// intrinsics and distortion fixed. Extrinsics in it are not needed (and ignored).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub intrinsics: Option<PathBuf>,
 }
 
 impl Default for PosesConfig {
@@ -29,6 +35,7 @@ impl Default for PosesConfig {
             min_stills: 4,
             radius: 1.0,
             names: BTreeMap::new(),
+            intrinsics: None,
         }
     }
 }
@@ -43,6 +50,10 @@ pub struct PosesInputs {
     /// Size the engine will see the video frames at; `None`: the frames' own size.
     pub working_size: Option<(u32, u32)>,
     pub config: PosesConfig,
+    /// Video cameras whose lens is known (`[poses] intrinsics`), by camera name, with
+    /// intrinsics for the size of their frame in `video_frames`: COLMAP keeps them exactly
+    /// (only poses and points are solved). Empty: every lens is solved.
+    pub known_lenses: BTreeMap<String, (Intrinsics, Distortion)>,
 }
 
 #[cfg(test)]

@@ -127,6 +127,10 @@ pub enum PosesError {
         folder: String,
         folders: Vec<String>,
     },
+    #[error(
+        "a known lens was given for camera {camera}, which is not a video camera of this solve"
+    )]
+    KnownLensWithoutCamera { camera: String },
     #[error("cannot write {path}: {source}")]
     Io {
         path: PathBuf,
