@@ -33,6 +33,13 @@ pub fn run(ctx: &StageContext, settings: &PosesSettings, heldout: &[String]) -> 
             "importing the calibration {} instead of solving poses",
             calibration.display()
         );
+        if let Some(lenses) = &settings.intrinsics {
+            tracing::warn!(
+                "[poses] intrinsics = {} is not used: the calibration {} gives the lenses too",
+                lenses.display(),
+                calibration.display()
+            );
+        }
         let set = calib::import::import_calibration(calibration)
             .with_context(|| format!("cannot import {}", calibration.display()))?;
         calib::poses::write_imported(
