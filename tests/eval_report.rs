@@ -450,13 +450,7 @@ fn missing_images_and_empty_requests_are_typed_errors() {
     assert!(matches!(e, EvalError::NoViews));
     let mut far = s.heldout[0].clone();
     far.camera = camera("distorted", DVec3::new(0.0, -3.0, 0.0), 64, 48);
-    far.camera.distortion = splat4d::Distortion::Opencv {
-        k1: 0.1,
-        k2: 0.0,
-        p1: 0.0,
-        p2: 0.0,
-        k3: 0.0,
-    };
+    far.camera.distortion = splat4d::Distortion::radial_tangential(0.1, 0.0, 0.0, 0.0, 0.0);
     let e = evaluate(
         &CpuBackend,
         &model,

@@ -385,13 +385,7 @@ fn refuses_bad_inputs_with_typed_errors() {
     let mut g = model();
     g.push([0.0, 0.0, 0.0, 0.5], [-1.0; 4], 1.0, [0.9, 0.1, 0.1]);
     let mut cam = camera(16, 16);
-    cam.distortion = Distortion::Opencv {
-        k1: 0.1,
-        k2: 0.0,
-        p1: 0.0,
-        p2: 0.0,
-        k3: 0.0,
-    };
+    cam.distortion = Distortion::radial_tangential(0.1, 0.0, 0.0, 0.0, 0.0);
     let err = render_with(&g, &cam, 0.5, &RenderOptions::default()).unwrap_err();
     assert!(matches!(err, RenderError::DistortedCamera { .. }), "{err}");
     assert!(err.to_string().contains("undistort"));

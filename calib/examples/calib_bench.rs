@@ -24,13 +24,7 @@ fn best_of<T>(n: usize, mut f: impl FnMut() -> T) -> f64 {
 fn main() {
     for (w, h) in [(1920u32, 1080u32), (960, 540)] {
         for d in [
-            Distortion::Opencv {
-                k1: -0.25,
-                k2: 0.07,
-                p1: 1e-3,
-                p2: -5e-4,
-                k3: 0.0,
-            },
+            Distortion::radial_tangential(-0.25, 0.07, 1e-3, -5e-4, 0.0),
             Distortion::Fisheye {
                 k1: 0.05,
                 k2: -0.01,
@@ -67,13 +61,7 @@ fn main() {
     let cam = Camera {
         name: "c".into(),
         intrinsics: Intrinsics::from_hfov(960, 540, 90.0),
-        distortion: Distortion::Opencv {
-            k1: -0.25,
-            k2: 0.07,
-            p1: 1e-3,
-            p2: -5e-4,
-            k3: 0.0,
-        },
+        distortion: Distortion::radial_tangential(-0.25, 0.07, 1e-3, -5e-4, 0.0),
         world_to_camera: WorldToCamera::IDENTITY,
     };
     let map = UndistortMap::new(&cam, Fit::ValidPixels);

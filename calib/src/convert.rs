@@ -3,10 +3,12 @@
 //! COLMAP pose becomes an engine pose).
 //!
 //! Exact for the models the engine's distortion can express: SIMPLE_PINHOLE, PINHOLE,
-//! SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV with k4 = k5 = k6 = 0 (radial-tangential), and
-//! OPENCV_FISHEYE, SIMPLE_RADIAL_FISHEYE, RADIAL_FISHEYE (COLMAP's fisheye models distort
-//! θ = atan r exactly like OpenCV's fisheye model). FOV and the thin-prism models have no
-//! engine equivalent: solve with OPENCV or OPENCV_FISHEYE instead.
+//! SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV (radial-tangential with the rational
+//! k4..k6), and OPENCV_FISHEYE, SIMPLE_RADIAL_FISHEYE, RADIAL_FISHEYE (COLMAP's fisheye
+//! models distort θ = atan r exactly like OpenCV's fisheye model). FOV and COLMAP's
+//! thin-prism fisheye models have no engine equivalent: solve with OPENCV or
+//! OPENCV_FISHEYE instead. The other way, OpenCV's thin-prism and tilt terms have no COLMAP
+//! model ([`from_engine`] refuses them).
 
 use glam::DMat3;
 use shared_types::{Camera, Distortion, Intrinsics, WorldToCamera};
@@ -26,6 +28,12 @@ pub enum ConvertError {
     },
     #[error("COLMAP image {image} uses camera {camera_id}, which is not among the model's cameras")]
     MissingCamera { image: String, camera_id: u32 },
+    #[error(
+        "a lens with OpenCV coefficients {coefficients:?} has thin-prism or tilted-sensor terms, \
+         which no COLMAP camera model holds; recalibrate with OpenCV's rational model (8 \
+         coefficients) or fewer"
+    )]
+    NoColmapModel { coefficients: Vec<f64> },
     #[error(
         "COLMAP camera {camera_id} has an image size of {width}×{height} that does not fit in 32 bits"
     )]
@@ -67,43 +75,16 @@ pub fn to_engine(cam: &ColmapCamera) -> Result<(Intrinsics, Distortion), Convert
         model: cam.model,
         detail: detail.into(),
     };
+    let opencv = |c: &[f64]| {
+        Distortion::from_opencv_coefficients(c).expect("COLMAP's layouts have 4, 5 or 8 terms")
+    };
     let dist = match cam.model {
         CameraModel::SimplePinhole | CameraModel::Pinhole => Distortion::None,
-        CameraModel::SimpleRadial => Distortion::Opencv {
-            k1: rest[0],
-            k2: 0.0,
-            p1: 0.0,
-            p2: 0.0,
-            k3: 0.0,
-        },
-        CameraModel::Radial => Distortion::Opencv {
-            k1: rest[0],
-            k2: rest[1],
-            p1: 0.0,
-            p2: 0.0,
-            k3: 0.0,
-        },
-        CameraModel::Opencv => Distortion::Opencv {
-            k1: rest[0],
-            k2: rest[1],
-            p1: rest[2],
-            p2: rest[3],
-            k3: 0.0,
-        },
-        CameraModel::FullOpencv => {
-            if rest[5..8].iter().any(|&k| k != 0.0) {
-                return Err(unsupported(
-                    " (its rational coefficients k4..k6 are not zero)",
-                ));
-            }
-            Distortion::Opencv {
-                k1: rest[0],
-                k2: rest[1],
-                p1: rest[2],
-                p2: rest[3],
-                k3: rest[4],
-            }
-        }
+        CameraModel::SimpleRadial => opencv(&[rest[0], 0.0, 0.0, 0.0]),
+        CameraModel::Radial => opencv(&[rest[0], rest[1], 0.0, 0.0]),
+        CameraModel::Opencv => opencv(rest),
+        // COLMAP's order k1 k2 p1 p2 k3 k4 k5 k6 is OpenCV's.
+        CameraModel::FullOpencv => opencv(rest),
         CameraModel::OpencvFisheye => Distortion::Fisheye {
             k1: rest[0],
             k2: rest[1],
@@ -173,9 +154,14 @@ fn orthonormalise(r: DMat3) -> DMat3 {
     crate::similarity::to_dmat3(&q)
 }
 
-/// The COLMAP model and parameters for engine intrinsics and distortion
-/// (PINHOLE, OPENCV, FULL_OPENCV when k3 ≠ 0, or OPENCV_FISHEYE).
-pub fn from_engine(id: u32, intr: &Intrinsics, dist: &Distortion) -> ColmapCamera {
+/// The COLMAP model and parameters for engine intrinsics and distortion (PINHOLE, OPENCV,
+/// FULL_OPENCV when k3..k6 are not all zero, or OPENCV_FISHEYE). OpenCV's thin-prism and
+/// tilted-sensor terms have no COLMAP model: refused.
+pub fn from_engine(
+    id: u32,
+    intr: &Intrinsics,
+    dist: &Distortion,
+) -> Result<ColmapCamera, ConvertError> {
     let Intrinsics {
         width,
         height,
@@ -186,14 +172,19 @@ pub fn from_engine(id: u32, intr: &Intrinsics, dist: &Distortion) -> ColmapCamer
     } = *intr;
     let (model, params) = match *dist {
         Distortion::None => (CameraModel::Pinhole, vec![fx, fy, cx, cy]),
-        Distortion::Opencv { k1, k2, p1, p2, k3 } => {
-            if k3 == 0.0 {
-                (CameraModel::Opencv, vec![fx, fy, cx, cy, k1, k2, p1, p2])
-            } else {
-                (
-                    CameraModel::FullOpencv,
-                    vec![fx, fy, cx, cy, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0],
-                )
+        Distortion::Opencv { .. } => {
+            let c = dist.coefficients();
+            match c.len() {
+                5 if c[4] == 0.0 => (CameraModel::Opencv, [&[fx, fy, cx, cy], &c[..4]].concat()),
+                5 | 8 => {
+                    let mut params = vec![fx, fy, cx, cy];
+                    params.extend(&c);
+                    params.resize(12, 0.0);
+                    (CameraModel::FullOpencv, params)
+                }
+                _ => {
+                    return Err(ConvertError::NoColmapModel { coefficients: c });
+                }
             }
         }
         Distortion::Fisheye { k1, k2, k3, k4 } => (
@@ -201,13 +192,13 @@ pub fn from_engine(id: u32, intr: &Intrinsics, dist: &Distortion) -> ColmapCamer
             vec![fx, fy, cx, cy, k1, k2, k3, k4],
         ),
     };
-    ColmapCamera {
+    Ok(ColmapCamera {
         id,
         model,
         width: width as u64,
         height: height as u64,
         params,
-    }
+    })
 }
 
 #[cfg(test)]
@@ -226,20 +217,13 @@ mod tests {
         };
         for dist in [
             Distortion::None,
-            Distortion::Opencv {
-                k1: -0.1,
-                k2: 0.02,
-                p1: 1e-3,
-                p2: -2e-3,
-                k3: 0.0,
-            },
-            Distortion::Opencv {
-                k1: -0.1,
-                k2: 0.02,
-                p1: 1e-3,
-                p2: -2e-3,
-                k3: 0.004,
-            },
+            Distortion::radial_tangential(-0.1, 0.02, 1e-3, -2e-3, 0.0),
+            Distortion::radial_tangential(-0.1, 0.02, 1e-3, -2e-3, 0.004),
+            // The rational model (OpenCV's 8 coefficients) is FULL_OPENCV.
+            Distortion::from_opencv_coefficients(&[
+                -0.1, 0.02, 1e-3, -2e-3, 0.004, 0.3, -0.05, 0.01,
+            ])
+            .unwrap(),
             Distortion::Fisheye {
                 k1: 0.05,
                 k2: -0.01,
@@ -247,7 +231,7 @@ mod tests {
                 k4: -1e-4,
             },
         ] {
-            let cam = from_engine(7, &intr, &dist);
+            let cam = from_engine(7, &intr, &dist).unwrap();
             assert_eq!(cam.params.len(), cam.model.num_params());
             assert_eq!(to_engine(&cam).unwrap(), (intr, dist));
         }
@@ -265,16 +249,30 @@ mod tests {
         .unwrap();
         let (i, d) = to_engine(&c).unwrap();
         assert_eq!((i.fx, i.fy, i.cx, i.cy), (90.0, 90.0, 50.0, 40.0));
+        assert_eq!(d, Distortion::radial_tangential(0.1, 0.0, 0.0, 0.0, 0.0));
+        // FULL_OPENCV with rational terms is the engine's OpenCV model, not a refusal.
+        let c = ColmapCamera::new(
+            3,
+            CameraModel::FullOpencv,
+            100,
+            80,
+            vec![
+                90.0, 91.0, 50.0, 40.0, 0.1, 0.01, 1e-3, 2e-3, 0.001, 0.2, 0.03, -0.004,
+            ],
+        )
+        .unwrap();
+        let (_, d) = to_engine(&c).unwrap();
         assert_eq!(
-            d,
-            Distortion::Opencv {
-                k1: 0.1,
-                k2: 0.0,
-                p1: 0.0,
-                p2: 0.0,
-                k3: 0.0
-            }
+            d.coefficients(),
+            [0.1, 0.01, 1e-3, 2e-3, 0.001, 0.2, 0.03, -0.004]
         );
+        // Thin prism has no COLMAP model.
+        let prism = Distortion::from_opencv_coefficients(&[
+            0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1e-3, 0.0, 0.0, 0.0,
+        ])
+        .unwrap();
+        let e = from_engine(1, &i, &prism).unwrap_err().to_string();
+        assert!(e.contains("thin-prism"), "{e}");
         let c = ColmapCamera::new(
             2,
             CameraModel::Fov,

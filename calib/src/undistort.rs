@@ -112,14 +112,11 @@ fn from_cv_matrix(m: &Mat, width: u32, height: u32) -> opencv::Result<Intrinsics
     })
 }
 
-/// The distortion coefficients in OpenCV's order (`[k1 k2 p1 p2 k3]`, fisheye `[k1..k4]`,
-/// none for a pinhole).
+/// The distortion coefficients in OpenCV's order, every non-zero term included (`[k1 k2
+/// p1 p2 k3]`, 8 with the rational `k4..k6`, 12 with thin prism, 14 with a tilted sensor;
+/// fisheye `[k1..k4]`; none for a pinhole).
 fn coefficients(d: &Distortion) -> Vec<f64> {
-    match *d {
-        Distortion::None => Vec::new(),
-        Distortion::Opencv { k1, k2, p1, p2, k3 } => vec![k1, k2, p1, p2, k3],
-        Distortion::Fisheye { k1, k2, k3, k4 } => vec![k1, k2, k3, k4],
-    }
+    d.coefficients()
 }
 
 /// [`coefficients`] as an OpenCV vector (five zeros for a pinhole).
@@ -463,13 +460,7 @@ mod tests {
     #[test]
     fn pinhole_and_distorted_cameras_see_world_points_where_the_map_says() {
         for d in [
-            Distortion::Opencv {
-                k1: -0.25,
-                k2: 0.07,
-                p1: 1e-3,
-                p2: -5e-4,
-                k3: 0.0,
-            },
+            Distortion::radial_tangential(-0.25, 0.07, 1e-3, -5e-4, 0.0),
             Distortion::Fisheye {
                 k1: 0.05,
                 k2: -0.01,
@@ -500,13 +491,7 @@ mod tests {
 
     #[test]
     fn valid_pixels_fit_leaves_no_holes_and_all_pixels_keeps_the_corners() {
-        let c = cam(Distortion::Opencv {
-            k1: -0.3,
-            k2: 0.08,
-            p1: 0.0,
-            p2: 0.0,
-            k3: 0.0,
-        });
+        let c = cam(Distortion::radial_tangential(-0.3, 0.08, 0.0, 0.0, 0.0));
         let img = image::RgbImage::from_pixel(320, 240, image::Rgb([200, 100, 50]));
         let (_, inner) = undistort_image(&c, &img, Fit::ValidPixels).unwrap();
         let holes = inner.pixels().filter(|p| p.0 == [0, 0, 0]).count();

@@ -36,6 +36,7 @@ fn unrelated_images_give_no_initial_pair_with_a_per_image_report() {
         stills,
         working_size: None,
         config: PosesConfig::default(),
+        known_lenses: Default::default(),
     };
     let out_dir = tmp.path().join("poses");
     std::fs::create_dir_all(&out_dir).unwrap();
@@ -76,6 +77,7 @@ fn a_video_camera_that_sees_something_else_is_named() {
         stills: rig.still_paths.clone(),
         working_size: None,
         config,
+        known_lenses: Default::default(),
     };
     let out_dir = tmp.path().join("poses");
     let e = poses::solve(&inputs, &out_dir, &NoProgress).unwrap_err();
@@ -122,6 +124,7 @@ fn colmap_failing_or_crashing_is_reported_with_its_log() {
         stills: rig.still_paths.clone(),
         working_size: None,
         config,
+        known_lenses: Default::default(),
     };
     let e = poses::solve(&inputs, &out_dir, &NoProgress).unwrap_err();
     let msg = e.to_string();

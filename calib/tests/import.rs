@@ -3,13 +3,16 @@
 //! (`caliscope-4cam/camera_array.toml` from a Caliscope session and
 //! `panoptic-5view/camera_parameters.json`, a 5-camera calibration in centimetres),
 //! looked for in `shared/data/` beside the checkout or in `/work/shared/data/`; they skip
-//! when the files are absent.
+//! when the files are absent, except under `CI=true`, where that is a failure.
 
 use std::path::Path;
 
 use calib::import::{
     ImportOptions, Units, find_calibration, import_calibration, import_calibration_with,
 };
+use std::collections::BTreeMap;
+
+use calib::poses::CaptureCamera;
 use glam::DVec3;
 use shared_types::Distortion;
 
@@ -58,13 +61,7 @@ fn opencv_json_in_all_its_spellings_gives_the_same_camera() {
         );
         assert_eq!(
             cam.distortion,
-            Distortion::Opencv {
-                k1: -0.1,
-                k2: 0.01,
-                p1: 0.0,
-                p2: 0.0,
-                k3: 0.0
-            }
+            Distortion::radial_tangential(-0.1, 0.01, 0.0, 0.0, 0.0)
         );
         assert!(
             (cam.world_to_camera.centre() - c).length() < 1e-9,
@@ -141,11 +138,22 @@ fn wrong_axes_units_and_models_are_explained() {
         "r.json",
         r#"{"cameras": {"a": {"K": [[500,0,320],[0,500,240],[0,0,1]], "dist": [0.1,0,0,0,0,0.3,0,0], "R": [[1,0,0],[0,1,0],[0,0,1]], "t": [0,0,0], "size": [640,480]}}}"#,
     );
+    // OpenCV's rational model (8 coefficients) is imported as it is.
+    let set = import_calibration(&rational).unwrap();
+    assert_eq!(
+        set.cameras[0].distortion.coefficients(),
+        [0.1, 0.0, 0.0, 0.0, 0.0, 0.3, 0.0, 0.0]
+    );
+    // A coefficient count OpenCV does not have is refused, naming the counts it has.
+    let six = write(
+        tmp.path(),
+        "six.json",
+        r#"{"cameras": {"a": {"K": [[500,0,320],[0,500,240],[0,0,1]], "dist": [0.1,0,0,0,0,0.3], "R": [[1,0,0],[0,1,0],[0,0,1]], "t": [0,0,0], "size": [640,480]}}}"#,
+    );
+    let e = import_calibration(&six).unwrap_err().to_string();
     assert!(
-        import_calibration(&rational)
-            .unwrap_err()
-            .to_string()
-            .contains("rational")
+        e.contains("six.json") && e.contains("4, 5, 8, 12 or 14"),
+        "{e}"
     );
     let nosize = write(
         tmp.path(),
@@ -191,6 +199,8 @@ fn shared_data(name: &str) -> Option<std::path::PathBuf> {
     };
     if p.exists() {
         Some(p)
+    } else if std::env::var("CI").is_ok_and(|v| v == "true" || v == "1") {
+        panic!("{name} is absent under CI=true: ../shared/data must hold the real data sets");
     } else {
         eprintln!("skipping: {name} is absent (real data, not part of the repository)");
         None
@@ -253,7 +263,19 @@ fn an_imported_calibration_becomes_the_poses_output() {
     let out_dir = tmp.path().join("work/poses");
     std::fs::create_dir_all(&out_dir).unwrap();
     std::fs::write(out_dir.join("points3d.ply"), "stale").unwrap();
-    let out = calib::poses::write_imported(&set, &p, &out_dir, Some((640, 360)), 1.0).unwrap();
+    let folders = |w: u32, h: u32| -> Vec<CaptureCamera> {
+        ["cam0", "cam1"]
+            .into_iter()
+            .map(|name| CaptureCamera {
+                name: name.into(),
+                recorded: Some((1280, 720)),
+                working: (w, h),
+            })
+            .collect()
+    };
+    let names = BTreeMap::new();
+    let out =
+        calib::poses::write_imported(&set, &p, &out_dir, &folders(640, 360), &names, 1.0).unwrap();
     let cams = &out.file.set.cameras;
     assert_eq!(cams[0].intrinsics.fx, 400.0);
     // Centre between the two cameras, each 1 from it after normalisation.
@@ -262,6 +284,102 @@ fn an_imported_calibration_becomes_the_poses_output() {
     }
     assert!((out.file.normalisation.scale - 1.0 / 0.3).abs() < 1e-12);
     assert!(out.cameras_json.is_file() && !out_dir.join("points3d.ply").exists());
-    let e = calib::poses::write_imported(&set, &p, &out_dir, Some((640, 480)), 1.0).unwrap_err();
-    assert!(e.to_string().contains("aspect"), "{e}");
+    // A video of another aspect ratio than the calibration is refused, naming both sizes.
+    let mut other = folders(640, 480);
+    other[1].recorded = Some((640, 480));
+    let e = calib::poses::write_imported(&set, &p, &out_dir, &other, &names, 1.0).unwrap_err();
+    let e = e.to_string();
+    assert!(
+        e.contains("1280×720") && e.contains("640×480") && e.contains("cam1"),
+        "{e}"
+    );
+}
+
+#[test]
+fn panoptic_five_views_through_the_poses_import() {
+    let Some(dir) = shared_data("panoptic-5view") else {
+        return;
+    };
+    let path = dir.join("camera_parameters.json");
+    let set = import_calibration_with(
+        &path,
+        &ImportOptions {
+            units: Some(Units::Centimetres),
+        },
+    )
+    .unwrap();
+    // The five HD views of the data set, as camera folders cam0..cam4.
+    let views = ["00_03", "00_06", "00_12", "00_13", "00_23"];
+    let folders: Vec<CaptureCamera> = (0..5)
+        .map(|i| CaptureCamera {
+            name: format!("cam{i}"),
+            recorded: Some((1920, 1080)),
+            working: (960, 540),
+        })
+        .collect();
+    let names: BTreeMap<String, String> = views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| (format!("cam{i}"), v.to_string()))
+        .collect();
+    let tmp = tempfile::tempdir().unwrap();
+    let out = calib::poses::write_imported(&set, &path, tmp.path(), &folders, &names, 1.0).unwrap();
+    let cams = &out.file.set.cameras;
+    // Only the capture's five cameras, not the file's 31.
+    assert_eq!(cams.len(), 5);
+    // A metre above the dome's floor centre (Panoptic's y points down) is in view of every
+    // camera, at the same place as in the full-size calibration, halved (both in the
+    // engine's pixel convention).
+    let target = DVec3::new(0.0, -1.0, 0.0);
+    for (cam, view) in cams.iter().zip(views) {
+        let full = set.get(view).unwrap();
+        let (a, _) = full.project(target).unwrap();
+        let (b, _) = cam.project(out.file.normalisation.apply(target)).unwrap();
+        assert!((a * 0.5 - b).length() < 1e-9, "{view}");
+        assert!(
+            b.x > 0.0 && b.y > 0.0 && b.x < 960.0 && b.y < 540.0,
+            "{view}: {b}"
+        );
+    }
+}
+
+#[test]
+fn opencv_principal_points_move_half_a_pixel_into_the_engine_convention() {
+    let tmp = tempfile::tempdir().unwrap();
+    let camera = r#"{"K": [[500,0,320],[0,500,240],[0,0,1]], "R": [[1,0,0],[0,1,0],[0,0,1]], "t": [0,0,0], "size": [640,480]}"#;
+    let cx = |top: &str| {
+        let p = write(
+            tmp.path(),
+            "c.json",
+            &format!(r#"{{{top} "cameras": {{"a": {camera}}}}}"#),
+        );
+        import_calibration(&p)
+            .map(|s| (s.cameras[0].intrinsics.cx, s.cameras[0].intrinsics.cy))
+            .map_err(|e| e.to_string())
+    };
+    // OpenCV: the first pixel's centre is 0; the engine's (COLMAP's) is 0.5.
+    assert_eq!(cx(""), Ok((320.5, 240.5)));
+    assert_eq!(cx(r#""pixel_centre": "integer","#), Ok((320.5, 240.5)));
+    assert_eq!(cx(r#""pixel_centre": "half","#), Ok((320.0, 240.0)));
+    let e = cx(r#""pixel_centre": "corner","#).unwrap_err();
+    assert!(e.contains("pixel_centre") && e.contains("c.json"), "{e}");
+}
+
+#[test]
+fn a_lens_file_without_poses_is_read_by_import_lenses_only() {
+    let tmp = tempfile::tempdir().unwrap();
+    let p = write(
+        tmp.path(),
+        "lens.yaml",
+        "%YAML:1.0\n---\ncameras:\n  cam0:\n    image_width: 1920\n    image_height: 1080\n    camera_matrix: !!opencv-matrix\n      rows: 3\n      cols: 3\n      dt: d\n      data: [ 1000., 0., 959.5, 0., 1000., 539.5, 0., 0., 1. ]\n    distortion_coefficients: [ 0.6, 0.2, 8e-4, -4e-4, 0.004, 0.95, 0.38, 0.03 ]\n",
+    );
+    let e = import_calibration(&p).unwrap_err().to_string();
+    assert!(
+        e.contains("rotation missing") && e.contains("lens.yaml"),
+        "{e}"
+    );
+    let set = calib::import::import_lenses(&p).unwrap();
+    let cam = &set.cameras[0];
+    assert_eq!((cam.intrinsics.cx, cam.intrinsics.cy), (960.0, 540.0));
+    assert_eq!(cam.distortion.coefficients().len(), 8);
 }

@@ -1,6 +1,7 @@
 //! f64 reference check of our camera models: `shared_types::Distortion::distort` followed by the
-//! intrinsics projection agrees with OpenCV's `projectPoints` (radial-tangential with k3) and
-//! `fisheye::projectPoints` to < 1e-6 px over a grid of points reaching the image corners.
+//! intrinsics projection agrees with OpenCV's `projectPoints` (the full model: 5, 8, 12 and
+//! 14 coefficients, i.e. radial-tangential, rational, thin prism, tilted sensor) and
+//! `fisheye::projectPoints` to < 1e-9 px over a grid of points reaching the image corners.
 
 use glam::DVec2;
 use opencv::calib3d;
@@ -8,7 +9,9 @@ use opencv::core::{Mat, Point2d, Point3d, Vector};
 use opencv::prelude::*;
 use shared_types::{Distortion, Intrinsics};
 
-/// Realistic lenses at 1920×1080: GoPro-like fisheye, mild and strong radial-tangential.
+/// Realistic lenses at 1920×1080: GoPro-like fisheye, mild and strong radial-tangential, a
+/// wide lens calibrated with OpenCV's rational model (`CALIB_RATIONAL_MODEL`), and the same
+/// with thin-prism and tilted-sensor terms (`CALIB_THIN_PRISM_MODEL`, `CALIB_TILTED_MODEL`).
 fn lenses() -> Vec<(&'static str, Intrinsics, Distortion)> {
     let k = |fx: f64, fy: f64, cx: f64, cy: f64| Intrinsics {
         width: 1920,
@@ -42,24 +45,37 @@ fn lenses() -> Vec<(&'static str, Intrinsics, Distortion)> {
         (
             "mild radial-tangential",
             k(1400.0, 1398.0, 955.5, 544.25),
-            Distortion::Opencv {
-                k1: -0.08,
-                k2: 0.03,
-                p1: 4e-4,
-                p2: -2.5e-4,
-                k3: -0.004,
-            },
+            Distortion::radial_tangential(-0.08, 0.03, 4e-4, -2.5e-4, -0.004),
         ),
         (
             "strong radial-tangential",
             k(1050.0, 1046.0, 963.0, 535.0),
-            Distortion::Opencv {
-                k1: -0.31,
-                k2: 0.11,
-                p1: 1.2e-3,
-                p2: -9e-4,
-                k3: -0.018,
-            },
+            Distortion::radial_tangential(-0.31, 0.11, 1.2e-3, -9e-4, -0.018),
+        ),
+        (
+            "rational (8 coefficients)",
+            k(1010.0, 1008.0, 958.4, 542.7),
+            Distortion::from_opencv_coefficients(&[
+                1.92, 0.71, 1.1e-3, -6e-4, 0.016, 2.21, 1.46, 0.12,
+            ])
+            .unwrap(),
+        ),
+        (
+            "rational + thin prism (12 coefficients)",
+            k(1010.0, 1008.0, 958.4, 542.7),
+            Distortion::from_opencv_coefficients(&[
+                1.92, 0.71, 1.1e-3, -6e-4, 0.016, 2.21, 1.46, 0.12, 2.4e-3, -3e-4, -1.8e-3, 2e-4,
+            ])
+            .unwrap(),
+        ),
+        (
+            "rational + thin prism + tilt (14 coefficients)",
+            k(1010.0, 1008.0, 958.4, 542.7),
+            Distortion::from_opencv_coefficients(&[
+                1.92, 0.71, 1.1e-3, -6e-4, 0.016, 2.21, 1.46, 0.12, 2.4e-3, -3e-4, -1.8e-3, 2e-4,
+                0.012, -0.007,
+            ])
+            .unwrap(),
         ),
     ]
 }
@@ -98,11 +114,9 @@ fn opencv_projection(intr: &Intrinsics, d: &Distortion, pts: &[[f64; 3]]) -> Vec
     let zero = Mat::from_slice(&[0.0f64; 3]).unwrap().try_clone().unwrap();
     let mut image: Vector<Point2d> = Vector::new();
     match *d {
-        Distortion::Opencv { k1, k2, p1, p2, k3 } => {
-            let coeffs = Mat::from_slice(&[k1, k2, p1, p2, k3])
-                .unwrap()
-                .try_clone()
-                .unwrap();
+        Distortion::Opencv { .. } => {
+            let c = d.coefficients();
+            let coeffs = Mat::from_slice(&c).unwrap().try_clone().unwrap();
             calib3d::project_points_def(&object, &zero, &zero, &k, &coeffs, &mut image).unwrap();
         }
         Distortion::Fisheye { k1, k2, k3, k4 } => {
@@ -131,10 +145,10 @@ fn our_camera_models_match_opencv_projection() {
         // The grid really reaches the corners (undistort is exact there).
         let corner = ours(&intr, &d, pts[pts.len() - 1]);
         assert!(
-            (corner - DVec2::new(1920.0, 1080.0)).length() < 1e-6,
+            (corner - DVec2::new(1920.0, 1080.0)).length() < 1e-9,
             "{name}: {corner}"
         );
         eprintln!("{name}: worst |ours - OpenCV| = {worst:.2e} px");
-        assert!(worst < 1e-6, "{name}: {worst} px");
+        assert!(worst < 1e-9, "{name}: {worst} px");
     }
 }

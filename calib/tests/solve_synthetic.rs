@@ -12,19 +12,14 @@ fn solves_the_rendered_rig_within_half_a_degree() {
     }
     let tmp = tempfile::tempdir().unwrap();
     // The video cameras have a real lens (barrel distortion); COLMAP solves it (OPENCV).
-    let lens = Distortion::Opencv {
-        k1: -0.12,
-        k2: 0.03,
-        p1: 0.0,
-        p2: 0.0,
-        k3: 0.0,
-    };
+    let lens = Distortion::radial_tangential(-0.12, 0.03, 0.0, 0.0, 0.0);
     let rig = common::render_rig_with_lens(&tmp.path().join("capture"), 8, (480, 360), lens);
     let inputs = PosesInputs {
         video_frames: rig.video_paths.clone(),
         stills: rig.still_paths.clone(),
         working_size: Some((320, 240)),
         config: PosesConfig::default(),
+        known_lenses: Default::default(),
     };
     let out_dir = tmp.path().join("work/poses");
     let progress = common::RecordingProgress::default();
@@ -113,6 +108,7 @@ fn inputs_for(rig: &common::RenderedRig) -> PosesInputs {
         stills: rig.still_paths.clone(),
         working_size: None,
         config: PosesConfig::default(),
+        known_lenses: Default::default(),
     }
 }
 
@@ -215,6 +211,7 @@ fn fisheye_video_cameras_solve_with_opencv_fisheye() {
         stills: rig.still_paths.clone(),
         working_size: None,
         config,
+        known_lenses: Default::default(),
     };
     let out = poses::solve(&inputs, &tmp.path().join("poses"), &NoProgress)
         .unwrap_or_else(|e| panic!("{e}"));
@@ -274,4 +271,57 @@ fn fisheye_video_cameras_solve_with_opencv_fisheye() {
             .join("poses/colmap/logs/feature_extractor_stills.log")
             .is_file()
     );
+}
+
+/// `[poses] intrinsics`: the video cameras' lenses are given; COLMAP solves the poses only,
+/// and the lenses come out exactly as given (no refinement), the poses as accurate.
+#[test]
+fn known_lenses_are_kept_exactly_and_only_poses_are_solved() {
+    if !common::colmap_available() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let lens = Distortion::radial_tangential(-0.12, 0.03, 0.0, 0.0, 0.0);
+    let rig = common::render_rig_with_lens(&tmp.path().join("capture"), 8, (480, 360), lens);
+    let known: std::collections::BTreeMap<String, _> = rig
+        .video
+        .iter()
+        .map(|c| (c.name.clone(), (c.intrinsics, c.distortion)))
+        .collect();
+    let inputs = PosesInputs {
+        known_lenses: known.clone(),
+        ..inputs_for(&rig)
+    };
+    let out = poses::solve(&inputs, &tmp.path().join("poses"), &NoProgress)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let cams = &out.file.set.cameras;
+    for c in cams {
+        let (intrinsics, distortion) = known[&c.name];
+        assert_eq!(c.distortion, distortion, "{}", c.name);
+        for (a, b) in [
+            (c.intrinsics.fx, intrinsics.fx),
+            (c.intrinsics.fy, intrinsics.fy),
+            (c.intrinsics.cx, intrinsics.cx),
+            (c.intrinsics.cy, intrinsics.cy),
+        ] {
+            assert!((a - b).abs() < 1e-9, "{}: {a} vs {b}", c.name);
+        }
+    }
+    let (_, errors, radius) = calib::similarity::compare(cams, &rig.video).unwrap();
+    for e in &errors {
+        eprintln!(
+            "known lens, {}: rotation {:.4}°, centre {:.4}% of radius",
+            e.name,
+            e.rotation_deg,
+            100.0 * e.centre / radius
+        );
+        assert!(e.rotation_deg < 0.5, "{e:?}");
+        assert!(e.centre < 0.01 * radius, "{e:?}");
+    }
+    match &out.file.source {
+        poses::PoseSource::Colmap { model_dir, .. } => {
+            assert!(model_dir.contains("known_lenses"), "{model_dir}")
+        }
+        other => panic!("{other:?}"),
+    }
 }

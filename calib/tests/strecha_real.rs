@@ -113,6 +113,7 @@ fn herzjesu_p8_poses_match_ground_truth() {
             c.colmap.max_num_features = 4096;
             c
         },
+        known_lenses: Default::default(),
     };
     let out = match poses::solve(&inputs, &tmp.path().join("poses"), &NoProgress) {
         Ok(o) => o,

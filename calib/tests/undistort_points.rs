@@ -27,15 +27,17 @@ fn camera(d: Distortion) -> Camera {
     }
 }
 
-fn lenses() -> [Distortion; 2] {
+fn lenses() -> [Distortion; 4] {
+    let opencv = |c: &[f64]| Distortion::from_opencv_coefficients(c).unwrap();
     [
-        Distortion::Opencv {
-            k1: -0.28,
-            k2: 0.09,
-            p1: 1e-3,
-            p2: -6e-4,
-            k3: -0.01,
-        },
+        Distortion::radial_tangential(-0.28, 0.09, 1e-3, -6e-4, -0.01),
+        // OpenCV's rational model (CALIB_RATIONAL_MODEL, 8 coefficients).
+        opencv(&[0.1, 0.02, 1e-3, -6e-4, 0.0, 0.3, 0.01, 0.0]),
+        // Rational + thin prism + tilted sensor (14 coefficients).
+        opencv(&[
+            -0.2, 0.05, 8e-4, -5e-4, -0.004, 0.05, -0.01, 0.002, 2e-3, -4e-4, -1.5e-3, 3e-4, 0.01,
+            -0.008,
+        ]),
         Distortion::Fisheye {
             k1: 0.05,
             k2: -0.01,
@@ -141,13 +143,7 @@ fn bad_input_gives_typed_errors() {
         other => panic!("expected SizeMismatch, got {other:?}"),
     }
     for d in [
-        Distortion::Opencv {
-            k1: f64::NAN,
-            k2: 0.0,
-            p1: 0.0,
-            p2: 0.0,
-            k3: 0.0,
-        },
+        Distortion::radial_tangential(f64::NAN, 0.0, 0.0, 0.0, 0.0),
         Distortion::Fisheye {
             k1: f64::NAN,
             k2: 0.0,
@@ -165,7 +161,7 @@ fn bad_input_gives_typed_errors() {
             assert!(err.to_string().contains("cam_left"), "{err}");
         }
     }
-    let mut flat = camera(lenses()[1]);
+    let mut flat = camera(lenses()[3]);
     flat.intrinsics.fx = 0.0;
     let err = UndistortMap::new(&flat, Fit::AllPixels)
         .apply(&RgbImage::new(320, 240))

@@ -28,13 +28,7 @@ fn undistorted_render_matches_the_pinhole_render() {
     let intr = Intrinsics::from_hfov(240, 180, 80.0);
     let eye = DVec3::new(2.4, 0.8, 1.4);
     for d in [
-        Distortion::Opencv {
-            k1: -0.28,
-            k2: 0.08,
-            p1: 5e-4,
-            p2: -8e-4,
-            k3: 0.0,
-        },
+        Distortion::radial_tangential(-0.28, 0.08, 5e-4, -8e-4, 0.0),
         Distortion::Fisheye {
             k1: 0.04,
             k2: -0.01,

@@ -9,7 +9,8 @@
 //!                         aligned like the others, never trained on, used by `eval`
 //!   stills/               extra photos for pose solving (*.jpg, *.png)
 //!   calibration.*         optional calibration to import instead of solving poses
-//!                         (calibration.json|yaml|toml, camera_array.toml, calibration/ COLMAP)
+//!                         (calibration.json|yaml|toml, camera_array.toml, Pose2Sim
+//!                         Calib_scene.toml, calibration/ COLMAP)
 //!   masks/<camera>/       optional moving-region masks for eval (`crate::masks`)
 //!   groundtruth/          written by the simulator only
 //!   work/<stage>/         outputs of each stage, with work/<stage>/stage.json
@@ -43,7 +44,8 @@ pub struct Capture {
     /// Files in `stills/`, sorted by name (empty when the folder is absent).
     pub stills: Vec<PathBuf>,
     /// A calibration to import instead of solving poses (`calibration.json|yaml|toml`,
-    /// `camera_array.toml` or a COLMAP model folder `calibration/`), if present.
+    /// `camera_array.toml`, Pose2Sim's `Calib_scene.toml` or a COLMAP model folder
+    /// `calibration/`), if present.
     pub calibration: Option<PathBuf>,
 }
 

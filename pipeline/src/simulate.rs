@@ -182,7 +182,12 @@ pub fn write_truth_calibration(capture_dir: &Path) -> anyhow::Result<()> {
     let out = capture_dir.join("calibration.json");
     shared_types::atomic::write_atomic(
         &out,
-        serde_json::to_string_pretty(&serde_json::json!({ "cameras": cameras }))?.as_bytes(),
+        // The truth is in the engine's pixel convention (centres at integer + 0.5).
+        serde_json::to_string_pretty(&serde_json::json!({
+            "pixel_centre": "half",
+            "cameras": cameras
+        }))?
+        .as_bytes(),
     )
     .with_context(|| format!("cannot write {}", out.display()))
 }

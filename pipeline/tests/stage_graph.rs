@@ -173,7 +173,7 @@ fn every_capture_file_a_stage_reads_is_an_input() {
     fs::write(
         root.join("capture.toml"),
         "[capture]\nheldout = [\"cam4\"]\n[init]\nmodel = \"m.onnx\"\npointmaps = \"/abs/maps\"\n\
-         [eval]\nlpips = \"w/lpips.onnx\"\n",
+         [eval]\nlpips = \"w/lpips.onnx\"\n[poses]\nintrinsics = \"lenses/lens.yaml\"\n",
     )
     .unwrap();
     write(&root, "calibration.json", b"{}");
@@ -195,6 +195,7 @@ fn every_capture_file_a_stage_reads_is_an_input() {
         "{poses:?}"
     );
     assert!(poses.contains(&root.join("calibration.json")), "{poses:?}");
+    assert!(poses.contains(&root.join("lenses/lens.yaml")), "{poses:?}");
     assert_eq!(
         inputs("init"),
         [root.join("m.onnx"), PathBuf::from("/abs/maps")]

@@ -46,35 +46,151 @@ impl Intrinsics {
 }
 
 /// Lens distortion, applied to normalised image coordinates.
+///
+/// In `cameras.json` a lens is `{"model": "opencv", "k1": …}`: the coefficients of the
+/// rational / thin-prism / tilted-sensor terms are written only when they are not zero, and
+/// read as zero when absent, so files of plain radial-tangential lenses look as they always
+/// did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "model", rename_all = "snake_case")]
 pub enum Distortion {
     /// An ideal pinhole: what the engine renders.
     #[default]
     None,
-    /// OpenCV / COLMAP `OPENCV` (+ `k3` of FULL_OPENCV): radial-tangential.
-    Opencv { k1: f64, k2: f64, p1: f64, p2: f64, #[serde(default)] k3: f64 },
+    /// OpenCV's full lens model (`cv::projectPoints` with 4, 5, 8, 12 or 14 coefficients
+    /// `k1 k2 p1 p2 [k3 [k4 k5 k6 [s1 s2 s3 s4 [τx τy]]]]`): radial with the rational
+    /// denominator `1 + k4 r² + k5 r⁴ + k6 r⁶`, tangential `p1 p2`, thin prism `s1..s4`, and
+    /// a tilted sensor `τx τy` (radians). COLMAP's `OPENCV` is `k1 k2 p1 p2`, its
+    /// `FULL_OPENCV` `k1..k6 p1 p2`.
+    Opencv {
+        k1: f64,
+        k2: f64,
+        p1: f64,
+        p2: f64,
+        #[serde(default)]
+        k3: f64,
+        #[serde(default, skip_serializing_if = "is_zero")]
+        k4: f64,
+        #[serde(default, skip_serializing_if = "is_zero")]
+        k5: f64,
+        #[serde(default, skip_serializing_if = "is_zero")]
+        k6: f64,
+        #[serde(default, skip_serializing_if = "is_zero")]
+        s1: f64,
+        #[serde(default, skip_serializing_if = "is_zero")]
+        s2: f64,
+        #[serde(default, skip_serializing_if = "is_zero")]
+        s3: f64,
+        #[serde(default, skip_serializing_if = "is_zero")]
+        s4: f64,
+        #[serde(default, skip_serializing_if = "is_zero")]
+        tau_x: f64,
+        #[serde(default, skip_serializing_if = "is_zero")]
+        tau_y: f64,
+    },
     /// OpenCV fisheye / COLMAP `OPENCV_FISHEYE` (equidistant with polynomial θ).
     Fisheye { k1: f64, k2: f64, k3: f64, k4: f64 },
 }
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
+}
+
+/// OpenCV's tilted-sensor projection (`computeTiltProjectionMatrix`): the sensor rotated
+/// by `tau_x` about x, then `tau_y` about y, and the point projected back along the
+/// optical axis.
+fn tilt_matrix(tau_x: f64, tau_y: f64) -> DMat3 {
+    let (sx, cx) = tau_x.sin_cos();
+    let (sy, cy) = tau_y.sin_cos();
+    // Row-major as OpenCV writes them; glam takes columns, hence the transposes.
+    let rot_x = DMat3::from_cols_array(&[1.0, 0.0, 0.0, 0.0, cx, sx, 0.0, -sx, cx]).transpose();
+    let rot_y = DMat3::from_cols_array(&[cy, 0.0, -sy, 0.0, 1.0, 0.0, sy, 0.0, cy]).transpose();
+    let rot_xy = rot_y * rot_x;
+    let (r02, r12, r22) = (rot_xy.z_axis.x, rot_xy.z_axis.y, rot_xy.z_axis.z);
+    let proj_z = DMat3::from_cols_array(&[r22, 0.0, -r02, 0.0, r22, -r12, 0.0, 0.0, 1.0]).transpose();
+    proj_z * rot_xy
+}
+
+/// Number of OpenCV coefficients a distortion vector may have (`cv::projectPoints`).
+pub const OPENCV_COEFFICIENT_COUNTS: [usize; 5] = [4, 5, 8, 12, 14];
 
 impl Distortion {
     pub fn is_none(&self) -> bool {
         matches!(self, Distortion::None)
     }
 
-    /// Undistorted normalised coordinates (x/z, y/z) → distorted normalised coordinates.
+    /// OpenCV radial-tangential with `k1 k2 p1 p2 k3` (no rational, thin-prism or tilt terms).
+    pub fn radial_tangential(k1: f64, k2: f64, p1: f64, p2: f64, k3: f64) -> Self {
+        Self::from_opencv_coefficients(&[k1, k2, p1, p2, k3]).expect("five coefficients")
+    }
+
+    /// The OpenCV model of a coefficient vector in OpenCV's order (`k1 k2 p1 p2 [k3 [k4 k5
+    /// k6 [s1 s2 s3 s4 [τx τy]]]]`, 4, 5, 8, 12 or 14 numbers); `Err` names the accepted
+    /// lengths. All-zero coefficients still give `Opencv` (callers decide if that is `None`).
+    pub fn from_opencv_coefficients(c: &[f64]) -> Result<Self, String> {
+        if !OPENCV_COEFFICIENT_COUNTS.contains(&c.len()) {
+            return Err(format!(
+                "{} distortion coefficients; OpenCV's model takes 4, 5, 8, 12 or 14 \
+                 (k1 k2 p1 p2 [k3 [k4 k5 k6 [s1 s2 s3 s4 [τx τy]]]])",
+                c.len()
+            ));
+        }
+        let at = |i: usize| c.get(i).copied().unwrap_or(0.0);
+        Ok(Distortion::Opencv {
+            k1: at(0),
+            k2: at(1),
+            p1: at(2),
+            p2: at(3),
+            k3: at(4),
+            k4: at(5),
+            k5: at(6),
+            k6: at(7),
+            s1: at(8),
+            s2: at(9),
+            s3: at(10),
+            s4: at(11),
+            tau_x: at(12),
+            tau_y: at(13),
+        })
+    }
+
+    /// The coefficients as OpenCV takes them: `Opencv` in OpenCV's order, as short as the
+    /// non-zero terms allow (5, 8, 12 or 14), `Fisheye` as `k1..k4`, none for a pinhole.
+    pub fn coefficients(&self) -> Vec<f64> {
+        match *self {
+            Distortion::None => Vec::new(),
+            Distortion::Opencv { k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tau_x, tau_y } => {
+                let all = [k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tau_x, tau_y];
+                let used = all.iter().rposition(|&c| c != 0.0).map_or(0, |i| i + 1);
+                let len = [5, 8, 12, 14].into_iter().find(|&n| n >= used).unwrap_or(14);
+                all[..len].to_vec()
+            }
+            Distortion::Fisheye { k1, k2, k3, k4 } => vec![k1, k2, k3, k4],
+        }
+    }
+
+    /// Undistorted normalised coordinates (x/z, y/z) → distorted normalised coordinates,
+    /// as `cv::projectPoints` / `cv::fisheye::projectPoints` compute them.
     pub fn distort(&self, n: DVec2) -> DVec2 {
         match *self {
             Distortion::None => n,
-            Distortion::Opencv { k1, k2, p1, p2, k3 } => {
+            Distortion::Opencv { k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tau_x, tau_y } => {
                 let (x, y) = (n.x, n.y);
                 let r2 = x * x + y * y;
-                let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
-                DVec2::new(
-                    x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
-                    y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y,
-                )
+                let r4 = r2 * r2;
+                let numerator = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
+                let denominator = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6));
+                let radial = numerator / denominator;
+                let d = DVec2::new(
+                    x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) + s1 * r2 + s2 * r4,
+                    y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y + s3 * r2 + s4 * r4,
+                );
+                if tau_x == 0.0 && tau_y == 0.0 {
+                    return d;
+                }
+                let v = tilt_matrix(tau_x, tau_y) * DVec3::new(d.x, d.y, 1.0);
+                let inv = if v.z != 0.0 { 1.0 / v.z } else { 1.0 };
+                DVec2::new(v.x * inv, v.y * inv)
             }
             Distortion::Fisheye { k1, k2, k3, k4 } => {
                 let r = n.length();
@@ -238,7 +354,11 @@ mod tests {
     #[test]
     fn distortion_round_trips() {
         let models = [
-            Distortion::Opencv { k1: -0.2, k2: 0.05, p1: 0.001, p2: -0.002, k3: 0.0 },
+            Distortion::radial_tangential(-0.2, 0.05, 0.001, -0.002, 0.0),
+            Distortion::from_opencv_coefficients(&[
+                -0.2, 0.05, 0.001, -0.002, 0.01, 0.1, -0.02, 0.03, 1e-3, -2e-4, 5e-4, 1e-4, 0.02, -0.01,
+            ])
+            .unwrap(),
             Distortion::Fisheye { k1: 0.05, k2: -0.01, k3: 0.002, k4: 0.0 },
         ];
         for d in models {
@@ -255,7 +375,7 @@ mod tests {
         let cam = Camera {
             name: "cam0".into(),
             intrinsics: Intrinsics::from_hfov(640, 480, 60.0),
-            distortion: Distortion::Opencv { k1: 0.1, k2: 0.0, p1: 0.0, p2: 0.0, k3: 0.0 },
+            distortion: Distortion::radial_tangential(0.1, 0.0, 0.0, 0.0, 0.0),
             world_to_camera: WorldToCamera::look_at(DVec3::new(0.0, -3.0, 1.0), DVec3::ZERO, DVec3::Z)
                 .unwrap(),
         };

@@ -16,6 +16,7 @@
 
 pub mod database;
 pub mod diagnose;
+mod known_lenses;
 pub mod known_poses;
 pub mod quality;
 
@@ -159,6 +160,10 @@ pub struct WorkspaceImage {
 pub struct Workspace {
     pub root: PathBuf,
     pub images: Vec<WorkspaceImage>,
+    /// Video cameras whose lens is known (`[poses] intrinsics`), by camera name, at the
+    /// size of their frame here: extracted with these parameters and held fixed in a final
+    /// bundle adjustment (see [`Workspace::fix_known_lenses`]).
+    pub known_lenses: std::collections::BTreeMap<String, crate::colmap::ColmapCamera>,
 }
 
 /// What a finished COLMAP run left behind.
@@ -301,6 +306,7 @@ impl Workspace {
         Ok(Self {
             root: root.to_path_buf(),
             images,
+            known_lenses: Default::default(),
         })
     }
 
@@ -364,13 +370,20 @@ impl Workspace {
             (true, config.camera_model),
             (false, config.stills_camera_model),
         ];
-        let same_model =
-            config.camera_model == config.stills_camera_model && config.video_focal_px.is_none();
+        let same_model = config.camera_model == config.stills_camera_model
+            && config.video_focal_px.is_none()
+            && self.known_lenses.is_empty();
+        let known = |i: &WorkspaceImage| {
+            i.video_camera
+                .as_ref()
+                .is_some_and(|c| self.known_lenses.contains_key(c))
+        };
         for (video, model) in groups {
             let names: Vec<&str> = self
                 .images
                 .iter()
                 .filter(|i| same_model || i.video_camera.is_some() == video)
+                .filter(|i| !known(i))
                 .map(|i| i.colmap_name.as_str())
                 .collect();
             if names.is_empty() {
@@ -418,6 +431,7 @@ impl Workspace {
                 break;
             }
         }
+        self.extract_known_lenses(binary, &match_threads, config, progress)?;
         timings.feature_extraction_s = t0.elapsed().as_secs_f64();
         progress.advance(1);
 

@@ -1,8 +1,10 @@
 //! Settings of the poses stage (`capture.toml [poses]`) and what the stage is given.
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
+use shared_types::{Distortion, Intrinsics};
 
 use crate::colmap_runner::ColmapConfig;
 
@@ -15,6 +17,15 @@ pub struct PosesConfig {
     pub min_stills: usize,
     /// Mean distance of the video cameras from the scene centre after normalisation.
     pub radius: f64,
+    /// Camera folder → its camera's name in an imported calibration, for folders whose
+    /// calibration camera has another name (`names = { cam0 = "cam01" }`).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub names: BTreeMap<String, String>,
+    /// A calibration file (relative to the capture directory) whose lenses are known:
+    /// COLMAP solves only the poses of the video cameras it holds, keeping their
+    /// intrinsics and distortion fixed. Extrinsics in it are not needed (and ignored).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub intrinsics: Option<PathBuf>,
 }
 
 impl Default for PosesConfig {
@@ -23,6 +34,8 @@ impl Default for PosesConfig {
             colmap: ColmapConfig::default(),
             min_stills: 4,
             radius: 1.0,
+            names: BTreeMap::new(),
+            intrinsics: None,
         }
     }
 }
@@ -37,6 +50,10 @@ pub struct PosesInputs {
     /// Size the engine will see the video frames at; `None`: the frames' own size.
     pub working_size: Option<(u32, u32)>,
     pub config: PosesConfig,
+    /// Video cameras whose lens is known (`[poses] intrinsics`), by camera name, with
+    /// intrinsics for the size of their frame in `video_frames`: COLMAP keeps them exactly
+    /// (only poses and points are solved). Empty: every lens is solved.
+    pub known_lenses: BTreeMap<String, (Intrinsics, Distortion)>,
 }
 
 #[cfg(test)]
@@ -56,6 +73,11 @@ mod tests {
         );
         assert_eq!(c.colmap.video_cameras, VideoCameras::Shared);
         assert_eq!(c.colmap.stills_cameras, StillsCameras::Shared);
+        assert!(c.names.is_empty());
+        // An empty `names` leaves the stage's parameters (its JSON) as they were.
+        assert!(!serde_json::to_string(&c).unwrap().contains("names"));
+        let c: PosesConfig = toml::from_str("names = { cam0 = \"cam01\" }").unwrap();
+        assert_eq!(c.names["cam0"], "cam01");
         assert!(toml::from_str::<PosesConfig>("min_still = 3").is_err());
         assert!(toml::from_str::<PosesConfig>("[colmap]\ncamera_model = \"BROWN\"").is_err());
     }

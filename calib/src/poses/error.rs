@@ -84,6 +84,53 @@ pub enum PosesError {
         calibrated: (u32, u32),
         working: (u32, u32),
     },
+    #[error(
+        "camera {camera}: the calibration {} is for {}×{} images but its video is {}×{}: that is \
+         neither a resize (same aspect ratio) nor codec padding (up to the next multiple of 8 or \
+         16 pixels, right/bottom), so the lens cannot be fitted; calibrate at the recording's \
+         size, or check that the calibration's camera belongs to this folder ([poses] names)",
+        file.display(), calibrated.0, calibrated.1, video.0, video.1
+    )]
+    CalibrationSize {
+        camera: String,
+        file: PathBuf,
+        calibrated: (u32, u32),
+        video: (u32, u32),
+    },
+    #[error(
+        "the calibration {} has no camera for the folder(s) {}. Its cameras: {}; the capture's \
+         camera folders (training and held-out): {}. Map folders to calibration names in \
+         capture.toml, under [poses]: {}",
+        file.display(),
+        missing.iter().map(|(f, c)| if f == c { format!("raw/{f}") } else { format!("raw/{f} (as {c:?})") }).collect::<Vec<_>>().join(", "),
+        calibration.join(", "),
+        folders.join(", "),
+        suggestion.clone().unwrap_or_else(|| "names = { cam0 = \"<its name in the calibration>\", … }".into())
+    )]
+    CalibrationMissesCameras {
+        file: PathBuf,
+        /// (folder, the name looked for in the calibration).
+        missing: Vec<(String, String)>,
+        /// The calibration's camera names.
+        calibration: Vec<String>,
+        /// The capture's camera folders.
+        folders: Vec<String>,
+        /// A `names = { … }` line pairing folders and cameras by their numbers, if one fits.
+        suggestion: Option<String>,
+    },
+    #[error(
+        "[poses] names maps the folder {folder:?}, which is not a camera folder of the capture \
+         ({}); fix the name in capture.toml",
+        folders.join(", ")
+    )]
+    UnknownNamedFolder {
+        folder: String,
+        folders: Vec<String>,
+    },
+    #[error(
+        "a known lens was given for camera {camera}, which is not a video camera of this solve"
+    )]
+    KnownLensWithoutCamera { camera: String },
     #[error("cannot write {path}: {source}")]
     Io {
         path: PathBuf,

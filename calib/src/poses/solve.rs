@@ -2,7 +2,7 @@
 //! (retrying with stricter settings when a solve looks degenerate), pick the model holding
 //! every video camera, and take its cameras and points.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 use shared_types::{Camera, Progress};
@@ -11,7 +11,7 @@ use super::config::PosesInputs;
 use super::error::PosesError;
 use super::file::PoseSource;
 use super::write::{PosesOutput, SparsePoint, scale_intrinsics, write_outputs};
-use crate::colmap::ColmapModel;
+use crate::colmap::{ColmapCamera, ColmapModel};
 use crate::colmap_runner::diagnose::Diagnosis;
 use crate::colmap_runner::quality::{self, Degeneracy, QualityLimits};
 use crate::colmap_runner::{
@@ -45,14 +45,21 @@ pub fn solve(
     let config = &inputs.config;
     let binary = find_colmap(config.colmap.binary.as_deref())?;
     let ws_root = out_dir.join("colmap");
-    let video_cameras = config.colmap.video_cameras.resolve(video_sizes.len() <= 1);
-    let ws = Workspace::create(
+    let known_lenses = known_lenses(inputs)?;
+    // A known lens is per camera: each video camera gets its own COLMAP camera.
+    let video_cameras = if known_lenses.is_empty() {
+        config.colmap.video_cameras.resolve(video_sizes.len() <= 1)
+    } else {
+        VideoCameras::Separate
+    };
+    let mut ws = Workspace::create(
         &ws_root,
         &inputs.video_frames,
         &inputs.stills,
         config.colmap.stills_cameras,
         video_cameras,
     )?;
+    ws.known_lenses = known_lenses;
     let attempts = config.colmap.max_attempts.max(1);
     progress.start(3, "COLMAP steps");
     let mut timings = ws.extract_and_match(&binary, &config.colmap, progress)?;
@@ -130,6 +137,13 @@ pub fn solve(
             });
             continue;
         }
+        let adjusted;
+        let (model_dir, model) = if ws.known_lenses.is_empty() {
+            (model_dir, model)
+        } else {
+            adjusted = ws.fix_known_lenses(&binary, model, &video, progress)?;
+            (&adjusted.0, &adjusted.1)
+        };
         progress.finish();
         let (cameras, points) = cameras_from_model(model, &video, inputs.working_size)?;
         let rel_model = model_dir
@@ -231,6 +245,35 @@ pub fn cameras_from_model(
         })
         .collect();
     Ok((cameras, points))
+}
+
+/// The known lenses of [`PosesInputs::known_lenses`] as COLMAP cameras, each checked
+/// against its video camera's frame size.
+fn known_lenses(inputs: &PosesInputs) -> Result<BTreeMap<String, ColmapCamera>, PosesError> {
+    let mut out = BTreeMap::new();
+    for (camera, (intrinsics, distortion)) in &inputs.known_lenses {
+        let Some((_, frame)) = inputs.video_frames.iter().find(|(c, _)| c == camera) else {
+            return Err(PosesError::KnownLensWithoutCamera {
+                camera: camera.clone(),
+            });
+        };
+        let size = image::image_dimensions(frame).map_err(|e| PosesError::ImageUnreadable {
+            path: frame.clone(),
+            reason: e.to_string(),
+        })?;
+        if size != (intrinsics.width, intrinsics.height) {
+            return Err(PosesError::AspectMismatch {
+                camera: camera.clone(),
+                calibrated: (intrinsics.width, intrinsics.height),
+                working: size,
+            });
+        }
+        out.insert(
+            camera.clone(),
+            convert::from_engine(0, intrinsics, distortion)?,
+        );
+    }
+    Ok(out)
 }
 
 /// Checks the inputs; returns the distinct sizes of the video frames.

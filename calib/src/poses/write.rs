@@ -3,6 +3,7 @@
 //! `points3d.ply` is a binary little-endian PLY point cloud: `x y z` float, `red green
 //! blue` uchar, and the comment line `4C4D sparse points, normalised frame`.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use glam::DVec3;
@@ -11,9 +12,11 @@ use shared_types::ply::PlyTable;
 use shared_types::points::{PointCloud, points_table};
 use shared_types::{Camera, CameraSet, Intrinsics};
 
+use super::capture_cameras::{CaptureCamera, select_cameras};
 use super::error::PosesError;
 use super::file::{PoseSource, PosesFile};
 use super::normalise::normalisation_for;
+use super::sizes::{SizeRelation, size_relation};
 
 /// The comment line of `points3d.ply`.
 const POINTS_COMMENT: &str = "4C4D sparse points, normalised frame";
@@ -35,12 +38,15 @@ pub struct PosesOutput {
 }
 
 /// Normalise and write an imported (or otherwise known) camera set as the poses stage's
-/// output, with no sparse points; intrinsics scaled to `working_size` when given.
+/// output, with no sparse points: the calibration's camera of each of the capture's camera
+/// `folders` (through `names`, see [`select_cameras`]), renamed to its folder, intrinsics
+/// fitted to its video and working sizes. `from` is the calibration file.
 pub fn write_imported(
     set: &CameraSet,
     from: &Path,
     out_dir: &Path,
-    working_size: Option<(u32, u32)>,
+    folders: &[CaptureCamera],
+    names: &BTreeMap<String, String>,
     radius: f64,
 ) -> Result<PosesOutput, PosesError> {
     let stale = out_dir.join("points3d.ply");
@@ -50,17 +56,17 @@ pub fn write_imported(
             source,
         })?;
     }
-    let mut cameras = set.cameras.clone();
-    for c in &mut cameras {
-        c.intrinsics = scale_intrinsics(&c.name, &c.intrinsics, working_size)?;
-    }
+    let cameras = select_cameras(set, folders, names, from)?;
     let source = PoseSource::Import {
         path: from.to_path_buf(),
     };
     write_outputs(out_dir, cameras, Vec::new(), source, radius)
 }
 
-/// Intrinsics for the working size; refuses a change of aspect ratio (a crop, not a resize).
+/// Intrinsics for the working size: a resize (same aspect ratio up to a pixel of rounding)
+/// is scaled; any other change of aspect ratio is refused (it would be a crop, not a
+/// resize). Calibration imports go through [`super::fit_intrinsics`] instead, which also
+/// knows codec padding.
 pub fn scale_intrinsics(
     camera: &str,
     intr: &Intrinsics,
@@ -69,15 +75,14 @@ pub fn scale_intrinsics(
     let Some((w, h)) = working_size else {
         return Ok(*intr);
     };
-    let (sx, sy) = (w as f64 / intr.width as f64, h as f64 / intr.height as f64);
-    if (sx / sy - 1.0).abs() > 0.01 {
-        return Err(PosesError::AspectMismatch {
+    match size_relation((intr.width, intr.height), (w, h)) {
+        SizeRelation::Same | SizeRelation::Resized => Ok(intr.scaled_to(w, h)),
+        SizeRelation::CodecPadding | SizeRelation::Different => Err(PosesError::AspectMismatch {
             camera: camera.to_string(),
             calibrated: (intr.width, intr.height),
             working: (w, h),
-        });
+        }),
     }
-    Ok(intr.scaled_to(w, h))
 }
 
 /// Normalise `cameras` and `points` (the video cameras at mean distance `radius` from

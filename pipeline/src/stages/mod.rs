@@ -78,11 +78,12 @@ pub fn pipeline() -> Pipeline {
                 "poses",
                 "solve camera poses with COLMAP (4 views + stills) or import a calibration",
             )
-            .after(&["frames"])
+            .after(&["ingest", "frames"])
             .params(with_heldout("poses"))
-            .inputs(|c, _| {
+            .inputs(|c, config| {
                 let mut inputs = c.stills.clone();
                 inputs.extend(c.calibration.clone());
+                inputs.extend(config.poses.intrinsics.as_ref().map(|f| c.root.join(f)));
                 inputs
             })
             .outputs(&["cameras.json"])

@@ -248,7 +248,7 @@ mod tests {
     #[test]
     fn distortion_agrees_with_the_opencv_formulas_and_round_trips() {
         let (k1, k2, p1, p2, k3) = (-0.28, 0.09, 0.0012, -0.0008, -0.01);
-        let d = Distortion::Opencv { k1, k2, p1, p2, k3 };
+        let d = Distortion::radial_tangential(k1, k2, p1, p2, k3);
         let f = Distortion::Fisheye { k1: 0.03, k2: -0.01, k3: 0.004, k4: -0.001 };
         for &(x, y) in &[(0.1, 0.05), (-0.4, 0.3), (0.55, -0.35), (-0.2, -0.6)] {
             let got = d.distort(DVec2::new(x, y));

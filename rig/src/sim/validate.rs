@@ -352,11 +352,10 @@ fn resolve_camera(
 /// The distortion must be finite and invertible over the whole image: undistorting each
 /// border pixel and distorting it again must come back within 1e-3 px.
 fn validate_distortion(origin: &str, name: &str, d: &Distortion, k: &Intrinsics) -> Result<(), SimError> {
-    let values: Vec<f64> = match *d {
-        Distortion::None => return Ok(()),
-        Distortion::Opencv { k1, k2, p1, p2, k3 } => vec![k1, k2, p1, p2, k3],
-        Distortion::Fisheye { k1, k2, k3, k4 } => vec![k1, k2, k3, k4],
-    };
+    if d.is_none() {
+        return Ok(());
+    }
+    let values = d.coefficients();
     finite(origin, &format!("camera {name} distortion"), &values)?;
     for p in border_pixels(k.width, k.height, 8) {
         let n = d.undistort(k.to_normalised(p));

@@ -1,7 +1,15 @@
 //! Calibration import instead of solving with COLMAP: a COLMAP model folder, an
-//! OpenCV-style JSON or YAML file (`K`, `dist`, `R` or `rvec`, `t`), or a Caliscope
-//! `camera_array.toml`. The result is a [`CameraSet`] in the engine's convention
+//! OpenCV-style JSON or YAML file (`K`, `dist`, `R` or `rvec`, `t`), a Caliscope
+//! `camera_array.toml`, or a Pose2Sim `Calib_scene.toml` ([`pose2sim`], recognised by its
+//! shape). Distortion vectors are OpenCV's full model (4, 5, 8, 12 or 14 coefficients) or
+//! fisheye `k1..k4`. The result is a [`CameraSet`] in the engine's convention
 //! (world-to-camera, OpenCV axes, translations in metres).
+//!
+//! Pixel convention: OpenCV-style files (and Caliscope's, Pose2Sim's) put a pixel's centre
+//! at its integer coordinates; the engine puts it at integer + 0.5, so their principal
+//! point is shifted by [`OPENCV_PIXEL_OFFSET`] on import (`pixel_centre = "half"` in a
+//! JSON/YAML file says it is already in the engine's convention). COLMAP models are taken
+//! as they are (COLMAP's convention is the engine's).
 //!
 //! Checks: `K` is upper-triangular without skew; `R` is a rotation (orthonormal,
 //! determinant +1: a −1 means a left-handed/OpenGL-style frame); the rig's size is
@@ -16,6 +24,8 @@ use shared_types::{Camera, CameraSet, Distortion, Intrinsics, WorldToCamera};
 
 use crate::colmap::ColmapModel;
 use crate::convert;
+
+mod pose2sim;
 
 /// Length units of translations / camera centres in a calibration file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -69,8 +79,8 @@ pub enum ImportError {
         message: String,
     },
     #[error(
-        "{path}: unknown calibration format; use a COLMAP model folder, .json, .yaml/.yml, or a \
-         Caliscope camera_array.toml"
+        "{path}: unknown calibration format; use a COLMAP model folder, .json, .yaml/.yml, a \
+         Caliscope camera_array.toml or a Pose2Sim Calib_scene.toml"
     )]
     UnknownFormat { path: PathBuf },
     #[error("{path}: camera {camera}: {message}")]
@@ -88,12 +98,13 @@ pub enum ImportError {
 }
 
 /// Names a calibration is looked for under in a capture directory, in order.
-pub const CALIBRATION_NAMES: [&str; 6] = [
+pub const CALIBRATION_NAMES: [&str; 7] = [
     "calibration.json",
     "calibration.yaml",
     "calibration.yml",
     "calibration.toml",
     "camera_array.toml",
+    "Calib_scene.toml",
     "calibration",
 ];
 
@@ -120,6 +131,21 @@ pub fn import_calibration(path: &Path) -> Result<CameraSet, ImportError> {
 pub fn import_calibration_with(
     path: &Path,
     options: &ImportOptions,
+) -> Result<CameraSet, ImportError> {
+    import(path, options, false)
+}
+
+/// Import only the lenses of a calibration file (`[poses] intrinsics`): as
+/// [`import_calibration`], but a camera without rotation or translation is accepted (its
+/// pose is the identity and means nothing), and the rig's size is not checked.
+pub fn import_lenses(path: &Path) -> Result<CameraSet, ImportError> {
+    import(path, &ImportOptions::default(), true)
+}
+
+fn import(
+    path: &Path,
+    options: &ImportOptions,
+    lenses_only: bool,
 ) -> Result<CameraSet, ImportError> {
     if path.is_dir() {
         // COLMAP's scale is arbitrary: no unit check.
@@ -149,7 +175,15 @@ pub fn import_calibration_with(
             "toml" => {
                 let t: toml::Value =
                     toml::from_str(&text).map_err(|e| syntax("TOML", e.to_string()))?;
-                serde_json::to_value(t).map_err(|e| syntax("TOML", e.to_string()))?
+                let value = serde_json::to_value(t).map_err(|e| syntax("TOML", e.to_string()))?;
+                if pose2sim::is_pose2sim(&value) {
+                    let set = from_pose2sim(path, &value)?;
+                    if !lenses_only {
+                        check_scale(path, &set)?;
+                    }
+                    return Ok(set);
+                }
+                value
             }
             _ => {
                 return Err(ImportError::UnknownFormat {
@@ -157,10 +191,24 @@ pub fn import_calibration_with(
                 });
             }
         };
-        from_value(path, &value, options)?
+        from_value(path, &value, options, lenses_only)?
     };
-    check_scale(path, &set)?;
+    if !lenses_only {
+        check_scale(path, &set)?;
+    }
     Ok(set)
+}
+
+/// A Pose2Sim calibration (always metres).
+fn from_pose2sim(path: &Path, value: &Value) -> Result<CameraSet, ImportError> {
+    let mut cameras =
+        pose2sim::cameras(value).map_err(|(camera, message)| ImportError::Camera {
+            path: path.to_path_buf(),
+            camera,
+            message,
+        })?;
+    cameras.sort_by(|a, b| a.name.cmp(&b.name));
+    Ok(CameraSet::new(cameras))
 }
 
 /// A COLMAP model folder: one camera per image, named by the image's file stem.
@@ -269,7 +317,12 @@ fn numbers(v: &Value) -> Option<Vec<f64>> {
     }
 }
 
-fn from_value(path: &Path, v: &Value, options: &ImportOptions) -> Result<CameraSet, ImportError> {
+fn from_value(
+    path: &Path,
+    v: &Value,
+    options: &ImportOptions,
+    lenses_only: bool,
+) -> Result<CameraSet, ImportError> {
     let file_units = v.get("units").and_then(Value::as_str);
     let units = match (options.units, file_units) {
         (Some(u), _) => u,
@@ -280,6 +333,11 @@ fn from_value(path: &Path, v: &Value, options: &ImportOptions) -> Result<CameraS
         (None, None) => Units::Metres,
     };
     let top_convention = v.get("convention").and_then(Value::as_str);
+    let pixel_offset =
+        pixel_offset(v.get("pixel_centre")).map_err(|message| ImportError::Invalid {
+            path: path.to_path_buf(),
+            message,
+        })?;
     let entries = camera_entries(v);
     if entries.is_empty() {
         return Err(ImportError::Invalid {
@@ -303,18 +361,42 @@ fn from_value(path: &Path, v: &Value, options: &ImportOptions) -> Result<CameraS
             .and_then(Value::as_str)
             .or(top_convention)
             .unwrap_or("world_to_camera");
-        let cam = camera_from_value(&name, c, units, convention).map_err(err)?;
+        let mut cam = camera_from_value(&name, c, units, convention, lenses_only).map_err(err)?;
+        cam.intrinsics.cx += pixel_offset;
+        cam.intrinsics.cy += pixel_offset;
         cameras.push(cam);
     }
     cameras.sort_by(|a, b| a.name.cmp(&b.name));
     Ok(CameraSet::new(cameras))
 }
 
+/// What to add to a file's principal point to put pixel centres at integer + 0.5, the
+/// engine's (and COLMAP's) convention: `pixel_centre = "integer"` (OpenCV's, the default
+/// for these files) adds 0.5, `"half"` (files written in the engine's convention, such as
+/// the simulator's truth) nothing.
+fn pixel_offset(key: Option<&Value>) -> Result<f64, String> {
+    match key.map(|k| k.as_str().unwrap_or("")) {
+        None | Some("integer") => Ok(OPENCV_PIXEL_OFFSET),
+        Some("half") => Ok(0.0),
+        Some(other) => Err(format!(
+            "unknown pixel_centre {other:?}; use \"integer\" (OpenCV: the first pixel's centre \
+             is 0) or \"half\" (COLMAP: it is 0.5)"
+        )),
+    }
+}
+
+/// OpenCV puts a pixel's centre at its integer coordinates, the engine at integer + 0.5:
+/// an OpenCV principal point is this much smaller than the engine's.
+pub const OPENCV_PIXEL_OFFSET: f64 = 0.5;
+
+/// One camera of a parsed file; with `lenses_only`, a missing rotation or translation is
+/// the identity.
 fn camera_from_value(
     name: &str,
     c: &Value,
     units: Units,
     convention: &str,
+    lenses_only: bool,
 ) -> Result<Camera, String> {
     let k = get(c, &K_KEYS)
         .and_then(numbers)
@@ -384,6 +466,8 @@ fn camera_from_value(
         .filter(|v| v.len() == 3)
     {
         rodrigues(DVec3::new(rv[0], rv[1], rv[2]))
+    } else if lenses_only {
+        DMat3::IDENTITY
     } else {
         return Err("rotation missing: give R (3×3) or rvec (3)".into());
     };
@@ -406,6 +490,7 @@ fn camera_from_value(
             let t = match (translation, centre) {
                 (Some(t), _) => t,
                 (None, Some(c)) => -(r * c),
+                (None, None) if lenses_only => DVec3::ZERO,
                 (None, None) => {
                     return Err(
                         "translation missing: give t (world-to-camera) or C (camera centre)".into(),
@@ -455,31 +540,9 @@ fn distortion_from(d: &[f64], fisheye: bool) -> Result<Distortion, String> {
             k4: at(3),
         });
     }
-    match d.len() {
-        4 | 5 => Ok(Distortion::Opencv {
-            k1: at(0),
-            k2: at(1),
-            p1: at(2),
-            p2: at(3),
-            k3: at(4),
-        }),
-        n if n > 5 && d[5..].iter().all(|&x| x == 0.0) => Ok(Distortion::Opencv {
-            k1: at(0),
-            k2: at(1),
-            p1: at(2),
-            p2: at(3),
-            k3: at(4),
-        }),
-        n => Err(format!(
-            "distortion has {n} coefficients{}; the engine supports OpenCV's k1 k2 p1 p2 [k3] or fisheye k1..k4 \
-             (set model = \"fisheye\" for the latter)",
-            if n > 5 {
-                " with non-zero rational/thin-prism terms"
-            } else {
-                ""
-            }
-        )),
-    }
+    Distortion::from_opencv_coefficients(d).map_err(|e| {
+        format!("{e}; for a fisheye lens (4 coefficients k1..k4) set model = \"fisheye\"")
+    })
 }
 
 /// Rotation matrix of a Rodrigues vector (axis × angle in radians).
