@@ -22,7 +22,7 @@ use rusqlite::{Connection, params};
 use shared_types::{Camera, Progress};
 
 use super::{ColmapError, DatabaseError, VideoCameras, Workspace, args, io_err};
-use crate::colmap::{CameraModel, ColmapImage, ColmapModel, ModelFormat};
+use crate::colmap::{CameraModel, ColmapCamera, ColmapImage, ColmapModel, ModelFormat};
 use crate::convert::from_engine;
 
 /// One image of a known, distortion-free (pinhole) camera.
@@ -204,7 +204,9 @@ fn set_known_cameras(
         let Some(&(_, camera_id)) = ids.get(&img.colmap_name) else {
             continue;
         };
-        let cam = from_engine(camera_id, &view.camera.intrinsics, &Default::default());
+        let Some(cam) = pinhole(camera_id, view) else {
+            continue;
+        };
         let blob: Vec<u8> = cam.params.iter().flat_map(|p| p.to_le_bytes()).collect();
         db.execute(
             "UPDATE cameras SET model = ?1, width = ?2, height = ?3, params = ?4, \
@@ -222,6 +224,14 @@ fn set_known_cameras(
     Ok(ids)
 }
 
+/// The view's pinhole camera in COLMAP's terms (a pinhole always converts; a failure is
+/// logged and the view left out).
+fn pinhole(camera_id: u32, view: &KnownView) -> Option<ColmapCamera> {
+    from_engine(camera_id, &view.camera.intrinsics, &Default::default())
+        .map_err(|e| tracing::warn!("triangulation: camera {}: {e}", view.camera.name))
+        .ok()
+}
+
 /// The known model: each view's camera and pose under the database's IDs, no points.
 /// Views whose image COLMAP did not read (no ID) are left out.
 fn known_model(ws: &Workspace, views: &[KnownView], ids: &Ids) -> ColmapModel {
@@ -230,7 +240,9 @@ fn known_model(ws: &Workspace, views: &[KnownView], ids: &Ids) -> ColmapModel {
         let Some(&(image_id, camera_id)) = ids.get(&img.colmap_name) else {
             continue;
         };
-        let cam = from_engine(camera_id, &view.camera.intrinsics, &Default::default());
+        let Some(cam) = pinhole(camera_id, view) else {
+            continue;
+        };
         model.cameras.insert(camera_id, cam);
         let w2c = &view.camera.world_to_camera;
         let q = DQuat::from_mat3(&w2c.rotation()).normalize();
