@@ -23,7 +23,7 @@ use shared_types::{Camera, Progress};
 
 use super::{ColmapError, DatabaseError, VideoCameras, Workspace, args, io_err};
 use crate::colmap::{CameraModel, ColmapImage, ColmapModel, ModelFormat};
-use crate::convert::from_engine;
+use crate::convert::pinhole_from_engine;
 
 /// One image of a known, distortion-free (pinhole) camera.
 #[derive(Clone, Debug)]
@@ -204,7 +204,7 @@ fn set_known_cameras(
         let Some(&(_, camera_id)) = ids.get(&img.colmap_name) else {
             continue;
         };
-        let cam = from_engine(camera_id, &view.camera.intrinsics, &Default::default());
+        let cam = pinhole_from_engine(camera_id, &view.camera.intrinsics);
         let blob: Vec<u8> = cam.params.iter().flat_map(|p| p.to_le_bytes()).collect();
         db.execute(
             "UPDATE cameras SET model = ?1, width = ?2, height = ?3, params = ?4, \
@@ -230,7 +230,7 @@ fn known_model(ws: &Workspace, views: &[KnownView], ids: &Ids) -> ColmapModel {
         let Some(&(image_id, camera_id)) = ids.get(&img.colmap_name) else {
             continue;
         };
-        let cam = from_engine(camera_id, &view.camera.intrinsics, &Default::default());
+        let cam = pinhole_from_engine(camera_id, &view.camera.intrinsics);
         model.cameras.insert(camera_id, cam);
         let w2c = &view.camera.world_to_camera;
         let q = DQuat::from_mat3(&w2c.rotation()).normalize();
