@@ -154,6 +154,18 @@ fn orthonormalise(r: DMat3) -> DMat3 {
     crate::similarity::to_dmat3(&q)
 }
 
+/// The PINHOLE COLMAP camera of engine intrinsics (what [`from_engine`] gives for a lens
+/// without distortion, infallibly).
+pub fn pinhole_from_engine(id: u32, intr: &Intrinsics) -> ColmapCamera {
+    ColmapCamera {
+        id,
+        model: CameraModel::Pinhole,
+        width: intr.width as u64,
+        height: intr.height as u64,
+        params: vec![intr.fx, intr.fy, intr.cx, intr.cy],
+    }
+}
+
 /// The COLMAP model and parameters for engine intrinsics and distortion (PINHOLE, OPENCV,
 /// FULL_OPENCV when k3..k6 are not all zero, or OPENCV_FISHEYE). OpenCV's thin-prism and
 /// tilted-sensor terms have no COLMAP model: refused.

@@ -22,8 +22,8 @@ use rusqlite::{Connection, params};
 use shared_types::{Camera, Progress};
 
 use super::{ColmapError, DatabaseError, VideoCameras, Workspace, args, io_err};
-use crate::colmap::{CameraModel, ColmapCamera, ColmapImage, ColmapModel, ModelFormat};
-use crate::convert::from_engine;
+use crate::colmap::{CameraModel, ColmapImage, ColmapModel, ModelFormat};
+use crate::convert::pinhole_from_engine;
 
 /// One image of a known, distortion-free (pinhole) camera.
 #[derive(Clone, Debug)]
@@ -204,9 +204,7 @@ fn set_known_cameras(
         let Some(&(_, camera_id)) = ids.get(&img.colmap_name) else {
             continue;
         };
-        let Some(cam) = pinhole(camera_id, view) else {
-            continue;
-        };
+        let cam = pinhole_from_engine(camera_id, &view.camera.intrinsics);
         let blob: Vec<u8> = cam.params.iter().flat_map(|p| p.to_le_bytes()).collect();
         db.execute(
             "UPDATE cameras SET model = ?1, width = ?2, height = ?3, params = ?4, \
@@ -224,14 +222,6 @@ fn set_known_cameras(
     Ok(ids)
 }
 
-/// The view's pinhole camera in COLMAP's terms (a pinhole always converts; a failure is
-/// logged and the view left out).
-fn pinhole(camera_id: u32, view: &KnownView) -> Option<ColmapCamera> {
-    from_engine(camera_id, &view.camera.intrinsics, &Default::default())
-        .map_err(|e| tracing::warn!("triangulation: camera {}: {e}", view.camera.name))
-        .ok()
-}
-
 /// The known model: each view's camera and pose under the database's IDs, no points.
 /// Views whose image COLMAP did not read (no ID) are left out.
 fn known_model(ws: &Workspace, views: &[KnownView], ids: &Ids) -> ColmapModel {
@@ -240,9 +230,7 @@ fn known_model(ws: &Workspace, views: &[KnownView], ids: &Ids) -> ColmapModel {
         let Some(&(image_id, camera_id)) = ids.get(&img.colmap_name) else {
             continue;
         };
-        let Some(cam) = pinhole(camera_id, view) else {
-            continue;
-        };
+        let cam = pinhole_from_engine(camera_id, &view.camera.intrinsics);
         model.cameras.insert(camera_id, cam);
         let w2c = &view.camera.world_to_camera;
         let q = DQuat::from_mat3(&w2c.rotation()).normalize();
