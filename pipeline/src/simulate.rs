@@ -202,7 +202,10 @@ mod tests {
         let text = demo_settings(&scene);
         let config = crate::config::CaptureConfig::parse(&text, Path::new("capture.toml")).unwrap();
         assert_eq!(config.capture.heldout.len(), 4);
-        assert_eq!(config.init.pointmaps.as_deref(), Some(Path::new("pointmaps")));
+        assert_eq!(
+            config.init.pointmaps.as_deref(),
+            Some(Path::new("pointmaps"))
+        );
         let t = &config.train;
         assert_eq!((t.iterations, t.batch_size), (1000, 1));
         assert!(t.densify.until_iteration < t.iterations);
