@@ -541,3 +541,16 @@ fn heldout_cameras_can_be_filmed_as_videos() {
     simulate(&scene.with_heldout_videos(false), dir.path(), &NoProgress).unwrap();
     assert!(!dir.path().join("raw/heldout0").exists());
 }
+
+#[test]
+fn closest_point_on_a_triangle_in_every_region() {
+    use glam::DVec3;
+    let tri = [DVec3::ZERO, DVec3::X, DVec3::Y];
+    let c = |p: DVec3| rig::sim::closest_on_triangle(p, tri);
+    // Above the face, beyond a vertex, beside each edge.
+    assert!((c(DVec3::new(0.2, 0.3, 5.0)) - DVec3::new(0.2, 0.3, 0.0)).length() < 1e-12);
+    assert_eq!(c(DVec3::new(-1.0, -1.0, 0.0)), DVec3::ZERO);
+    assert!((c(DVec3::new(0.5, -2.0, 1.0)) - DVec3::new(0.5, 0.0, 0.0)).length() < 1e-12);
+    assert!((c(DVec3::new(-2.0, 0.5, 0.0)) - DVec3::new(0.0, 0.5, 0.0)).length() < 1e-12);
+    assert!((c(DVec3::new(1.0, 1.0, 0.0)) - DVec3::new(0.5, 0.5, 0.0)).length() < 1e-12);
+}
