@@ -6,7 +6,9 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 use calib::init::npy::{self, OutputNames, PairMaps};
-use calib::init::{InitConfig, InitInputs, Source, UsedSource, ViewImage, run_init};
+use calib::init::{
+    InitConfig, InitInputs, Moment, Source, UsedSource, ViewImage, moment_maps, run_init,
+};
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 use shared_types::{Camera, CameraSet, NoProgress};
@@ -118,11 +120,14 @@ fn gt_pair(t: &Truth, a: usize, b: usize, scale: f64) -> PairMaps {
     npy::pair_maps_from_depth(view(a), view(b), scale)
 }
 
-
 /// Distance of each point to the nearest true surface triangle.
 fn surface_distances(t: &Truth, points: &[[f32; 3]]) -> Vec<f64> {
-    let spheres = t
-        .triangles
+    triangle_distances(&t.triangles, points)
+}
+
+/// Distance of each point to the nearest of `triangles`.
+fn triangle_distances(triangles: &[[DVec3; 3]], points: &[[f32; 3]]) -> Vec<f64> {
+    let spheres = triangles
         .iter()
         .map(|tri| {
             let c = (tri[0] + tri[1] + tri[2]) / 3.0;
@@ -135,7 +140,7 @@ fn surface_distances(t: &Truth, points: &[[f32; 3]]) -> Vec<f64> {
         .map(|p| {
             let p = DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
             let mut best = f64::INFINITY;
-            for (tri, (c, r)) in t.triangles.iter().zip(&spheres) {
+            for (tri, (c, r)) in triangles.iter().zip(&spheres) {
                 if (p - *c).length() - r >= best {
                     continue;
                 }
@@ -312,4 +317,116 @@ fn all_pairs_rejected_falls_back_to_the_sparse_points() {
     assert_eq!(cloud.xyz, sparse.xyz);
     // Sparse points carry the mean time of the first frames.
     assert!(cloud.time.unwrap().iter().all(|t| (t - 0.15).abs() < 1e-6));
+}
+
+#[test]
+fn point_maps_of_several_moments_split_static_from_moving() {
+    let t = truth();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let scene = rig::sim::Scene::from_file(&root.join("fixtures/tiny.toml")).unwrap();
+    let t0 = scene.video_cameras().next().unwrap().start_time;
+    let maps_dir = t.dir.join("maps_moments");
+    // Three moments; the crate moves 0.55 m between them, the room stands still.
+    let frames = [0usize, 7, 14];
+    let mut moments = Vec::new();
+    for &frame in &frames {
+        let time = t0 + frame as f64 / 15.0;
+        let mut depths = Vec::new();
+        let mut views = Vec::new();
+        for cam in &t.cameras.cameras {
+            let r = rig::sim::render_clean(&scene, &cam.name, time).unwrap();
+            let (w, h) = (cam.intrinsics.width, cam.intrinsics.height);
+            let rgb = image::RgbImage::from_fn(w, h, |x, y| {
+                let c = r.color[(y * w + x) as usize];
+                image::Rgb(c.map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8))
+            });
+            let path = t.dir.join(format!("frames/{}_{frame:06}.png", cam.name));
+            rgb.save(&path).unwrap();
+            views.push(ViewImage {
+                camera: cam.name.clone(),
+                path,
+                time,
+            });
+            depths.push(
+                r.depth
+                    .iter()
+                    .map(|d| if d.is_finite() { *d } else { 0.0 })
+                    .collect::<Vec<_>>(),
+            );
+        }
+        let dir = moment_maps::frame_dir(&maps_dir, frame);
+        for a in 0..4 {
+            for b in a + 1..4 {
+                let (ca, cb) = (&t.cameras.cameras[a], &t.cameras.cameras[b]);
+                let maps = npy::pair_maps_from_depth((ca, &depths[a]), (cb, &depths[b]), 0.5);
+                npy::write_pair_npz(&dir, &ca.name, &cb.name, &maps, &OutputNames::default())
+                    .unwrap();
+            }
+        }
+        moments.push(Moment { frame, time, views });
+    }
+    assert_eq!(moment_maps::exported_frames(&maps_dir), frames);
+    let config = InitConfig {
+        source: Source::Npy,
+        pointmaps: Some(maps_dir),
+        max_points: usize::MAX,
+        ..InitConfig::default()
+    };
+    let inputs = InitInputs {
+        moments: moments.clone(),
+        ..inputs(t, false)
+    };
+    let out = t.dir.join("out_moments");
+    let report = run_init(&inputs, &config, &out, &NoProgress).unwrap();
+    assert_eq!(report.source, UsedSource::Npy);
+    assert_eq!(report.pairs.len(), 18);
+    assert!(report.pairs.iter().all(|p| p.accepted && p.frame.is_some()));
+    let s = report.statics;
+    eprintln!("{s:?}");
+    assert!(s.static_points > 1000 && s.dynamic_points > 100, "{s:?}");
+    assert!(s.dynamic_points < s.static_points / 2, "{s:?}");
+
+    let cloud = shared_types::points::read_points_ply(&out.join("points.ply")).unwrap();
+    let (times, spans) = (cloud.time.unwrap(), cloud.time_span.unwrap());
+    let clip = moments[2].time - moments[0].time;
+    let surfaces: Vec<_> = moments
+        .iter()
+        .map(|m| rig::sim::surface_triangles(&scene, m.time))
+        .collect();
+    let voxel = report.voxel;
+    let (mut statics, mut moving) = (vec![], vec![]);
+    for ((p, time), span) in cloud.xyz.iter().zip(&times).zip(&spans) {
+        if *span > 0.0 {
+            statics.push(*p);
+        } else {
+            let k = moments
+                .iter()
+                .position(|m| (m.time as f32 - time).abs() < 1e-4)
+                .unwrap_or_else(|| panic!("moving point at {time}, not at a moment"));
+            moving.push((k, *p));
+        }
+    }
+    // Static points are on the surfaces at every moment, most over the whole clip.
+    for tris in &surfaces {
+        let d = triangle_distances(tris, &statics);
+        assert!(quantile(d, 0.9) < voxel, "static points off a surface");
+    }
+    let whole = spans
+        .iter()
+        .filter(|s| (**s as f64 - clip).abs() < 1e-4)
+        .count();
+    assert!(
+        whole as f64 > 0.5 * statics.len() as f64,
+        "{whole} of {}",
+        statics.len()
+    );
+    // Moving points are on the surfaces of their moment, and most are off them at the
+    // other moments (they are on the crate, which has moved).
+    for (k, tris) in surfaces.iter().enumerate() {
+        let own: Vec<_> = moving.iter().filter(|m| m.0 == k).map(|m| m.1).collect();
+        let others: Vec<_> = moving.iter().filter(|m| m.0 != k).map(|m| m.1).collect();
+        assert!(!own.is_empty(), "moment {k} has no moving point");
+        assert!(quantile(triangle_distances(tris, &own), 0.9) < voxel);
+        assert!(quantile(triangle_distances(tris, &others), 0.5) > 5.0 * voxel);
+    }
 }

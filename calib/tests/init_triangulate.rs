@@ -102,7 +102,6 @@ fn moments(c: &Capture) -> Vec<Moment> {
         .collect()
 }
 
-
 fn surface_distance(triangles: &[[DVec3; 3]], p: DVec3) -> f64 {
     triangles
         .iter()

@@ -254,13 +254,6 @@ fn demo(
         ));
         let scene = simulate::demo_scene()?;
         simulate::simulate_into(&scene, out_dir, reporter)?;
-        // No MASt3R weights ship with the tool: the demo stands in for the point-map
-        // model with the simulator's true depth (docs/init.md).
-        let maps = simulate::write_truth_pointmaps(out_dir)?;
-        reporter.say(&format!(
-            "point maps of the simulated scene written to {} (they stand in for a MASt3R export)",
-            maps.display()
-        ));
         let settings = out_dir.join(pipeline::layout::CONFIG_FILE);
         shared_types::atomic::write_atomic(&settings, simulate::demo_settings(&scene).as_bytes())
             .with_context(|| format!("cannot write {}", settings.display()))?;
@@ -268,6 +261,35 @@ fn demo(
     let (capture, mut config) = open_capture(out_dir)?;
     if let Some(b) = backend {
         config.engine.backend = b;
+    }
+    if !out_dir.join("pointmaps").exists() {
+        // No MASt3R weights ship with the tool: the demo stands in for the point-map model
+        // with the simulator's true depth at the init moments (docs/init.md), which are
+        // aligned frames: the stages up to `frames` run first.
+        let to_frames = Selection {
+            to: Some("frames".into()),
+            ..Selection::default()
+        };
+        let summary = stages::pipeline().run(&capture, &config, &to_frames, reporter)?;
+        if summary.failed.is_some() {
+            report_summary(&summary, reporter);
+            return Ok(ExitCode::FAILURE);
+        }
+        let index = rig::frames::FramesIndex::read_json(
+            &capture.work_dir().join("frames").join("frames.json"),
+        )?;
+        let moments = stages::init::moment_frames(index.frames.len(), config.init.moments.max(1));
+        let frames: Vec<usize> = moments.iter().map(|&i| index.frames[i].index).collect();
+        let maps = simulate::write_truth_moment_pointmaps(
+            out_dir,
+            &simulate::demo_scene()?,
+            &index,
+            &frames,
+        )?;
+        reporter.say(&format!(
+            "point maps of the simulated scene at aligned frames {frames:?} written to {} (they stand in for a MASt3R export)",
+            maps.display()
+        ));
     }
     let summary = stages::pipeline().run(&capture, &config, &Selection::default(), reporter)?;
     report_summary(&summary, reporter);

@@ -110,15 +110,9 @@ fn truth_video_cameras(
 pub fn write_truth_pointmaps(capture_dir: &Path) -> anyhow::Result<std::path::PathBuf> {
     use calib::init::npy;
     let (path, cameras) = truth_video_cameras(capture_dir)?;
+    check_pinhole(&path, &cameras)?;
     let mut depths = Vec::new();
     for c in &cameras {
-        if !c.distortion.is_none() {
-            bail!(
-                "{}: camera {} has a lens distortion; true point maps are written only for pinhole cameras",
-                path.display(),
-                c.name
-            );
-        }
         let file = capture_dir.join(format!("groundtruth/depth/{}.npy", c.name));
         let depth = npy::read_npy(&file)?;
         let want = [c.intrinsics.height as usize, c.intrinsics.width as usize];
@@ -132,7 +126,93 @@ pub fn write_truth_pointmaps(capture_dir: &Path) -> anyhow::Result<std::path::Pa
         depths.push(depth.data);
     }
     let out = capture_dir.join("pointmaps");
-    fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    write_pairs(&out, &cameras, &depths)?;
+    Ok(out)
+}
+
+/// Like [`write_truth_pointmaps`], at several moments: the true depth of each camera's
+/// frame of each aligned frame in `frames` (of the frames stage's `index`), rendered
+/// from `scene`, as `pointmaps/NNNNNN/a__b.npz`. The folder is built under a temporary
+/// name and renamed when complete; an existing `pointmaps/` is an error.
+pub fn write_truth_moment_pointmaps(
+    capture_dir: &Path,
+    scene: &rig::sim::Scene,
+    index: &rig::frames::FramesIndex,
+    frames: &[usize],
+) -> anyhow::Result<std::path::PathBuf> {
+    let (path, truth) = truth_video_cameras(capture_dir)?;
+    check_pinhole(&path, &truth)?;
+    let out = capture_dir.join("pointmaps");
+    if out.exists() {
+        bail!("{} already exists; not overwriting it", out.display());
+    }
+    let partial = capture_dir.join(".pointmaps.partial");
+    build_fresh(&partial, |partial| {
+        for &frame in frames {
+            let aligned = index
+                .frames
+                .iter()
+                .find(|f| f.index == frame)
+                .with_context(|| format!("aligned frame {frame} is not in the frames index"))?;
+            let mut cameras = Vec::new();
+            let mut depths = Vec::new();
+            for (cam, view) in index.cameras.iter().zip(&aligned.views) {
+                let camera = truth
+                    .iter()
+                    .find(|c| c.name == cam.name)
+                    .with_context(|| format!("{}: no camera {}", path.display(), cam.name))?;
+                let t = scene_time(scene, &cam.name, view.source_frame)?;
+                let img = rig::sim::render_clean(scene, &cam.name, t)
+                    .with_context(|| format!("the scene has no camera {}", cam.name))?;
+                let depth = img
+                    .depth
+                    .iter()
+                    .map(|&d| if d.is_finite() { d } else { 0.0 });
+                cameras.push(camera.clone());
+                depths.push(depth.collect());
+            }
+            let dir = calib::init::moment_maps::frame_dir(partial, frame);
+            write_pairs(&dir, &cameras, &depths)?;
+        }
+        Ok(())
+    })?;
+    fs::rename(&partial, &out).with_context(|| format!("cannot move {}", out.display()))?;
+    Ok(out)
+}
+
+/// Scene time of the `source_frame`-th frame a camera recorded (its dropped frames skipped).
+fn scene_time(scene: &rig::sim::Scene, camera: &str, source_frame: usize) -> anyhow::Result<f64> {
+    let cam = scene
+        .cameras
+        .iter()
+        .find(|c| c.camera.name == camera)
+        .with_context(|| format!("the scene has no camera {camera}"))?;
+    let frame = (0..scene.frames_per_camera())
+        .filter(|f| !cam.dropped.contains(f))
+        .nth(source_frame)
+        .with_context(|| format!("camera {camera} recorded no frame {source_frame}"))?;
+    Ok(cam.start_time + frame as f64 / scene.fps())
+}
+
+fn check_pinhole(path: &Path, cameras: &[shared_types::Camera]) -> anyhow::Result<()> {
+    match cameras.iter().find(|c| !c.distortion.is_none()) {
+        Some(c) => bail!(
+            "{}: camera {} has a lens distortion; true point maps are written only for pinhole cameras",
+            path.display(),
+            c.name
+        ),
+        None => Ok(()),
+    }
+}
+
+/// Every pair's true point maps from the cameras' depths, into `out`.
+fn write_pairs(
+    out: &Path,
+    cameras: &[shared_types::Camera],
+    depths: &[Vec<f32>],
+) -> anyhow::Result<()> {
+    use calib::init::npy;
+    fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     for a in 0..cameras.len() {
         for b in a + 1..cameras.len() {
             let maps = npy::pair_maps_from_depth(
@@ -141,7 +221,7 @@ pub fn write_truth_pointmaps(capture_dir: &Path) -> anyhow::Result<std::path::Pa
                 1.0,
             );
             npy::write_pair_npz(
-                &out,
+                out,
                 &cameras[a].name,
                 &cameras[b].name,
                 &maps,
@@ -150,7 +230,7 @@ pub fn write_truth_pointmaps(capture_dir: &Path) -> anyhow::Result<std::path::Pa
             .with_context(|| format!("cannot write point maps into {}", out.display()))?;
         }
     }
-    Ok(out)
+    Ok(())
 }
 
 /// Write the simulator's true video cameras (`groundtruth/cameras.json`, `cam*`) as an

@@ -23,7 +23,14 @@ impl Intrinsics {
     /// Intrinsics for a horizontal field of view in degrees, principal point at the centre.
     pub fn from_hfov(width: u32, height: u32, hfov_deg: f64) -> Self {
         let fx = 0.5 * width as f64 / (0.5 * hfov_deg.to_radians()).tan();
-        Self { width, height, fx, fy: fx, cx: 0.5 * width as f64, cy: 0.5 * height as f64 }
+        Self {
+            width,
+            height,
+            fx,
+            fy: fx,
+            cx: 0.5 * width as f64,
+            cy: 0.5 * height as f64,
+        }
     }
 
     /// The same camera for an image resized to `width × height` (pixel-centre convention:
@@ -31,7 +38,14 @@ impl Intrinsics {
     pub fn scaled_to(&self, width: u32, height: u32) -> Self {
         let sx = width as f64 / self.width as f64;
         let sy = height as f64 / self.height as f64;
-        Self { width, height, fx: self.fx * sx, fy: self.fy * sy, cx: self.cx * sx, cy: self.cy * sy }
+        Self {
+            width,
+            height,
+            fx: self.fx * sx,
+            fy: self.fy * sy,
+            cx: self.cx * sx,
+            cy: self.cy * sy,
+        }
     }
 
     /// Normalised image coordinates (x/z, y/z) to pixels.
@@ -107,7 +121,8 @@ fn tilt_matrix(tau_x: f64, tau_y: f64) -> DMat3 {
     let rot_y = DMat3::from_cols_array(&[cy, 0.0, -sy, 0.0, 1.0, 0.0, sy, 0.0, cy]).transpose();
     let rot_xy = rot_y * rot_x;
     let (r02, r12, r22) = (rot_xy.z_axis.x, rot_xy.z_axis.y, rot_xy.z_axis.z);
-    let proj_z = DMat3::from_cols_array(&[r22, 0.0, -r02, 0.0, r22, -r12, 0.0, 0.0, 1.0]).transpose();
+    let proj_z =
+        DMat3::from_cols_array(&[r22, 0.0, -r02, 0.0, r22, -r12, 0.0, 0.0, 1.0]).transpose();
     proj_z * rot_xy
 }
 
@@ -159,10 +174,28 @@ impl Distortion {
     pub fn coefficients(&self) -> Vec<f64> {
         match *self {
             Distortion::None => Vec::new(),
-            Distortion::Opencv { k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tau_x, tau_y } => {
+            Distortion::Opencv {
+                k1,
+                k2,
+                p1,
+                p2,
+                k3,
+                k4,
+                k5,
+                k6,
+                s1,
+                s2,
+                s3,
+                s4,
+                tau_x,
+                tau_y,
+            } => {
                 let all = [k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tau_x, tau_y];
                 let used = all.iter().rposition(|&c| c != 0.0).map_or(0, |i| i + 1);
-                let len = [5, 8, 12, 14].into_iter().find(|&n| n >= used).unwrap_or(14);
+                let len = [5, 8, 12, 14]
+                    .into_iter()
+                    .find(|&n| n >= used)
+                    .unwrap_or(14);
                 all[..len].to_vec()
             }
             Distortion::Fisheye { k1, k2, k3, k4 } => vec![k1, k2, k3, k4],
@@ -174,7 +207,22 @@ impl Distortion {
     pub fn distort(&self, n: DVec2) -> DVec2 {
         match *self {
             Distortion::None => n,
-            Distortion::Opencv { k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tau_x, tau_y } => {
+            Distortion::Opencv {
+                k1,
+                k2,
+                p1,
+                p2,
+                k3,
+                k4,
+                k5,
+                k6,
+                s1,
+                s2,
+                s3,
+                s4,
+                tau_x,
+                tau_y,
+            } => {
                 let (x, y) = (n.x, n.y);
                 let r2 = x * x + y * y;
                 let r4 = r2 * r2;
@@ -218,13 +266,18 @@ impl Distortion {
                 break;
             }
             let h = 1e-7;
-            let jx = (self.distort(n + DVec2::new(h, 0.0)) - self.distort(n - DVec2::new(h, 0.0))) / (2.0 * h);
-            let jy = (self.distort(n + DVec2::new(0.0, h)) - self.distort(n - DVec2::new(0.0, h))) / (2.0 * h);
+            let jx = (self.distort(n + DVec2::new(h, 0.0)) - self.distort(n - DVec2::new(h, 0.0)))
+                / (2.0 * h);
+            let jy = (self.distort(n + DVec2::new(0.0, h)) - self.distort(n - DVec2::new(0.0, h)))
+                / (2.0 * h);
             let det = jx.x * jy.y - jy.x * jx.y;
             if det.abs() < 1e-18 {
                 break;
             }
-            let step = DVec2::new((jy.y * f.x - jy.x * f.y) / det, (-jx.y * f.x + jx.x * f.y) / det);
+            let step = DVec2::new(
+                (jy.y * f.x - jy.x * f.y) / det,
+                (-jx.y * f.x + jx.x * f.y) / det,
+            );
             n -= step;
         }
         n
@@ -239,13 +292,19 @@ pub struct WorldToCamera {
 }
 
 impl WorldToCamera {
-    pub const IDENTITY: Self =
-        Self { rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], translation: [0.0; 3] };
+    pub const IDENTITY: Self = Self {
+        rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        translation: [0.0; 3],
+    };
 
     pub fn from_parts(rotation: DMat3, translation: DVec3) -> Self {
         let r = rotation.transpose(); // columns of the transpose are the rows
         Self {
-            rotation: [r.x_axis.to_array(), r.y_axis.to_array(), r.z_axis.to_array()],
+            rotation: [
+                r.x_axis.to_array(),
+                r.y_axis.to_array(),
+                r.z_axis.to_array(),
+            ],
             translation: translation.to_array(),
         }
     }
@@ -306,7 +365,9 @@ impl Camera {
 
     /// World-space ray direction (unit) through a pixel (distortion removed).
     pub fn pixel_ray(&self, pixel: DVec2) -> DVec3 {
-        let n = self.distortion.undistort(self.intrinsics.to_normalised(pixel));
+        let n = self
+            .distortion
+            .undistort(self.intrinsics.to_normalised(pixel));
         (self.world_to_camera.rotation().transpose() * DVec3::new(n.x, n.y, 1.0)).normalize()
     }
 }
@@ -324,7 +385,10 @@ impl CameraSet {
     pub const VERSION: u32 = 1;
 
     pub fn new(cameras: Vec<Camera>) -> Self {
-        Self { version: Self::VERSION, cameras }
+        Self {
+            version: Self::VERSION,
+            cameras,
+        }
     }
 
     pub fn get(&self, name: &str) -> Option<&Camera> {
@@ -356,10 +420,16 @@ mod tests {
         let models = [
             Distortion::radial_tangential(-0.2, 0.05, 0.001, -0.002, 0.0),
             Distortion::from_opencv_coefficients(&[
-                -0.2, 0.05, 0.001, -0.002, 0.01, 0.1, -0.02, 0.03, 1e-3, -2e-4, 5e-4, 1e-4, 0.02, -0.01,
+                -0.2, 0.05, 0.001, -0.002, 0.01, 0.1, -0.02, 0.03, 1e-3, -2e-4, 5e-4, 1e-4, 0.02,
+                -0.01,
             ])
             .unwrap(),
-            Distortion::Fisheye { k1: 0.05, k2: -0.01, k3: 0.002, k4: 0.0 },
+            Distortion::Fisheye {
+                k1: 0.05,
+                k2: -0.01,
+                k3: 0.002,
+                k4: 0.0,
+            },
         ];
         for d in models {
             for &(x, y) in &[(0.0, 0.0), (0.3, -0.2), (-0.5, 0.4), (0.01, 0.6)] {
@@ -376,8 +446,12 @@ mod tests {
             name: "cam0".into(),
             intrinsics: Intrinsics::from_hfov(640, 480, 60.0),
             distortion: Distortion::radial_tangential(0.1, 0.0, 0.0, 0.0, 0.0),
-            world_to_camera: WorldToCamera::look_at(DVec3::new(0.0, -3.0, 1.0), DVec3::ZERO, DVec3::Z)
-                .unwrap(),
+            world_to_camera: WorldToCamera::look_at(
+                DVec3::new(0.0, -3.0, 1.0),
+                DVec3::ZERO,
+                DVec3::Z,
+            )
+            .unwrap(),
         };
         let set = CameraSet::new(vec![cam]);
         let text = serde_json::to_string_pretty(&set).unwrap();

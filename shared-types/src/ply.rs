@@ -67,7 +67,9 @@ impl Scalar {
             Self::I32 => i32::from_le_bytes(a4()) as f32,
             Self::U32 => u32::from_le_bytes(a4()) as f32,
             Self::F32 => f32::from_le_bytes(a4()),
-            Self::F64 => f64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]) as f32,
+            Self::F64 => {
+                f64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]) as f32
+            }
         }
     }
 
@@ -113,7 +115,12 @@ impl PlyTable {
     /// A table whose columns are all `float`.
     pub fn floats(comments: Vec<String>, names: Vec<String>, data: Vec<f32>) -> Self {
         let types = vec![Scalar::F32; names.len()];
-        Self { comments, names, types, data }
+        Self {
+            comments,
+            names,
+            types,
+            data,
+        }
     }
 
     /// Number of rows (vertices).
@@ -171,7 +178,8 @@ impl PlyTable {
             .windows(END.len())
             .position(|w| w == END)
             .ok_or_else(|| layout("no `end_header` line"))?;
-        let header = std::str::from_utf8(&bytes[..end]).map_err(|_| layout("header is not text"))?;
+        let header =
+            std::str::from_utf8(&bytes[..end]).map_err(|_| layout("header is not text"))?;
         let mut lines = header.lines();
         if lines.next().map(str::trim) != Some("ply") {
             return Err(layout("missing `ply` magic"));
@@ -188,7 +196,9 @@ impl PlyTable {
             match w.as_slice() {
                 ["format", "binary_little_endian", _] => format_ok = true,
                 ["format", f, ..] => {
-                    return Err(PlyFormatError::Layout(format!("format `{f}` is not supported")));
+                    return Err(PlyFormatError::Layout(format!(
+                        "format `{f}` is not supported"
+                    )));
                 }
                 ["element", "vertex", n] => {
                     if count.is_some() {
@@ -225,7 +235,10 @@ impl PlyTable {
         let body = &bytes[end + END.len()..];
         let expected = rows.saturating_mul(stride as u64);
         if (body.len() as u64) < expected {
-            return Err(PlyFormatError::Truncated { expected, found: body.len() as u64 });
+            return Err(PlyFormatError::Truncated {
+                expected,
+                found: body.len() as u64,
+            });
         }
         let rows = rows as usize;
         let mut data = Vec::with_capacity(rows * names.len());
@@ -244,7 +257,12 @@ impl PlyTable {
                 }
             }
         }
-        Ok(Self { comments, names, types, data })
+        Ok(Self {
+            comments,
+            names,
+            types,
+            data,
+        })
     }
 }
 
@@ -266,7 +284,10 @@ mod tests {
         assert_eq!(back.comment_value("hello"), Some("1 2"));
         assert!(matches!(
             PlyTable::decode(&bytes[..bytes.len() - 1]),
-            Err(PlyFormatError::Truncated { expected: 16, found: 15 })
+            Err(PlyFormatError::Truncated {
+                expected: 16,
+                found: 15
+            })
         ));
         assert!(PlyTable::decode(b"ply\nformat ascii 1.0\nend_header\n").is_err());
         let list = b"ply\nformat binary_little_endian 1.0\nelement vertex 0\nproperty list uchar int i\nend_header\n";
@@ -301,7 +322,9 @@ mod tests {
         let end = bytes.len() - 2 * stride;
         assert_eq!(PlyTable::decode(&bytes).unwrap(), t);
         let mut with_face = bytes[..end - "end_header\n".len()].to_vec();
-        with_face.extend_from_slice(b"element face 0\nproperty list uchar int vertex_indices\nend_header\n");
+        with_face.extend_from_slice(
+            b"element face 0\nproperty list uchar int vertex_indices\nend_header\n",
+        );
         with_face.extend_from_slice(&bytes[end..]);
         assert_eq!(PlyTable::decode(&with_face).unwrap().data, t.data);
     }

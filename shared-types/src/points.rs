@@ -48,7 +48,10 @@ pub fn read_points_ply(path: &Path) -> Result<PointCloud, PlyError> {
         path: path.into(),
         source,
     })?;
-    let format = |reason: String| PlyError::Format { path: path.into(), reason };
+    let format = |reason: String| PlyError::Format {
+        path: path.into(),
+        reason,
+    };
     let table = PlyTable::decode(&bytes).map_err(|e| match e {
         PlyFormatError::Layout(reason) => format(reason),
         PlyFormatError::Truncated { expected, found } => PlyError::Truncated {
@@ -57,7 +60,11 @@ pub fn read_points_ply(path: &Path) -> Result<PointCloud, PlyError> {
             found,
         },
     })?;
-    let need = |name: &str| table.column(name).ok_or_else(|| format(format!("no `{name}` property")));
+    let need = |name: &str| {
+        table
+            .column(name)
+            .ok_or_else(|| format(format!("no `{name}` property")))
+    };
     let xyz = [need("x")?, need("y")?, need("z")?];
     let rgb = [need("red")?, need("green")?, need("blue")?];
     let t = table.column("t");
@@ -65,7 +72,10 @@ pub fn read_points_ply(path: &Path) -> Result<PointCloud, PlyError> {
     let rows = table.data.chunks_exact(table.names.len().max(1));
     Ok(PointCloud {
         xyz: rows.clone().map(|r| xyz.map(|i| r[i])).collect(),
-        rgb: rows.clone().map(|r| rgb.map(|i| r[i].clamp(0.0, 255.0) as u8)).collect(),
+        rgb: rows
+            .clone()
+            .map(|r| rgb.map(|i| r[i].clamp(0.0, 255.0) as u8))
+            .collect(),
         time: t.map(|i| rows.clone().map(|r| r[i]).collect()),
         time_span: span.map(|i| rows.map(|r| r[i]).collect()),
     })
@@ -74,8 +84,17 @@ pub fn read_points_ply(path: &Path) -> Result<PointCloud, PlyError> {
 /// The PLY table of `cloud` (`x y z` float, `red green blue` uchar, `t` and `time_span`
 /// float when present), with `comments` in its header.
 pub fn points_table(cloud: &PointCloud, comments: Vec<String>) -> PlyTable {
-    let mut names: Vec<String> = ["x", "y", "z", "red", "green", "blue"].map(String::from).to_vec();
-    let mut types = vec![Scalar::F32, Scalar::F32, Scalar::F32, Scalar::U8, Scalar::U8, Scalar::U8];
+    let mut names: Vec<String> = ["x", "y", "z", "red", "green", "blue"]
+        .map(String::from)
+        .to_vec();
+    let mut types = vec![
+        Scalar::F32,
+        Scalar::F32,
+        Scalar::F32,
+        Scalar::U8,
+        Scalar::U8,
+        Scalar::U8,
+    ];
     if cloud.time.is_some() {
         names.push("t".into());
         types.push(Scalar::F32);
@@ -95,13 +114,22 @@ pub fn points_table(cloud: &PointCloud, comments: Vec<String>) -> PlyTable {
             data.push(s.get(i).copied().unwrap_or(0.0));
         }
     }
-    PlyTable { comments, names, types, data }
+    PlyTable {
+        comments,
+        names,
+        types,
+        data,
+    }
 }
 
 /// Write `cloud` as a point-cloud PLY, atomically.
 pub fn write_points_ply(cloud: &PointCloud, path: &Path) -> Result<(), PlyError> {
-    crate::atomic::write_atomic(path, &points_table(cloud, Vec::new()).encode())
-        .map_err(|source| PlyError::Io { path: path.into(), source })
+    crate::atomic::write_atomic(path, &points_table(cloud, Vec::new()).encode()).map_err(|source| {
+        PlyError::Io {
+            path: path.into(),
+            source,
+        }
+    })
 }
 
 #[cfg(test)]
@@ -124,7 +152,10 @@ mod tests {
             write_points_ply(&c, &p).unwrap();
             let bytes = std::fs::read(&p).unwrap();
             let header = String::from_utf8_lossy(&bytes[..bytes.len().min(300)]).into_owned();
-            assert_eq!(header.contains("property float time_span"), time_span.is_some());
+            assert_eq!(
+                header.contains("property float time_span"),
+                time_span.is_some()
+            );
             assert_eq!(read_points_ply(&p).unwrap(), c);
         }
     }

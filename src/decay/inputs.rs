@@ -8,8 +8,8 @@
 //! are detached, see docs/decay.md).
 
 use super::DecayInputs;
-use crate::model::Gaussians;
 use crate::math::numerics::{Real, normalise_quat, sigmoid};
+use crate::model::Gaussians;
 
 /// Smallest standard deviation used by the z-scoring (constant columns map to 0).
 const MIN_STD: f64 = 1e-6;

@@ -23,8 +23,8 @@ pub mod mlp;
 pub mod variants;
 pub mod visibility;
 
-use crate::model::Gaussians;
 use crate::math::numerics::sigmoid;
+use crate::model::Gaussians;
 use crate::train::{TrainHooks, View};
 use mlp::{Mlp, MlpAdam, MlpCache};
 use serde::{Deserialize, Serialize};

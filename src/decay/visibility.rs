@@ -9,10 +9,10 @@
 
 use super::VisibilityMode;
 use crate::Camera;
-use crate::model::Gaussians;
 use crate::math::numerics::Real;
 use crate::math::project::PinholeCamera;
 use crate::math::slice::slice;
+use crate::model::Gaussians;
 use rayon::prelude::*;
 
 /// `true` for each Gaussian of `model` visible from `camera` at model time `t`.

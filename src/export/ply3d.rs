@@ -5,8 +5,8 @@
 //! opacity is a logit, scales are logs, the quaternion is `w, x, y, z`.
 
 use super::bake::{Frame3d, SH_COEFFS, Splat3d};
-use shared_types::ply::PlyTable;
 use super::{ExportError, write_atomic};
+use shared_types::ply::PlyTable;
 use std::path::Path;
 
 const REST: usize = SH_COEFFS - 1;

@@ -14,9 +14,9 @@
 //! - header comments `colour_capacity S T`, `colour_active S T` and
 //!   `time_mapping START_SECONDS UNITS_PER_SECOND DURATION` carry the rest.
 
-use shared_types::ply::PlyTable;
 use super::{ExportError, write_atomic};
 use crate::model::{ColourDegrees, Gaussians, TimeMapping};
+use shared_types::ply::PlyTable;
 use std::path::Path;
 
 /// Property names for a model whose colour has `k` coefficients per channel.

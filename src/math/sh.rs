@@ -3,8 +3,8 @@
 //! cos(4πΔt/T)` with `Δt = μt − t`. RGB = 0.5 + Σ coeff·Y·ψ, clamped at 0. Forward and
 //! backward; the direction gradient is the analytic gradient of the basis.
 
-use serde::{Deserialize, Serialize};
 use crate::math::numerics::{Real, normalise3, normalise3_backward};
+use serde::{Deserialize, Serialize};
 
 /// Highest spatial spherical-harmonic degree (16 basis functions).
 pub const MAX_SPATIAL_DEGREE: u32 = 3;

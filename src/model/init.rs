@@ -2,8 +2,8 @@
 //! scales from the mean squared distance to the 3 nearest neighbours (a k-d tree), time
 //! uniform over the sequence when the cloud has none, opacity 0.1, DC colour from rgb.
 
-use crate::model::{ColourDegrees, Gaussians, TimeMapping};
 use crate::math::numerics::logit;
+use crate::model::{ColourDegrees, Gaussians, TimeMapping};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use std::num::NonZero;
 

@@ -81,7 +81,6 @@ pub struct Gaussians<F: Real = f32> {
     pub time: TimeMapping,
 }
 
-
 impl<F: Real> Gaussians<F> {
     /// An empty model with room for colour of `capacity` degrees.
     pub fn new(capacity: ColourDegrees, time: TimeMapping) -> Self {

@@ -4,14 +4,14 @@
 //! Slow by design; it must never be used outside checks.
 
 use crate::Camera;
-use crate::render::cpu::blend::{ALPHA_MAX, ALPHA_MIN, TRANSMITTANCE_MIN};
-use crate::model::Gaussians;
 use crate::math::numerics::{MIN_TIME_VARIANCE, scale_from_log, sigmoid};
 use crate::math::project::{EXTENT_SIGMAS, JACOBIAN_GUARD_BAND, LOW_PASS};
-use crate::render::{RenderError, RenderOptions};
 use crate::math::rotation4d::rotation;
 use crate::math::sh::{ColourInput, colour};
 use crate::math::slice::TEMPORAL_CUTOFF;
+use crate::model::Gaussians;
+use crate::render::cpu::blend::{ALPHA_MAX, ALPHA_MIN, TRANSMITTANCE_MIN};
+use crate::render::{RenderError, RenderOptions};
 
 /// Output of the reference renderer (same layout as [`crate::Rendered`]).
 #[derive(Clone, Debug)]

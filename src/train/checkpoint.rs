@@ -2,9 +2,9 @@
 //! Adam moments, densification statistics, hook state). Together with the per-iteration
 //! RNG streams (seeded from `(seed, iteration)`) they make a resumed run bit-identical.
 
-use crate::train::densify::DensifyStats;
 use crate::model::Gaussians;
 use crate::model::file::{ModelFileError, load_model, save_model};
+use crate::train::densify::DensifyStats;
 use crate::train::optim::{Adam, ParamBuffers};
 
 use std::path::{Path, PathBuf};

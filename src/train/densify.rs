@@ -4,10 +4,10 @@
 //! sources (`Some(old index)` or `None` for fresh moments) that is applied to the model's
 //! companions (Adam moments, statistics) the same way, so they never drift apart.
 
-use crate::model::Gaussians;
 use crate::math::numerics::{logit, sigmoid};
-use crate::train::optim::Adam;
 use crate::math::rotation4d::rotation;
+use crate::model::Gaussians;
+use crate::train::optim::Adam;
 use rand_chacha::ChaCha8Rng;
 use rand_core::Rng;
 use serde::{Deserialize, Serialize};

@@ -17,13 +17,13 @@ pub mod regularise;
 pub use crate::model::init::PointCloud;
 pub use dataset::{Dataset, FrameSource, ImageLoadError, ImageU8, View};
 
-use crate::train::densify::{DensifyConfig, DensifyStats, densify_and_prune, reset_opacity};
-use crate::model::init::{InitError, InitOptions, gaussians_from_points};
 use crate::metrics::{mse, psnr_from_mse};
-use crate::train::loss::image_loss;
+use crate::model::init::{InitError, InitOptions, gaussians_from_points};
 use crate::model::{ColourDegrees, Gaussians};
-use crate::train::optim::{Adam, LearningRates, colour_degrees_at};
 use crate::render::{Gradients, ImageGradients, RenderBackend, RenderError, RenderOptions};
+use crate::train::densify::{DensifyConfig, DensifyStats, densify_and_prune, reset_opacity};
+use crate::train::loss::image_loss;
+use crate::train::optim::{Adam, LearningRates, colour_degrees_at};
 use crate::{Progress, save_model};
 use checkpoint::{Checkpoint, CheckpointError};
 use log::{LogRow, TrainLog};

@@ -12,6 +12,7 @@
 //! itself (frames index, stage manifests): the caller passes plain inputs.
 
 pub mod fuse;
+pub mod moment_maps;
 pub mod moments;
 pub mod npy;
 pub mod onnx;
@@ -212,6 +213,9 @@ pub enum UsedSource {
 pub struct PairReport {
     pub first: String,
     pub second: String,
+    /// Aligned frame of the pair's images, when point maps of several moments were used.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame: Option<usize>,
     pub accepted: bool,
     /// Why it was rejected (`None` when accepted).
     pub reason: Option<String>,
@@ -388,24 +392,67 @@ pub fn run_init(
     let mut pairs = Vec::new();
     let mut fused: Vec<FusedPoint> = Vec::new();
     let mut used = None;
+    let mut moment_reports = Vec::new();
+    let mut statics = StaticCounts::default();
+    let mut raw_points = None;
+    // Point maps of several moments are split into static and moving points (and already
+    // downsampled); one moment's are downsampled below.
+    let mut split = false;
     if let Some((kind, path)) = pointmap_source {
-        let views = load_views(inputs, config.fit)?;
-        let (p, pts) = pointmap_points(kind, &path, &views, &sparse_xyz, config, progress)?;
-        pairs = p;
-        if pts.is_empty() {
+        let sets = moment_maps::sets(kind, &path, inputs, config);
+        let model = match kind {
+            UsedSource::Onnx => Some(PointMapModel::load(&path, &config.model_config())?),
+            _ => None,
+        };
+        let mut timed = Vec::new();
+        for (k, set) in sets.iter().enumerate() {
+            let views = load_views(&inputs.cameras, set.views, config.fit)?;
+            let (mut p, pts) = pointmap_points(
+                kind,
+                &set.dir,
+                model.as_ref(),
+                &views,
+                &sparse_xyz,
+                config,
+                progress,
+            )?;
+            p.iter_mut().for_each(|r| r.frame = set.frame);
+            pairs.extend(p);
+            if sets.len() == 1 {
+                fused = pts;
+            } else {
+                timed.extend(moment_maps::timed(&fuse::voxel_downsample(&pts, voxel), k));
+            }
+        }
+        if sets.len() > 1 && !timed.is_empty() {
+            let (pts, counts) = statics::split_static(
+                &timed,
+                &sparse_extra(config, &sparse_xyz, &sparse.rgb),
+                config.static_radius.max(0.0) * radius,
+                voxel,
+                moment_maps::clip(&sets),
+            );
+            tracing::info!(
+                "point init: point maps of {} moments: {} static points, {} moving points",
+                sets.len(),
+                counts.static_points,
+                counts.dynamic_points
+            );
+            raw_points = Some(timed.len() + counts.sparse_merged);
+            statics = counts;
+            fused = pts;
+            split = true;
+        }
+        if fused.is_empty() {
             fall(format!(
                 "no usable point-map pair ({} of {} rejected); using the sparse COLMAP points",
                 pairs.iter().filter(|p| !p.accepted).count(),
                 pairs.len()
             ));
         } else {
-            fused = pts;
             used = Some(kind);
         }
     }
-    let mut moment_reports = Vec::new();
-    let mut statics = StaticCounts::default();
-    let mut raw_points = None;
     if used.is_none() && triangulate {
         let chosen = &inputs.moments[..inputs.moments.len().min(config.moments)];
         let binary = find_colmap(config.colmap.as_deref());
@@ -438,15 +485,7 @@ pub fn run_init(
                         chosen.len()
                     ));
                 } else {
-                    let extra: Vec<(DVec3, [f32; 3])> = if config.merge_sparse {
-                        sparse_xyz
-                            .iter()
-                            .zip(&sparse.rgb)
-                            .map(|(p, c)| (*p, c.map(f32::from)))
-                            .collect()
-                    } else {
-                        Vec::new()
-                    };
+                    let extra = sparse_extra(config, &sparse_xyz, &sparse.rgb);
                     let clip = (
                         chosen.iter().map(|m| m.time).fold(f64::INFINITY, f64::min),
                         chosen.iter().map(|m| m.time).fold(f64::NEG_INFINITY, f64::max),
@@ -496,7 +535,7 @@ pub fn run_init(
     }
     let points_before = raw_points.unwrap_or(fused.len());
     let (source, downsampled) = match used {
-        Some(s @ (UsedSource::Onnx | UsedSource::Npy)) => {
+        Some(s @ (UsedSource::Onnx | UsedSource::Npy)) if !split => {
             (s, fuse::voxel_downsample(&fused, voxel))
         }
         Some(s) => (s, fused),
@@ -533,12 +572,16 @@ pub fn run_init(
     })
 }
 
-/// Read and undistort each camera's first frame.
-fn load_views(inputs: &InitInputs, fit: Fit) -> Result<Vec<(String, View)>, InitError> {
+/// Read and undistort each training camera's frame among `images` (the earliest, if a
+/// camera has several).
+fn load_views(
+    cameras: &CameraSet,
+    images: &[ViewImage],
+    fit: Fit,
+) -> Result<Vec<(String, View)>, InitError> {
     let mut views = Vec::new();
-    for cam in &inputs.cameras.cameras {
-        let Some(img) = inputs
-            .images
+    for cam in &cameras.cameras {
+        let Some(img) = images
             .iter()
             .filter(|i| i.camera == cam.name)
             .min_by(|a, b| a.time.total_cmp(&b.time))
@@ -560,6 +603,18 @@ fn load_views(inputs: &InitInputs, fit: Fit) -> Result<Vec<(String, View)>, Init
         ));
     }
     Ok(views)
+}
+
+/// The pose solve's sparse points as static extras of a static/moving split, when
+/// `merge_sparse` is set.
+fn sparse_extra(config: &InitConfig, xyz: &[DVec3], rgb: &[[u8; 3]]) -> Vec<(DVec3, [f32; 3])> {
+    if !config.merge_sparse {
+        return Vec::new();
+    }
+    xyz.iter()
+        .zip(rgb)
+        .map(|(p, c)| (*p, c.map(f32::from)))
+        .collect()
 }
 
 /// A frame of `cam` read from `path` (checked against the calibrated size), undistorted
@@ -640,26 +695,21 @@ fn choose_pairs(
 fn pointmap_points(
     kind: UsedSource,
     path: &Path,
+    model: Option<&PointMapModel>,
     views: &[(String, View)],
     sparse: &[DVec3],
     config: &InitConfig,
     progress: &dyn Progress,
 ) -> Result<(Vec<PairReport>, Vec<FusedPoint>), InitError> {
-    let model = match kind {
-        UsedSource::Onnx => Some(PointMapModel::load(path, &config.model_config())?),
-        _ => {
-            if !path.is_dir() {
-                return Err(InitError::Npy(NpyError::Io {
-                    path: path.into(),
-                    source: std::io::Error::new(
-                        std::io::ErrorKind::NotFound,
-                        "point-map directory not found",
-                    ),
-                }));
-            }
-            None
-        }
-    };
+    if model.is_none() && !path.is_dir() {
+        return Err(InitError::Npy(NpyError::Io {
+            path: path.into(),
+            source: std::io::Error::new(
+                std::io::ErrorKind::NotFound,
+                "point-map directory not found",
+            ),
+        }));
+    }
     let pairs = choose_pairs(kind, path, views, config)?;
     progress.start(pairs.len() as u64, "pairs");
     let mut reports = Vec::new();
@@ -667,7 +717,7 @@ fn pointmap_points(
     for (i, j) in pairs {
         let ((na, a), (nb, b)) = (&views[i], &views[j]);
         progress.message(&format!("{na}/{nb}"));
-        let maps = match &model {
+        let maps = match model {
             Some(m) => Some(m.run(&a.image, &b.image)?),
             None => match npy::read_pair(path, na, nb, &config.output_names) {
                 Ok(m) => Some(m),
@@ -703,6 +753,7 @@ fn rejected(first: &str, second: &str, reason: String) -> PairReport {
     PairReport {
         first: first.into(),
         second: second.into(),
+        frame: None,
         accepted: false,
         reason: Some(reason),
         scale: None,

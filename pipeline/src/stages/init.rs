@@ -53,7 +53,8 @@ pub fn run(ctx: &StageContext, settings: &InitSettings) -> anyhow::Result<()> {
             .collect()
     };
     let images = views_of(first);
-    let moments = moment_frames(index.frames.len(), settings.moments)
+    let pointmaps = settings.pointmaps.as_ref().map(|p| ctx.capture.resolve(p));
+    let moments = moments_of(&index, settings, pointmaps.as_deref())?
         .into_iter()
         .map(|i| {
             let frame = &index.frames[i];
@@ -73,7 +74,7 @@ pub fn run(ctx: &StageContext, settings: &InitSettings) -> anyhow::Result<()> {
         .filter(|p| p.exists());
     let mut config = settings.clone();
     config.model = config.model.map(|p| ctx.capture.resolve(&p));
-    config.pointmaps = config.pointmaps.map(|p| ctx.capture.resolve(&p));
+    config.pointmaps = pointmaps;
     let inputs = InitInputs {
         cameras: poses.set,
         images,
@@ -87,6 +88,33 @@ pub fn run(ctx: &StageContext, settings: &InitSettings) -> anyhow::Result<()> {
     )
     .context("cannot write init.json")?;
     Ok(())
+}
+
+/// Indices into `index.frames` of the moments: the aligned frames with exported point maps
+/// (`pointmaps/NNNNNN/`) when there are such folders, else `[init] moments` frames spread
+/// over the clip. A point-map folder of a frame the frames stage did not write is an error.
+fn moments_of(
+    index: &FramesIndex,
+    settings: &InitSettings,
+    pointmaps: Option<&std::path::Path>,
+) -> anyhow::Result<Vec<usize>> {
+    use calib::init::moment_maps::{exported_frames, frame_dir};
+    let exported = pointmaps.map(|root| (root, exported_frames(root)));
+    let Some((root, exported)) = exported.filter(|(_, e)| !e.is_empty()) else {
+        return Ok(moment_frames(index.frames.len(), settings.moments));
+    };
+    exported
+        .iter()
+        .map(|&frame| {
+            index.frames.iter().position(|f| f.index == frame).with_context(|| {
+                format!(
+                    "point maps {} belong to aligned frame {frame}, but the frames stage wrote frames 0..{}; remove the folder or export maps of an existing frame",
+                    frame_dir(root, frame).display(),
+                    index.frames.len()
+                )
+            })
+        })
+        .collect()
 }
 
 /// `count` aligned-frame indices spread evenly over `frames` frames, first and last

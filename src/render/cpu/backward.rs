@@ -155,12 +155,8 @@ pub fn backward_into<F: Real>(
                 *g_f = sg.opacity * sig * sl.omega;
                 let d_omega = sg.opacity * sig * factor;
                 let input = colour_input(model, i, cam, t, period);
-                let d_mean_colour = colour_backward_masked(
-                    &input,
-                    ctx.colour_mask[k as usize],
-                    sg.colour,
-                    g_col,
-                );
+                let d_mean_colour =
+                    colour_backward_masked(&input, ctx.colour_mask[k as usize], sg.colour, g_col);
                 let (d_mean3, d_b) =
                     project_backward(cam, &pr_aux, &sl.factor, sg.mean, sg.conic, sg.depth);
                 let sg4 = slice_backward(&sl, &sl_aux, d_omega, d_mean3, &d_b);

@@ -38,7 +38,10 @@ impl RenderBackend for CpuBackend {
         model: &Gaussians<f32>,
         views: &[ViewRequest<'_>],
     ) -> Result<Vec<Rendered<f32>>, RenderError> {
-        views.iter().map(|v| render_with(model, v.camera, v.t, &v.options)).collect()
+        views
+            .iter()
+            .map(|v| render_with(model, v.camera, v.t, &v.options))
+            .collect()
     }
 
     fn backward(
