@@ -9,7 +9,9 @@ use std::path::{Path, PathBuf};
 
 use calib::init::npy::OutputNames;
 use calib::init::onnx::{ModelConfig, OnnxError, PointMapModel};
-use calib::init::{InitConfig, InitError, InitInputs, Source, UsedSource, ViewImage, run_init};
+use calib::init::{
+    InitConfig, InitError, InitInputs, Moment, Source, UsedSource, ViewImage, run_init,
+};
 use glam::{DMat3, DVec2, DVec3};
 use image::RgbImage;
 use shared_types::{Camera, CameraSet, Intrinsics, NoProgress, WorldToCamera};
@@ -168,6 +170,46 @@ fn the_whole_path_recovers_the_scale_and_the_predicted_points() {
     let p = DVec3::from_array(cloud.xyz[5].map(|v| v as f64));
     let (px, _) = cameras.cameras[0].project(p).unwrap();
     assert!((px - DVec2::new(5.5, 0.5)).length() < 1e-3);
+}
+
+#[test]
+fn the_model_runs_at_each_moment_and_a_still_scene_is_static() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cameras = fixture_rig(1.0);
+    let images = write_images(tmp.path());
+    // The same frames at two moments: every point is seen at both, so all are static,
+    // living over the span between the moments.
+    let moment = |frame: usize, time: f64| Moment {
+        frame,
+        time,
+        views: images
+            .iter()
+            .map(|v| ViewImage { time, ..v.clone() })
+            .collect(),
+    };
+    let inputs = InitInputs {
+        cameras,
+        images: images.clone(),
+        sparse: None,
+        moments: vec![moment(0, 0.0), moment(9, 1.0)],
+    };
+    let out = tmp.path().join("init");
+    let config = InitConfig {
+        moments: 2,
+        ..init_config(fixture())
+    };
+    let report = run_init(&inputs, &config, &out, &NoProgress).unwrap();
+    assert_eq!(report.source, UsedSource::Onnx);
+    let frames: Vec<_> = report.pairs.iter().map(|p| p.frame).collect();
+    assert_eq!(frames, [Some(0), Some(9)]);
+    assert!(report.pairs.iter().all(|p| p.accepted));
+    let s = report.statics;
+    assert_eq!(s.static_tagged, 2 * 2 * (W * H) as usize, "{s:?}");
+    assert_eq!(s.dynamic_points, 0, "{s:?}");
+    let cloud = shared_types::points::read_points_ply(&out.join("points.ply")).unwrap();
+    assert_eq!(cloud.xyz.len(), s.static_points);
+    assert!(cloud.time.unwrap().iter().all(|t| *t == 0.5));
+    assert!(cloud.time_span.unwrap().iter().all(|t| *t == 1.0));
 }
 
 #[test]
