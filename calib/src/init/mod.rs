@@ -429,6 +429,8 @@ pub fn run_init(
                 &timed,
                 &sparse_extra(config, &sparse_xyz, &sparse.rgb),
                 config.static_radius.max(0.0) * radius,
+                // Dense maps: static points as dense as moving ones (one per voxel).
+                voxel,
                 voxel,
                 moment_maps::clip(&sets),
             );
@@ -493,6 +495,7 @@ pub fn run_init(
                     let (pts, counts) = statics::split_static(
                         &points,
                         &extra,
+                        config.static_radius.max(0.0) * radius,
                         config.static_radius.max(0.0) * radius,
                         voxel,
                         clip,

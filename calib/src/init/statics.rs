@@ -1,6 +1,6 @@
 //! Telling static points from moving ones among points triangulated at several moments: a
 //! point with a point of another moment within `radius` is static. Static points are merged
-//! (one copy per `radius`-neighbourhood) and given the span of the moments they were seen at
+//! (one copy per `merge`-neighbourhood) and given the span of the moments they were seen at
 //! (`time` = the span's centre); moving points keep their moment's time (span 0) and are
 //! voxel-downsampled per moment. Sparse points of a pose solve join the static ones over
 //! the whole clip, unless a moving point lies beside them (then they saw the moving object).
@@ -70,13 +70,15 @@ impl Grid {
     }
 }
 
-/// Tag, merge and downsample `points` (see the module doc); `sparse` are a pose solve's
+/// Tag, merge and downsample `points` (see the module doc): static within `radius` of a
+/// point of another moment, static points within `merge` merged; `sparse` are a pose solve's
 /// points (xyz, colour) and `clip` the model times of the first and last moment.
 /// `radius ≤ 0` tags nothing static. The output is deterministic (input order).
 pub fn split_static(
     points: &[TimedPoint],
     sparse: &[(DVec3, [f32; 3])],
     radius: f64,
+    merge: f64,
     voxel: f64,
     clip: (f64, f64),
 ) -> (Vec<FusedPoint>, StaticCounts) {
@@ -114,7 +116,7 @@ pub fn split_static(
             pool.push((xyz, rgb, clip.0, clip.1));
         }
     }
-    let mut out = merge_pool(&pool, radius);
+    let mut out = merge_pool(&pool, merge);
     counts.static_points = out.len();
 
     let moments = points.iter().map(|p| p.moment).max().map_or(0, |m| m + 1);
@@ -202,7 +204,7 @@ mod tests {
             p(6.0, 1),
             p(7.0, 2),
         ];
-        let (out, c) = split_static(&pts, &[], 0.05, 0.0, (0.0, 3.0));
+        let (out, c) = split_static(&pts, &[], 0.05, 0.05, 0.0, (0.0, 3.0));
         assert_eq!((c.static_tagged, c.static_points), (3, 1));
         assert_eq!((c.dynamic_tagged, c.dynamic_points), (3, 3));
         let wall = out[0];
@@ -224,7 +226,7 @@ mod tests {
             (DVec3::new(5.01, 0.0, 0.0), [1.0; 3]), // saw the moving object
             (DVec3::new(-3.0, 0.0, 0.0), [1.0; 3]), // alone: static over the clip
         ];
-        let (out, c) = split_static(&pts, &sparse, 0.05, 0.0, (0.0, 4.0));
+        let (out, c) = split_static(&pts, &sparse, 0.05, 0.05, 0.0, (0.0, 4.0));
         assert_eq!((c.sparse_merged, c.sparse_dropped), (2, 1));
         assert_eq!((c.static_points, c.dynamic_points), (2, 1));
         for q in &out[..2] {
@@ -234,9 +236,22 @@ mod tests {
     }
 
     #[test]
+    fn static_points_merge_within_the_merge_distance_only() {
+        // Two wall points 0.03 apart, each seen at two moments (jitter 0.001).
+        let pts = [p(0.0, 0), p(0.001, 1), p(0.03, 0), p(0.031, 1)];
+        let (_, coarse) = split_static(&pts, &[], 0.05, 0.05, 0.0, (0.0, 1.0));
+        let (fine, c) = split_static(&pts, &[], 0.05, 0.01, 0.0, (0.0, 1.0));
+        assert_eq!((coarse.static_tagged, coarse.static_points), (4, 1));
+        assert_eq!((c.static_tagged, c.static_points), (4, 2));
+        let mut x: Vec<_> = fine.iter().map(|q| q.xyz.x).collect();
+        x.sort_by(f64::total_cmp);
+        assert!((x[0] - 0.0005).abs() < 1e-12 && (x[1] - 0.0305).abs() < 1e-12);
+    }
+
+    #[test]
     fn no_radius_tags_nothing_static() {
         let pts = [p(0.0, 0), p(0.0, 1)];
-        let (_, c) = split_static(&pts, &[], 0.0, 0.0, (0.0, 1.0));
+        let (_, c) = split_static(&pts, &[], 0.0, 0.0, 0.0, (0.0, 1.0));
         assert_eq!((c.static_tagged, c.dynamic_points), (0, 2));
     }
 }
