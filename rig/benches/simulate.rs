@@ -9,7 +9,9 @@ use rig::sim::{Scene, render_clean, simulate};
 use shared_types::NoProgress;
 
 fn fixture(name: &str) -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures").join(name)
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../fixtures")
+        .join(name)
 }
 
 fn bench(c: &mut Criterion) {
@@ -23,11 +25,14 @@ fn bench(c: &mut Criterion) {
             BatchSize::PerIteration,
         )
     });
-    g.bench_function("parse+validate tiny.toml", |b| b.iter(|| Scene::from_file(&fixture("tiny.toml")).unwrap()));
-    let demo = Scene::from_file(&fixture("demo.toml")).unwrap();
-    g.bench_function("demo.toml one cam0 frame (480x360, 2x2 supersampling, incl. texture bake)", |b| {
-        b.iter(|| render_clean(&demo, "cam0", 1.0).unwrap())
+    g.bench_function("parse+validate tiny.toml", |b| {
+        b.iter(|| Scene::from_file(&fixture("tiny.toml")).unwrap())
     });
+    let demo = Scene::from_file(&fixture("demo.toml")).unwrap();
+    g.bench_function(
+        "demo.toml one cam0 frame (480x360, 2x2 supersampling, incl. texture bake)",
+        |b| b.iter(|| render_clean(&demo, "cam0", 1.0).unwrap()),
+    );
     g.finish();
 }
 

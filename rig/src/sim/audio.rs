@@ -46,7 +46,11 @@ impl Clap {
             return 0.0;
         }
         let envelope = (s / ATTACK).min(1.0) * (-s / DECAY).exp();
-        let sum: f64 = self.partials.iter().map(|&(f, ph)| (std::f64::consts::TAU * f * s + ph).sin()).sum();
+        let sum: f64 = self
+            .partials
+            .iter()
+            .map(|&(f, ph)| (std::f64::consts::TAU * f * s + ph).sin())
+            .sum();
         envelope * sum * (2.0 / PARTIALS as f64).sqrt()
     }
 }
@@ -78,7 +82,11 @@ pub fn camera_track(
     clap_gain: f64,
 ) -> Track {
     let mut rng = ChaCha8Rng::seed_from_u64(hash(seed, 0xA0D1_0000, camera_index));
-    let delay = if acoustic_delay { distance / SPEED_OF_SOUND } else { 0.0 };
+    let delay = if acoustic_delay {
+        distance / SPEED_OF_SOUND
+    } else {
+        0.0
+    };
     let onset = clap_time + delay - start_time;
     let gain = clap_gain / distance.max(1.0);
     let mut samples = Vec::with_capacity(n);
@@ -90,7 +98,11 @@ pub fn camera_track(
         let v = noise * g + gain * clap.at(t - onset);
         samples.push(v.clamp(-1.0, 1.0) as f32);
     }
-    Track { samples, acoustic_delay: delay, clap_file_time: onset }
+    Track {
+        samples,
+        acoustic_delay: delay,
+        clap_file_time: onset,
+    }
 }
 
 #[cfg(test)]
@@ -100,12 +112,23 @@ mod tests {
     #[test]
     fn the_clap_starts_where_declared_and_stands_out_of_the_noise() {
         let clap = Clap::new(3);
-        let track = camera_track(&clap, 3, 0, 48_000, 48_000, 0.25, 0.5, 3.43, true, 0.01, 0.8);
+        let track = camera_track(
+            &clap, 3, 0, 48_000, 48_000, 0.25, 0.5, 3.43, true, 0.01, 0.8,
+        );
         assert!((track.acoustic_delay - 0.01).abs() < 1e-12);
         assert!((track.clap_file_time - 0.26).abs() < 1e-12);
         let onset = (0.26 * 48_000.0) as usize;
-        let before: f32 = track.samples[..onset].iter().map(|v| v.abs()).fold(0.0, f32::max);
-        let after: f32 = track.samples[onset..onset + 480].iter().map(|v| v.abs()).fold(0.0, f32::max);
-        assert!(before < 0.06 && after > 0.1, "before {before} after {after}");
+        let before: f32 = track.samples[..onset]
+            .iter()
+            .map(|v| v.abs())
+            .fold(0.0, f32::max);
+        let after: f32 = track.samples[onset..onset + 480]
+            .iter()
+            .map(|v| v.abs())
+            .fold(0.0, f32::max);
+        assert!(
+            before < 0.06 && after > 0.1,
+            "before {before} after {after}"
+        );
     }
 }

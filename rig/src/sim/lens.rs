@@ -18,7 +18,12 @@ pub fn border_pixels(width: u32, height: u32, n: u32) -> Vec<DVec2> {
     let mut out = Vec::new();
     for k in 0..=n {
         let s = k as f64 / n as f64;
-        out.extend([DVec2::new(s * w, 0.0), DVec2::new(s * w, h), DVec2::new(0.0, s * h), DVec2::new(w, s * h)]);
+        out.extend([
+            DVec2::new(s * w, 0.0),
+            DVec2::new(s * w, h),
+            DVec2::new(0.0, s * h),
+            DVec2::new(w, s * h),
+        ]);
     }
     out
 }
@@ -58,7 +63,13 @@ impl LensPlan {
                 width: width * ss as usize,
                 height: height * ss as usize,
             };
-            return Ok(LensPlan { view, width, height, ss: ss as usize, map: None });
+            return Ok(LensPlan {
+                view,
+                width,
+                height,
+                ss: ss as usize,
+                map: None,
+            });
         }
         // Bounding box of the undistorted border, in pinhole pixels of the same focal length.
         let d = camera.distortion;
@@ -66,7 +77,10 @@ impl LensPlan {
         for p in border_pixels(k.width, k.height, 64) {
             let q = k.to_pixels(d.undistort(k.to_normalised(p)));
             if !q.is_finite() {
-                return Err(format!("distortion cannot be inverted at pixel ({:.0}, {:.0})", p.x, p.y));
+                return Err(format!(
+                    "distortion cannot be inverted at pixel ({:.0}, {:.0})",
+                    p.x, p.y
+                ));
             }
             lo = lo.min(q);
             hi = hi.max(q);
@@ -74,7 +88,9 @@ impl LensPlan {
         lo -= DVec2::splat(2.0);
         hi += DVec2::splat(2.0);
         let size = (hi - lo) * ssf;
-        if size.x > MAX_CANVAS_RATIO * width as f64 * ssf || size.y > MAX_CANVAS_RATIO * height as f64 * ssf {
+        if size.x > MAX_CANVAS_RATIO * width as f64 * ssf
+            || size.y > MAX_CANVAS_RATIO * height as f64 * ssf
+        {
             return Err(format!(
                 "distortion widens the view to {:.0}×{:.0} pinhole pixels (over {MAX_CANVAS_RATIO}× the image); \
                  use a narrower field of view or weaker distortion",
@@ -92,7 +108,13 @@ impl LensPlan {
             width: size.x.ceil() as usize,
             height: size.y.ceil() as usize,
         };
-        Ok(LensPlan { view, width, height, ss: ss as usize, map: None })
+        Ok(LensPlan {
+            view,
+            width,
+            height,
+            ss: ss as usize,
+            map: None,
+        })
     }
 
     /// Build the inverse-distortion sample map (done once per camera; cameras are static).
@@ -102,7 +124,12 @@ impl LensPlan {
         }
         let k = camera.intrinsics;
         let d = camera.distortion;
-        let (fx, fy, cx, cy) = (self.view.fx as f64, self.view.fy as f64, self.view.cx as f64, self.view.cy as f64);
+        let (fx, fy, cx, cy) = (
+            self.view.fx as f64,
+            self.view.fy as f64,
+            self.view.cx as f64,
+            self.view.cy as f64,
+        );
         let ss = self.ss;
         let to_canvas = |p: DVec2| {
             let n = d.undistort(k.to_normalised(p));
@@ -115,14 +142,19 @@ impl LensPlan {
                 (0..w).flat_map(move |i| {
                     (0..ss * ss).map(move |s| {
                         let (a, b) = ((s % ss) as f64, (s / ss) as f64);
-                        to_canvas(DVec2::new(i as f64 + (a + 0.5) / ss as f64, j as f64 + (b + 0.5) / ss as f64))
+                        to_canvas(DVec2::new(
+                            i as f64 + (a + 0.5) / ss as f64,
+                            j as f64 + (b + 0.5) / ss as f64,
+                        ))
                     })
                 })
             })
             .collect();
         let centres: Vec<[f32; 2]> = (0..self.height)
             .into_par_iter()
-            .flat_map_iter(|j| (0..w).map(move |i| to_canvas(DVec2::new(i as f64 + 0.5, j as f64 + 0.5))))
+            .flat_map_iter(|j| {
+                (0..w).map(move |i| to_canvas(DVec2::new(i as f64 + 0.5, j as f64 + 0.5)))
+            })
             .collect();
         self.map = Some((samples, centres));
     }
@@ -167,7 +199,11 @@ impl LensPlan {
                         color[i] = acc.map(|v| v * norm);
                         let [x, y] = centres[k];
                         let (ci, cj) = (x.floor() as isize, y.floor() as isize);
-                        if ci >= 0 && cj >= 0 && (ci as usize) < canvas.width && (cj as usize) < canvas.height {
+                        if ci >= 0
+                            && cj >= 0
+                            && (ci as usize) < canvas.width
+                            && (cj as usize) < canvas.height
+                        {
                             let c = cj as usize * canvas.width + ci as usize;
                             depth[i] = canvas.depth[c];
                             id[i] = canvas.id[c];
@@ -232,7 +268,10 @@ mod tests {
         let r4 = r2 * r2;
         let r6 = r4 * r2;
         let radial = 1.0 + k1 * r2 + k2 * r4 + k3 * r6;
-        (x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x), y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y)
+        (
+            x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
+            y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y,
+        )
     }
 
     /// OpenCV fisheye (cv::fisheye::projectPoints): θ = atan(r),
@@ -249,7 +288,12 @@ mod tests {
     fn distortion_agrees_with_the_opencv_formulas_and_round_trips() {
         let (k1, k2, p1, p2, k3) = (-0.28, 0.09, 0.0012, -0.0008, -0.01);
         let d = Distortion::radial_tangential(k1, k2, p1, p2, k3);
-        let f = Distortion::Fisheye { k1: 0.03, k2: -0.01, k3: 0.004, k4: -0.001 };
+        let f = Distortion::Fisheye {
+            k1: 0.03,
+            k2: -0.01,
+            k3: 0.004,
+            k4: -0.001,
+        };
         for &(x, y) in &[(0.1, 0.05), (-0.4, 0.3), (0.55, -0.35), (-0.2, -0.6)] {
             let got = d.distort(DVec2::new(x, y));
             let want = opencv_reference(k1, k2, p1, p2, k3, x, y);

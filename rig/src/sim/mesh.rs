@@ -64,7 +64,13 @@ impl Mesh {
 
     pub fn plane(sx: f64, sy: f64, seg: u32) -> Mesh {
         let mut m = Mesh::default();
-        m.grid(DVec3::new(-sx / 2.0, -sy / 2.0, 0.0), DVec3::X * sx, DVec3::Y * sy, seg, seg);
+        m.grid(
+            DVec3::new(-sx / 2.0, -sy / 2.0, 0.0),
+            DVec3::X * sx,
+            DVec3::Y * sy,
+            seg,
+            seg,
+        );
         m
     }
 
@@ -115,7 +121,10 @@ impl Mesh {
             let first = m.positions.len() as u32;
             for i in 0..=n {
                 let a = std::f64::consts::TAU * i as f64 / n as f64;
-                m.push(DVec3::new(r * a.cos(), r * a.sin(), z), [r * a.cos(), r * a.sin()]);
+                m.push(
+                    DVec3::new(r * a.cos(), r * a.sin(), z),
+                    [r * a.cos(), r * a.sin()],
+                );
             }
             for i in 0..n {
                 m.triangles.push([c, first + i, first + i + 1]);
@@ -169,7 +178,8 @@ pub(crate) fn build_meshes(file: &SceneFile, tex: u32) -> Vec<SceneMesh> {
             let base = m.positions.len() as u32;
             m.positions.append(&mut floor.positions);
             m.uvs.append(&mut floor.uvs);
-            m.triangles.extend(floor.triangles.iter().map(|t| t.map(|i| i + base)));
+            m.triangles
+                .extend(floor.triangles.iter().map(|t| t.map(|i| i + base)));
             for p in &mut m.positions {
                 *p += c;
             }
@@ -201,7 +211,9 @@ pub(crate) fn build_meshes(file: &SceneFile, tex: u32) -> Vec<SceneMesh> {
 }
 
 fn keyframes_move(o: &ObjectSection) -> bool {
-    o.keyframes.windows(2).any(|w| w[0].position != w[1].position || w[0].rotation != w[1].rotation)
+    o.keyframes
+        .windows(2)
+        .any(|w| w[0].position != w[1].position || w[0].rotation != w[1].rotation)
 }
 
 fn object_mesh(o: &ObjectSection) -> Mesh {

@@ -34,7 +34,9 @@ use shared_types::{CameraSet, Progress};
 
 pub use error::SimError;
 pub use scene::Scene;
-pub use schema::{CameraRole, DeformKind, DeformSpec, Keyframe, SimCamera, TextureSpec, VIDEO_CAMERAS};
+pub use schema::{
+    CameraRole, DeformKind, DeformSpec, Keyframe, SimCamera, TextureSpec, VIDEO_CAMERAS,
+};
 pub use source::SimSource;
 
 use lens::LensPlan;
@@ -173,7 +175,10 @@ impl World {
     fn new(scene: &Scene) -> Self {
         World {
             scene: Arc::new(scene.clone()),
-            meshes: Arc::new(mesh::build_meshes(&scene.file, scene.file.render.texture_size)),
+            meshes: Arc::new(mesh::build_meshes(
+                &scene.file,
+                scene.file.render.texture_size,
+            )),
             light: light_of(scene),
         }
     }
@@ -197,8 +202,9 @@ fn light_of(scene: &Scene) -> Light {
 
 /// The prepared lens of one of the scene's cameras, at the scene's supersampling.
 fn lens_plan(scene: &Scene, cam: &SimCamera) -> Result<LensPlan, SimError> {
-    let mut plan = LensPlan::new(&cam.camera, scene.file.render.supersample)
-        .map_err(|m| SimError::invalid(&scene.origin, format!("camera {}: {m}", cam.camera.name)))?;
+    let mut plan = LensPlan::new(&cam.camera, scene.file.render.supersample).map_err(|m| {
+        SimError::invalid(&scene.origin, format!("camera {}: {m}", cam.camera.name))
+    })?;
     plan.prepare(&cam.camera);
     Ok(plan)
 }
@@ -209,8 +215,9 @@ pub(crate) fn check_views(scene: &Scene) -> Result<(), SimError> {
     let meshes = mesh::build_meshes(&scene.file, 16);
     let light = light_of(scene);
     for cam in &scene.cameras {
-        let plan = LensPlan::new(&cam.camera, 1)
-            .map_err(|m| SimError::invalid(&scene.origin, format!("camera {}: {m}", cam.camera.name)))?;
+        let plan = LensPlan::new(&cam.camera, 1).map_err(|m| {
+            SimError::invalid(&scene.origin, format!("camera {}: {m}", cam.camera.name))
+        })?;
         let t = match cam.role {
             CameraRole::Still => scene.file.stills.time,
             _ => cam.start_time,
@@ -244,25 +251,49 @@ fn refuse_existing(dir: &Path) -> Result<(), SimError> {
     for sub in ["raw", "stills", "groundtruth"] {
         let p = dir.join(sub);
         if let Ok(mut entries) = std::fs::read_dir(&p)
-            && entries.next().is_some() {
-                return Err(SimError::CaptureExists { path: dir.to_path_buf(), found: format!("{sub}/") });
-            }
+            && entries.next().is_some()
+        {
+            return Err(SimError::CaptureExists {
+                path: dir.to_path_buf(),
+                found: format!("{sub}/"),
+            });
+        }
     }
     Ok(())
 }
 
 /// Render `scene` into `capture_dir` (created if missing; must not already hold a capture).
-pub fn simulate(scene: &Scene, capture_dir: &Path, progress: &dyn Progress) -> Result<SimSummary, SimError> {
+pub fn simulate(
+    scene: &Scene,
+    capture_dir: &Path,
+    progress: &dyn Progress,
+) -> Result<SimSummary, SimError> {
     let started = Instant::now();
     refuse_existing(capture_dir)?;
     std::fs::create_dir_all(capture_dir).map_err(|e| SimError::write(capture_dir, e))?;
     encode::init();
-    let ctx = Context { scene, world: World::new(scene), dir: capture_dir, progress };
+    let ctx = Context {
+        scene,
+        world: World::new(scene),
+        dir: capture_dir,
+        progress,
+    };
     let frames = scene.frames_per_camera() as u64;
-    let heldout = scene.cameras.iter().filter(|c| c.role == CameraRole::Heldout).count() as u64;
-    let stills = scene.cameras.iter().filter(|c| c.role == CameraRole::Still).count() as u64;
+    let heldout = scene
+        .cameras
+        .iter()
+        .filter(|c| c.role == CameraRole::Heldout)
+        .count() as u64;
+    let stills = scene
+        .cameras
+        .iter()
+        .filter(|c| c.role == CameraRole::Still)
+        .count() as u64;
     let filmed_heldout = if scene.films_heldout() { heldout } else { 0 };
-    progress.start(frames * (VIDEO_CAMERAS as u64 + heldout + filmed_heldout) + stills, "frames");
+    progress.start(
+        frames * (VIDEO_CAMERAS as u64 + heldout + filmed_heldout) + stills,
+        "frames",
+    );
 
     type Filmed = (CameraTiming, Vec<PathBuf>, u64);
     enum Done {
@@ -278,7 +309,11 @@ pub fn simulate(scene: &Scene, capture_dir: &Path, progress: &dyn Progress) -> R
             CameraRole::Video => video_camera(&ctx, cam, index).map(Done::Video),
             CameraRole::Heldout => {
                 let truth = heldout_camera(&ctx, cam)?;
-                let filmed = if scene.films_heldout() { Some(video_camera(&ctx, cam, index)?) } else { None };
+                let filmed = if scene.films_heldout() {
+                    Some(video_camera(&ctx, cam, index)?)
+                } else {
+                    None
+                };
                 Ok(Done::Heldout(truth, filmed))
             }
             CameraRole::Still => still(&ctx, cam).map(Done::Still),
@@ -329,7 +364,11 @@ pub fn simulate(scene: &Scene, capture_dir: &Path, progress: &dyn Progress) -> R
             sample_rate: a.sample_rate,
             clap_time_s: a.clap_time,
             clap_position: a.clap_position,
-            speed_of_sound_m_s: if a.acoustic_delay { audio::SPEED_OF_SOUND } else { 0.0 },
+            speed_of_sound_m_s: if a.acoustic_delay {
+                audio::SPEED_OF_SOUND
+            } else {
+                0.0
+            },
         }),
         flash: flash_of(scene).map(|(fl, shutter)| FlashTruth {
             time_s: fl.time,
@@ -358,7 +397,14 @@ fn flash_of(scene: &Scene) -> Option<(&schema::FlashSection, f64)> {
 
 /// Sensor-side effects of a video frame taken at scene time `t` (exposure, flash, noise),
 /// then quantisation to RGB8. Each effect is skipped entirely when off.
-fn sensor(scene: &Scene, cam: &SimCamera, cam_index: usize, frame: u32, t: f64, img: &Rendered) -> Vec<u8> {
+fn sensor(
+    scene: &Scene,
+    cam: &SimCamera,
+    cam_index: usize,
+    frame: u32,
+    t: f64,
+    img: &Rendered,
+) -> Vec<u8> {
     let (w, h) = (img.width, img.height);
     let mut px: Vec<[f32; 3]> = img.color.clone();
     let mut gains: Option<Vec<f32>> = None;
@@ -388,8 +434,17 @@ fn sensor(scene: &Scene, cam: &SimCamera, cam_index: usize, frame: u32, t: f64, 
             }
         }
     }
-    if let Some(n) = scene.file.noise.as_ref().filter(|n| n.enabled && n.sigma > 0.0) {
-        let mut rng = ChaCha8Rng::seed_from_u64(hash(scene.seed(), 0x5E75_0000 + cam_index as u64, frame as u64));
+    if let Some(n) = scene
+        .file
+        .noise
+        .as_ref()
+        .filter(|n| n.enabled && n.sigma > 0.0)
+    {
+        let mut rng = ChaCha8Rng::seed_from_u64(hash(
+            scene.seed(),
+            0x5E75_0000 + cam_index as u64,
+            frame as u64,
+        ));
         let sigma = n.sigma as f32;
         for p in &mut px {
             for v in p.iter_mut() {
@@ -402,14 +457,23 @@ fn sensor(scene: &Scene, cam: &SimCamera, cam_index: usize, frame: u32, t: f64, 
 }
 
 fn to_rgb8(px: &[[f32; 3]]) -> Vec<u8> {
-    px.iter().flat_map(|p| p.map(|v| (v * 255.0).round().clamp(0.0, 255.0) as u8)).collect()
+    px.iter()
+        .flat_map(|p| p.map(|v| (v * 255.0).round().clamp(0.0, 255.0) as u8))
+        .collect()
 }
 
 fn rel(ctx: &Context, p: &Path) -> String {
-    p.strip_prefix(ctx.dir).unwrap_or(p).to_string_lossy().replace('\\', "/")
+    p.strip_prefix(ctx.dir)
+        .unwrap_or(p)
+        .to_string_lossy()
+        .replace('\\', "/")
 }
 
-fn video_camera(ctx: &Context, cam: &SimCamera, index: usize) -> Result<(CameraTiming, Vec<PathBuf>, u64), SimError> {
+fn video_camera(
+    ctx: &Context,
+    cam: &SimCamera,
+    index: usize,
+) -> Result<(CameraTiming, Vec<PathBuf>, u64), SimError> {
     let scene = ctx.scene;
     let f = &scene.file;
     let fps = scene.fps();
@@ -421,7 +485,8 @@ fn video_camera(ctx: &Context, cam: &SimCamera, index: usize) -> Result<(CameraT
     let audio_cfg = f.audio.as_ref().filter(|a| a.enabled);
     let track = audio_cfg.map(|a| {
         let n = (frames as f64 / fps * a.sample_rate as f64).round() as usize;
-        let distance = (cam.camera.world_to_camera.centre() - DVec3::from_array(a.clap_position)).length();
+        let distance =
+            (cam.camera.world_to_camera.centre() - DVec3::from_array(a.clap_position)).length();
         audio::camera_track(
             &audio::Clap::new(scene.seed()),
             scene.seed(),
@@ -437,7 +502,8 @@ fn video_camera(ctx: &Context, cam: &SimCamera, index: usize) -> Result<(CameraT
         )
     });
     let rate = audio_cfg.map(|a| a.sample_rate);
-    let sample_at = |frame: u32| rate.map_or(0, |r| (frame as f64 / fps * r as f64).round() as usize);
+    let sample_at =
+        |frame: u32| rate.map_or(0, |r| (frame as f64 / fps * r as f64).round() as usize);
 
     let dir = ctx.dir.join("raw").join(name);
     std::fs::create_dir_all(&dir).map_err(|e| SimError::write(&dir, e))?;
@@ -448,7 +514,15 @@ fn video_camera(ctx: &Context, cam: &SimCamera, index: usize) -> Result<(CameraT
     for (c, first) in (0..frames).step_by(per_chapter as usize).enumerate() {
         let last = (first + per_chapter).min(frames);
         let path = dir.join(format!("GX{:02}0001.MP4", c + 1));
-        let mut writer = encode::Mp4Writer::create(&path, k.width, k.height, fps, f.encode.crf, &f.encode.preset, rate)?;
+        let mut writer = encode::Mp4Writer::create(
+            &path,
+            k.width,
+            k.height,
+            fps,
+            f.encode.crf,
+            &f.encode.preset,
+            rate,
+        )?;
         let mut pending = Vec::new();
         let mut pushed = sample_at(first);
         let mut written = 0u32;
@@ -457,8 +531,16 @@ fn video_camera(ctx: &Context, cam: &SimCamera, index: usize) -> Result<(CameraT
                 writer.push_video((frame - first) as i64, &rgb)?;
                 written += 1;
                 if frame == 0 {
-                    let depth: Vec<f32> = img.depth.iter().map(|&d| if d.is_finite() { d } else { 0.0 }).collect();
-                    let p = ctx.dir.join("groundtruth").join("depth").join(format!("{name}.npy"));
+                    let depth: Vec<f32> = img
+                        .depth
+                        .iter()
+                        .map(|&d| if d.is_finite() { d } else { 0.0 })
+                        .collect();
+                    let p = ctx
+                        .dir
+                        .join("groundtruth")
+                        .join("depth")
+                        .join(format!("{name}.npy"));
                     output::write_atomic(&p, &output::npy_f32(img.height, img.width, &depth))?;
                 }
                 write_mask(ctx, name, frame, &img)?;
@@ -503,9 +585,24 @@ fn write_mask(ctx: &Context, camera: &str, frame: u32, img: &Rendered) -> Result
     if !ctx.scene.file.groundtruth.masks {
         return Ok(());
     }
-    let moving: Vec<u16> = ctx.world.meshes.iter().filter(|m| m.moving).map(|m| m.id).collect();
-    let mask: Vec<u8> = img.id.iter().map(|i| if moving.contains(i) { 255 } else { 0 }).collect();
-    let path = ctx.dir.join("groundtruth").join("masks").join(camera).join(format!("{frame:06}.png"));
+    let moving: Vec<u16> = ctx
+        .world
+        .meshes
+        .iter()
+        .filter(|m| m.moving)
+        .map(|m| m.id)
+        .collect();
+    let mask: Vec<u8> = img
+        .id
+        .iter()
+        .map(|i| if moving.contains(i) { 255 } else { 0 })
+        .collect();
+    let path = ctx
+        .dir
+        .join("groundtruth")
+        .join("masks")
+        .join(camera)
+        .join(format!("{frame:06}.png"));
     output::write_gray_png(&path, img.width as u32, img.height as u32, &mask)
 }
 
@@ -519,7 +616,13 @@ fn heldout_camera(ctx: &Context, cam: &SimCamera) -> Result<u64, SimError> {
     for frame in 0..scene.frames_per_camera() {
         let t = frame as f64 / scene.fps();
         let img = ctx.world.render(&plan, t);
-        output::write_rgb(&dir.join(format!("{frame:06}.png")), k.width, k.height, &to_rgb8(&img.color), None)?;
+        output::write_rgb(
+            &dir.join(format!("{frame:06}.png")),
+            k.width,
+            k.height,
+            &to_rgb8(&img.color),
+            None,
+        )?;
         write_mask(ctx, name, frame, &img)?;
         times.push(t);
         ctx.progress.advance(1);
@@ -527,7 +630,11 @@ fn heldout_camera(ctx: &Context, cam: &SimCamera) -> Result<u64, SimError> {
     let n = times.len() as u64;
     output::write_json(
         &dir.join("timestamps.json"),
-        &HeldoutTimestamps { camera: name.clone(), fps: scene.fps(), times_s: times },
+        &HeldoutTimestamps {
+            camera: name.clone(),
+            fps: scene.fps(),
+            times_s: times,
+        },
     )?;
     Ok(n)
 }
@@ -539,7 +646,13 @@ fn still(ctx: &Context, cam: &SimCamera) -> Result<PathBuf, SimError> {
     let img = ctx.world.render(&plan, scene.file.stills.time);
     let k = cam.camera.intrinsics;
     let path = ctx.dir.join("stills").join(format!("{name}.jpg"));
-    output::write_rgb(&path, k.width, k.height, &to_rgb8(&img.color), Some(scene.file.stills.jpeg_quality))?;
+    output::write_rgb(
+        &path,
+        k.width,
+        k.height,
+        &to_rgb8(&img.color),
+        Some(scene.file.stills.jpeg_quality),
+    )?;
     ctx.progress.advance(1);
     Ok(path)
 }
@@ -552,7 +665,12 @@ pub fn surface_triangles(scene: &Scene, t: f64) -> Vec<[DVec3; 3]> {
     meshes
         .iter()
         .zip(&world)
-        .flat_map(|(m, pos)| m.mesh.triangles.iter().map(move |tri| tri.map(|i| pos[i as usize].as_dvec3())))
+        .flat_map(|(m, pos)| {
+            m.mesh
+                .triangles
+                .iter()
+                .map(move |tri| tri.map(|i| pos[i as usize].as_dvec3()))
+        })
         .collect()
 }
 
@@ -599,5 +717,10 @@ pub fn render_clean(scene: &Scene, camera: &str, t: f64) -> Option<Rendered> {
     plan.prepare(&cam.camera);
     let meshes = mesh::build_meshes(&scene.file, scene.file.render.texture_size);
     let world = mesh::world_positions(&scene.file, &meshes, t);
-    Some(plan.resolve(raster::render(&plan.view, &meshes, &world, &light_of(scene))))
+    Some(plan.resolve(raster::render(
+        &plan.view,
+        &meshes,
+        &world,
+        &light_of(scene),
+    )))
 }

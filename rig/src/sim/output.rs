@@ -13,23 +13,47 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), SimError> {
 }
 
 pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), SimError> {
-    let mut text = serde_json::to_string_pretty(value).map_err(|e| SimError::write(path, std::io::Error::other(e)))?;
+    let mut text = serde_json::to_string_pretty(value)
+        .map_err(|e| SimError::write(path, std::io::Error::other(e)))?;
     text.push('\n');
     write_atomic(path, text.as_bytes())
 }
 
 /// An RGB8 image as PNG (lossless) or JPEG (`quality` 1–100), chosen by `jpeg_quality`.
-pub fn write_rgb(path: &Path, width: u32, height: u32, rgb: &[u8], jpeg_quality: Option<u8>) -> Result<(), SimError> {
+pub fn write_rgb(
+    path: &Path,
+    width: u32,
+    height: u32,
+    rgb: &[u8],
+    jpeg_quality: Option<u8>,
+) -> Result<(), SimError> {
     let mut bytes = Vec::new();
-    let img_err = |source| SimError::Image { path: path.to_path_buf(), source };
+    let img_err = |source| SimError::Image {
+        path: path.to_path_buf(),
+        source,
+    };
     match jpeg_quality {
         Some(q) => {
             let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, q);
-            image::ImageEncoder::write_image(enc, rgb, width, height, image::ExtendedColorType::Rgb8).map_err(img_err)?;
+            image::ImageEncoder::write_image(
+                enc,
+                rgb,
+                width,
+                height,
+                image::ExtendedColorType::Rgb8,
+            )
+            .map_err(img_err)?;
         }
         None => {
             let enc = image::codecs::png::PngEncoder::new(&mut bytes);
-            image::ImageEncoder::write_image(enc, rgb, width, height, image::ExtendedColorType::Rgb8).map_err(img_err)?;
+            image::ImageEncoder::write_image(
+                enc,
+                rgb,
+                width,
+                height,
+                image::ExtendedColorType::Rgb8,
+            )
+            .map_err(img_err)?;
         }
     }
     write_atomic(path, &bytes)
@@ -40,14 +64,18 @@ pub fn write_gray_png(path: &Path, width: u32, height: u32, data: &[u8]) -> Resu
     let mut bytes = Vec::new();
     let enc = image::codecs::png::PngEncoder::new(&mut bytes);
     image::ImageEncoder::write_image(enc, data, width, height, image::ExtendedColorType::L8)
-        .map_err(|source| SimError::Image { path: path.to_path_buf(), source })?;
+        .map_err(|source| SimError::Image {
+            path: path.to_path_buf(),
+            source,
+        })?;
     write_atomic(path, &bytes)
 }
 
 /// The bytes of a version-1.0 `.npy` file holding a little-endian float32 `height × width`
 /// array in C order.
 pub fn npy_f32(height: usize, width: usize, data: &[f32]) -> Vec<u8> {
-    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({height}, {width}), }}");
+    let mut header =
+        format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({height}, {width}), }}");
     // Magic (6) + version (2) + header length (2) + header + '\n' is a multiple of 64.
     let unpadded = 10 + header.len() + 1;
     header.push_str(&" ".repeat(unpadded.next_multiple_of(64) - unpadded));
@@ -73,10 +101,15 @@ pub fn read_npy_f32(bytes: &[u8]) -> Option<(usize, usize, Vec<f32>)> {
         return None;
     }
     let shape = header.split("'shape': (").nth(1)?.split(')').next()?;
-    let dims: Vec<usize> = shape.split(',').filter_map(|s| s.trim().parse().ok()).collect();
+    let dims: Vec<usize> = shape
+        .split(',')
+        .filter_map(|s| s.trim().parse().ok())
+        .collect();
     let [h, w] = dims[..] else { return None };
-    let data: Vec<f32> =
-        bytes[10 + hlen..].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+    let data: Vec<f32> = bytes[10 + hlen..]
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
     (data.len() == h * w).then_some((h, w, data))
 }
 

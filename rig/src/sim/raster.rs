@@ -79,7 +79,10 @@ struct ClipVertex {
 fn lerp_vertex(a: ClipVertex, b: ClipVertex, s: f32) -> ClipVertex {
     ClipVertex {
         p: a.p + (b.p - a.p) * s,
-        uv: [a.uv[0] + (b.uv[0] - a.uv[0]) * s, a.uv[1] + (b.uv[1] - a.uv[1]) * s],
+        uv: [
+            a.uv[0] + (b.uv[0] - a.uv[0]) * s,
+            a.uv[1] + (b.uv[1] - a.uv[1]) * s,
+        ],
     }
 }
 
@@ -104,7 +107,10 @@ fn setup(view: &View, meshes: &[SceneMesh], world: &[Vec<Vec3>], light: &Light) 
     let (w, h) = (view.width as f32, view.height as f32);
     let mut tris = Vec::new();
     for (mi, (m, pos)) in meshes.iter().zip(world).enumerate() {
-        let cam: Vec<Vec3> = pos.iter().map(|&p| view.rotation * p + view.translation).collect();
+        let cam: Vec<Vec3> = pos
+            .iter()
+            .map(|&p| view.rotation * p + view.translation)
+            .collect();
         for t in &m.mesh.triangles {
             let [a, b, c] = t.map(|i| i as usize);
             if cam[a].z < NEAR && cam[b].z < NEAR && cam[c].z < NEAR {
@@ -115,7 +121,10 @@ fn setup(view: &View, meshes: &[SceneMesh], world: &[Vec<Vec3>], light: &Light) 
                 n = -n;
             }
             let shade = light.ambient + light.diffuse * n.dot(light.direction).max(0.0);
-            let poly = [a, b, c].map(|i| ClipVertex { p: cam[i], uv: m.mesh.uvs[i] });
+            let poly = [a, b, c].map(|i| ClipVertex {
+                p: cam[i],
+                uv: m.mesh.uvs[i],
+            });
             let clipped;
             let verts: &[ClipVertex] = if poly.iter().all(|v| v.p.z >= NEAR) {
                 &poly
@@ -125,7 +134,12 @@ fn setup(view: &View, meshes: &[SceneMesh], world: &[Vec<Vec3>], light: &Light) 
             };
             for k in 1..verts.len().saturating_sub(1) {
                 let tri = [verts[0], verts[k], verts[k + 1]];
-                let xy = tri.map(|v| [view.fx * v.p.x / v.p.z + view.cx, view.fy * v.p.y / v.p.z + view.cy]);
+                let xy = tri.map(|v| {
+                    [
+                        view.fx * v.p.x / v.p.z + view.cx,
+                        view.fy * v.p.y / v.p.z + view.cy,
+                    ]
+                });
                 let xs = xy.map(|p| p[0]);
                 let ys = xy.map(|p| p[1]);
                 let (xmin, xmax) = (xs[0].min(xs[1]).min(xs[2]), xs[0].max(xs[1]).max(xs[2]));
@@ -133,7 +147,8 @@ fn setup(view: &View, meshes: &[SceneMesh], world: &[Vec<Vec3>], light: &Light) 
                 if xmax < 0.0 || ymax < 0.0 || xmin > w || ymin > h {
                     continue;
                 }
-                let area = (xy[1][0] - xy[0][0]) * (xy[2][1] - xy[0][1]) - (xy[1][1] - xy[0][1]) * (xy[2][0] - xy[0][0]);
+                let area = (xy[1][0] - xy[0][0]) * (xy[2][1] - xy[0][1])
+                    - (xy[1][1] - xy[0][1]) * (xy[2][0] - xy[0][0]);
                 if area.abs() < 1e-12 {
                     continue;
                 }
@@ -186,11 +201,24 @@ pub fn render(view: &View, meshes: &[SceneMesh], world: &[Vec<Vec3>], light: &Li
                 }
             }
         });
-    Rendered { width: w, height: h, color, depth, id }
+    Rendered {
+        width: w,
+        height: h,
+        color,
+        depth,
+        id,
+    }
 }
 
 #[inline]
-fn rasterise(t: &ScreenTri, w: usize, y0: usize, rows: usize, depth: &mut [f32], hit: &mut [(u16, f32, f32, f32)]) {
+fn rasterise(
+    t: &ScreenTri,
+    w: usize,
+    y0: usize,
+    rows: usize,
+    depth: &mut [f32],
+    hit: &mut [(u16, f32, f32, f32)],
+) {
     let [p0, p1, p2] = t.xy;
     let area = (p1[0] - p0[0]) * (p2[1] - p0[1]) - (p1[1] - p0[1]) * (p2[0] - p0[0]);
     let inv_area = 1.0 / area;
@@ -204,7 +232,9 @@ fn rasterise(t: &ScreenTri, w: usize, y0: usize, rows: usize, depth: &mut [f32],
     if i1 < i0 as isize || j1 < j0 as isize {
         return;
     }
-    let edge = |a: [f32; 2], b: [f32; 2], x: f32, y: f32| (b[0] - a[0]) * (y - a[1]) - (b[1] - a[1]) * (x - a[0]);
+    let edge = |a: [f32; 2], b: [f32; 2], x: f32, y: f32| {
+        (b[0] - a[0]) * (y - a[1]) - (b[1] - a[1]) * (x - a[0])
+    };
     for j in j0..=j1 as usize {
         let y = j as f32 + 0.5;
         let row = (j - y0) * w;
@@ -238,7 +268,11 @@ mod tests {
 
     #[test]
     fn a_square_in_front_of_the_camera_covers_its_projection_at_its_depth() {
-        let spec = TextureSpec { kind: "solid".into(), colors: [[1.0, 0.0, 0.0], [1.0, 0.0, 0.0]], ..Default::default() };
+        let spec = TextureSpec {
+            kind: "solid".into(),
+            colors: [[1.0, 0.0, 0.0], [1.0, 0.0, 0.0]],
+            ..Default::default()
+        };
         let mut mesh = Mesh::plane(1.0, 1.0, 1);
         for p in &mut mesh.positions {
             *p += glam::DVec3::new(0.0, 0.0, 2.0);
@@ -251,7 +285,14 @@ mod tests {
             deform: None,
             moving: false,
         }];
-        let world = vec![meshes[0].mesh.positions.iter().map(|p| p.as_vec3()).collect()];
+        let world = vec![
+            meshes[0]
+                .mesh
+                .positions
+                .iter()
+                .map(|p| p.as_vec3())
+                .collect(),
+        ];
         let view = View {
             rotation: Mat3::IDENTITY,
             translation: Vec3::ZERO,
@@ -262,7 +303,12 @@ mod tests {
             width: 100,
             height: 100,
         };
-        let light = Light { direction: Vec3::Z, ambient: 1.0, diffuse: 0.0, clear: [0.0; 3] };
+        let light = Light {
+            direction: Vec3::Z,
+            ambient: 1.0,
+            diffuse: 0.0,
+            clear: [0.0; 3],
+        };
         let r = render(&view, &meshes, &world, &light);
         // The square spans x, y ∈ [-0.5, 0.5] at z = 2 → pixels [25, 75).
         let covered = r.id.iter().filter(|&&i| i == 2).count();

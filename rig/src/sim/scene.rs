@@ -20,18 +20,26 @@ pub struct Scene {
 impl Scene {
     /// Read and validate a scene file.
     pub fn from_file(path: &Path) -> Result<Scene, SimError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|source| SimError::ReadScene { path: path.to_path_buf(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|source| SimError::ReadScene {
+            path: path.to_path_buf(),
+            source,
+        })?;
         Self::from_toml_str(&text, &path.display().to_string())
     }
 
     /// Parse and validate a scene from TOML text; `origin` names it in errors.
     pub fn from_toml_str(text: &str, origin: &str) -> Result<Scene, SimError> {
-        let mut file: SceneFile = toml::from_str(text)
-            .map_err(|e| SimError::Parse { origin: origin.to_string(), message: e.to_string() })?;
+        let mut file: SceneFile = toml::from_str(text).map_err(|e| SimError::Parse {
+            origin: origin.to_string(),
+            message: e.to_string(),
+        })?;
         file.scene.fps = exact_fps(file.scene.fps, origin)?;
         let cameras = validate(&file, origin)?;
-        let scene = Scene { file, origin: origin.to_string(), cameras };
+        let scene = Scene {
+            file,
+            origin: origin.to_string(),
+            cameras,
+        };
         super::check_views(&scene)?;
         Ok(scene)
     }

@@ -89,7 +89,10 @@ pub(crate) struct EncodeSection {
 
 impl Default for EncodeSection {
     fn default() -> Self {
-        Self { crf: 18, preset: "fast".into() }
+        Self {
+            crf: 18,
+            preset: "fast".into(),
+        }
     }
 }
 
@@ -138,7 +141,13 @@ pub struct TextureSpec {
 
 impl Default for TextureSpec {
     fn default() -> Self {
-        Self { kind: "mix".into(), tile: 1.0, colors: [[0.15, 0.2, 0.3], [0.9, 0.85, 0.7]], cells: 8, seed: 0 }
+        Self {
+            kind: "mix".into(),
+            tile: 1.0,
+            colors: [[0.15, 0.2, 0.3], [0.9, 0.85, 0.7]],
+            cells: 8,
+            seed: 0,
+        }
     }
 }
 

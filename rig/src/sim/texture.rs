@@ -27,7 +27,12 @@ fn open_noise(seed: u64, x: f32, y: f32) -> f32 {
     let (tx, ty) = (x - ix as f32, y - iy as f32);
     let (sx, sy) = (tx * tx * (3.0 - 2.0 * tx), ty * ty * (3.0 - 2.0 * ty));
     let at = |i: i64, j: i64| unit(hash(seed, i as u64, j as u64));
-    let (v00, v10, v01, v11) = (at(ix, iy), at(ix + 1, iy), at(ix, iy + 1), at(ix + 1, iy + 1));
+    let (v00, v10, v01, v11) = (
+        at(ix, iy),
+        at(ix + 1, iy),
+        at(ix, iy + 1),
+        at(ix + 1, iy + 1),
+    );
     let top = v00 + (v10 - v00) * sx;
     let bottom = v01 + (v11 - v01) * sx;
     top + (bottom - top) * sy
@@ -59,7 +64,7 @@ fn open_spots(seed: u64, u: f32, v: f32, c: [f32; 3]) -> [f32; 3] {
     if w == 0.0 {
         return c;
     }
-    let target = if (h >> 8) % 2 == 0 {
+    let target = if (h >> 8).is_multiple_of(2) {
         [0.06, 0.05, 0.07]
     } else {
         let t = unit(h.rotate_left(53));
@@ -70,7 +75,8 @@ fn open_spots(seed: u64, u: f32, v: f32, c: [f32; 3]) -> [f32; 3] {
 
 /// A 64-bit mix of the inputs (splitmix64 finaliser): the noise lattice values.
 pub(crate) fn hash(seed: u64, a: u64, b: u64) -> u64 {
-    let mut z = seed ^ a.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ b.wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+    let mut z =
+        seed ^ a.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ b.wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^ (z >> 31)
@@ -88,7 +94,10 @@ fn value_noise(seed: u64, period: u32, x: f32, y: f32) -> f32 {
     let (sx, sy) = (tx * tx * (3.0 - 2.0 * tx), ty * ty * (3.0 - 2.0 * ty));
     let p = period as i64;
     let at = |i: f32, j: f32| {
-        let (a, b) = ((i as i64).rem_euclid(p) as u64, (j as i64).rem_euclid(p) as u64);
+        let (a, b) = (
+            (i as i64).rem_euclid(p) as u64,
+            (j as i64).rem_euclid(p) as u64,
+        );
         unit(hash(seed, a, b))
     };
     let v00 = at(ix, iy);
@@ -177,12 +186,20 @@ impl Texture {
                 let tint = value_noise(seed ^ 0x7469_6E74, 2, x, y) - 0.5;
                 *texel = [0, 1, 2].map(|c| {
                     let v = c0[c] + (c1[c] - c0[c]) * t;
-                    let drift = if kind == "solid" { 0.0 } else { tint * 0.15 * (c as f32 - 1.0) };
+                    let drift = if kind == "solid" {
+                        0.0
+                    } else {
+                        tint * 0.15 * (c as f32 - 1.0)
+                    };
                     (v + drift).clamp(0.0, 1.0)
                 });
             }
         });
-        Texture { size: n, texels, macro_seed: (kind != "solid").then_some(seed ^ 0x6D61_6372) }
+        Texture {
+            size: n,
+            texels,
+            macro_seed: (kind != "solid").then_some(seed ^ 0x6D61_6372),
+        }
     }
 
     /// Colour at texture coordinates in tile units: the tile (bilinear, wrapping) under a
@@ -197,7 +214,11 @@ impl Texture {
                 let m = open_noise(seed, u * 0.53, v * 0.53);
                 let tint = open_noise(seed ^ 2, u * 0.29, v * 0.29) - 0.5;
                 let g = 0.65 + 0.7 * m;
-                let c = [(c[0] * g * (1.0 + 0.3 * tint)).min(1.0), (c[1] * g).min(1.0), (c[2] * g * (1.0 - 0.3 * tint)).min(1.0)];
+                let c = [
+                    (c[0] * g * (1.0 + 0.3 * tint)).min(1.0),
+                    (c[1] * g).min(1.0),
+                    (c[2] * g * (1.0 - 0.3 * tint)).min(1.0),
+                ];
                 open_spots(seed ^ 0x7370_6F74, u, v, c)
             }
         }
@@ -213,9 +234,16 @@ impl Texture {
         let (tx, ty) = (x - fx as f32, y - fy as f32);
         let wrap = |a: i64| a.rem_euclid(n as i64) as usize;
         let (x0, y0) = (wrap(fx), wrap(fy));
-        let (x1, y1) = (if x0 + 1 == n { 0 } else { x0 + 1 }, if y0 + 1 == n { 0 } else { y0 + 1 });
-        let (a, b, c, d) =
-            (self.texels[y0 * n + x0], self.texels[y0 * n + x1], self.texels[y1 * n + x0], self.texels[y1 * n + x1]);
+        let (x1, y1) = (
+            if x0 + 1 == n { 0 } else { x0 + 1 },
+            if y0 + 1 == n { 0 } else { y0 + 1 },
+        );
+        let (a, b, c, d) = (
+            self.texels[y0 * n + x0],
+            self.texels[y0 * n + x1],
+            self.texels[y1 * n + x0],
+            self.texels[y1 * n + x1],
+        );
         [0, 1, 2].map(|k| {
             let top = a[k] + (b[k] - a[k]) * tx;
             let bottom = c[k] + (d[k] - c[k]) * tx;
@@ -243,7 +271,8 @@ mod tests {
         }
         // Rich: the texture is far from flat.
         let mean: f32 = a.texels.iter().map(|t| t[1]).sum::<f32>() / a.texels.len() as f32;
-        let var: f32 = a.texels.iter().map(|t| (t[1] - mean).powi(2)).sum::<f32>() / a.texels.len() as f32;
+        let var: f32 =
+            a.texels.iter().map(|t| (t[1] - mean).powi(2)).sum::<f32>() / a.texels.len() as f32;
         assert!(var.sqrt() > 0.08, "std {}", var.sqrt());
     }
 }

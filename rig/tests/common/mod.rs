@@ -4,20 +4,28 @@
 
 use std::path::{Path, PathBuf};
 
-use ffmpeg_next as ffmpeg;
 use ffmpeg::{format, media, software};
+use ffmpeg_next as ffmpeg;
 
 pub fn fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("fixtures").join(name)
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .join("fixtures")
+        .join(name)
 }
 
 pub fn fixture_table(name: &str) -> toml::Table {
-    std::fs::read_to_string(fixture(name)).unwrap().parse().unwrap()
+    std::fs::read_to_string(fixture(name))
+        .unwrap()
+        .parse()
+        .unwrap()
 }
 
 /// The `i`-th `[[cameras.video]]` table.
 pub fn video_cam(t: &mut toml::Table, i: usize) -> &mut toml::Table {
-    t["cameras"]["video"].as_array_mut().unwrap()[i].as_table_mut().unwrap()
+    t["cameras"]["video"].as_array_mut().unwrap()[i]
+        .as_table_mut()
+        .unwrap()
 }
 
 pub fn scene_of(t: &toml::Table, origin: &str) -> rig::sim::Scene {
@@ -45,7 +53,11 @@ pub fn video_frames(path: &Path) -> Vec<(f64, Vec<u8>)> {
     let mut ictx = format::input(path).unwrap();
     let st = ictx.streams().best(media::Type::Video).unwrap();
     let (idx, tb) = (st.index(), st.time_base());
-    let mut dec = ffmpeg::codec::context::Context::from_parameters(st.parameters()).unwrap().decoder().video().unwrap();
+    let mut dec = ffmpeg::codec::context::Context::from_parameters(st.parameters())
+        .unwrap()
+        .decoder()
+        .video()
+        .unwrap();
     let mut scaler = software::scaling::Context::get(
         dec.format(),
         dec.width(),
@@ -87,18 +99,23 @@ pub fn audio(path: &Path) -> Option<(u32, Vec<f32>, f64)> {
     let mut ictx = format::input(path).unwrap();
     let st = ictx.streams().best(media::Type::Audio)?;
     let (idx, tb) = (st.index(), st.time_base());
-    let mut dec = ffmpeg::codec::context::Context::from_parameters(st.parameters()).unwrap().decoder().audio().unwrap();
+    let mut dec = ffmpeg::codec::context::Context::from_parameters(st.parameters())
+        .unwrap()
+        .decoder()
+        .audio()
+        .unwrap();
     let mut samples = Vec::new();
     let mut first_pts = None;
-    let take = |dec: &mut ffmpeg::decoder::Audio, samples: &mut Vec<f32>, first: &mut Option<f64>| {
-        let mut f = ffmpeg::frame::Audio::empty();
-        while dec.receive_frame(&mut f).is_ok() {
-            if first.is_none() {
-                *first = f.pts().map(|p| p as f64 * f64::from(tb));
+    let take =
+        |dec: &mut ffmpeg::decoder::Audio, samples: &mut Vec<f32>, first: &mut Option<f64>| {
+            let mut f = ffmpeg::frame::Audio::empty();
+            while dec.receive_frame(&mut f).is_ok() {
+                if first.is_none() {
+                    *first = f.pts().map(|p| p as f64 * f64::from(tb));
+                }
+                samples.extend_from_slice(&f.plane::<f32>(0)[..f.samples()]);
             }
-            samples.extend_from_slice(&f.plane::<f32>(0)[..f.samples()]);
-        }
-    };
+        };
     for (s, p) in ictx.packets() {
         if s.index() == idx {
             dec.send_packet(&p).unwrap();
@@ -118,7 +135,10 @@ pub fn tree(dir: &Path) -> Vec<(String, Vec<u8>)> {
             if p.is_dir() {
                 walk(base, &p, out);
             } else {
-                out.push((p.strip_prefix(base).unwrap().display().to_string(), std::fs::read(&p).unwrap()));
+                out.push((
+                    p.strip_prefix(base).unwrap().display().to_string(),
+                    std::fs::read(&p).unwrap(),
+                ));
             }
         }
     }
