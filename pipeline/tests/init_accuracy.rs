@@ -14,7 +14,6 @@ use std::path::PathBuf;
 use glam::DVec3;
 use rayon::prelude::*;
 
-
 fn quantiles(mut v: Vec<f64>) -> String {
     if v.is_empty() {
         return "-".into();

@@ -465,6 +465,34 @@ impl CaptureBackend {
     }
 }
 
+/// The cameras `backend` finds, one line each (`/dev/video0`; `#0 Logitech C920`).
+pub fn list_cameras(backend: CaptureBackend) -> Result<Vec<String>, RecordError> {
+    match backend {
+        CaptureBackend::V4l2 => Ok(v4l2::list_devices()
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect()),
+        #[cfg(feature = "nokhwa")]
+        CaptureBackend::Nokhwa => Ok(nokhwa::list_cameras()?
+            .iter()
+            .map(ToString::to_string)
+            .collect()),
+        #[cfg(not(feature = "nokhwa"))]
+        CaptureBackend::Nokhwa => Err(nokhwa_not_built()),
+    }
+}
+
+#[cfg(not(feature = "nokhwa"))]
+fn nokhwa_not_built() -> RecordError {
+    RecordError::NokhwaNotBuilt {
+        hint: if cfg!(target_os = "linux") {
+            ", or record with --backend v4l2"
+        } else {
+            ""
+        },
+    }
+}
+
 /// Records `devices` through `backend` (see [`record`] and [`record_nokhwa`]); a device is
 /// a path (`/dev/video0`) for V4L2, an index, `/dev/videoN` or a camera's name for nokhwa.
 pub fn record_with(
@@ -506,13 +534,7 @@ pub fn record_nokhwa(
     #[cfg(not(feature = "nokhwa"))]
     {
         let _ = (devices, capture_dir, config, stop, progress);
-        Err(RecordError::NokhwaNotBuilt {
-            hint: if cfg!(target_os = "linux") {
-                ", or record with --backend v4l2"
-            } else {
-                ""
-            },
-        })
+        Err(nokhwa_not_built())
     }
 }
 
