@@ -62,7 +62,7 @@ pub enum Command {
         backend: Option<BackendChoice>,
     },
     /// Record up to four webcams at once into a new capture directory (raw/camN/capture.mov
-    /// + each frame's capture time). Stop with Ctrl-C or --seconds. Cameras come through
+    /// and each frame's capture time). Stop with Ctrl-C or --seconds. Cameras come through
     /// V4L2 (Linux) or nokhwa (Linux, macOS, Windows; a build with `--features nokhwa`).
     ///
     /// Examples: pipeline record --device /dev/video0 --device /dev/video2 --seconds 20 my_capture/

@@ -2,9 +2,11 @@
 //! files (`CAPTURE_DIR/raw/camN/capture.mov` + `timestamps.csv`), so ingest treats a live
 //! recording like any other.
 //!
-//! Device-independent parts (format negotiation, the frame clock, the writer) are plain
-//! functions tested with any [`CameraSource`]; the V4L2 device itself is
-//! [`v4l2::V4l2Source`]. Frames carry kernel buffer timestamps (CLOCK_MONOTONIC), made
+//! Device-independent parts (format negotiation, the frame clock, the writer, pixel
+//! conversion in [`pixels`], the capture-thread source in [`live`]) are plain functions
+//! tested with any [`CameraSource`]. Devices come through [`v4l2::V4l2Source`] (kernel
+//! buffer timestamps, CLOCK_MONOTONIC) or, with the `nokhwa` feature, `nokhwa` (the
+//! backend's capture times on Linux, macOS and Windows); either way the times are made
 //! relative to one session origin shared by all cameras, so `sync.method = "timestamps"`
 //! works for cameras on one machine. This module does not synchronise or decode files.
 
