@@ -6,6 +6,9 @@ set -euo pipefail
 PACKAGES=(
   # build: bindgen for ffmpeg-sys-next / opencv, pkg-config to find the libraries
   clang libclang-dev pkg-config nasm
+  # kernel headers: <linux/videodev2.h> for v4l2-sys (the V4L2 recorder, and nokhwa's V4L2
+  # backend behind `--features nokhwa`, which needs nothing else on Debian)
+  linux-libc-dev
   # FFmpeg libraries (decode/encode video and audio) and the ffmpeg CLI used by tests
   libavcodec-dev libavformat-dev libavutil-dev libavdevice-dev libavfilter-dev
   libswscale-dev libswresample-dev ffmpeg

@@ -5,8 +5,16 @@ cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 # A one-off CI build gains nothing from incremental artefacts; they only take disk.
 if [ "${CI:-}" = true ]; then export CARGO_INCREMENTAL=0; fi
+status=0
 if cargo nextest --version >/dev/null 2>&1; then
-  exec cargo nextest run --workspace --no-fail-fast "$@"
+  cargo nextest run --workspace --no-fail-fast "$@" || status=$?
 else
-  exec cargo test --workspace --no-fail-fast "$@"
+  cargo test --workspace --no-fail-fast "$@" || status=$?
 fi
+# Live capture through nokhwa is a feature (`--features nokhwa`): compile it and run the
+# tests that change with it (its format/error mapping, the recorder, `pipeline record`).
+if [ $# -eq 0 ]; then
+  cargo test -p rig --features nokhwa --lib --test record_live --no-fail-fast || status=$?
+  cargo test -p pipeline --features nokhwa --test cli --no-fail-fast record || status=$?
+fi
+exit "$status"

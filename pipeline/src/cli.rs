@@ -61,10 +61,13 @@ pub enum Command {
         #[arg(long, value_enum)]
         backend: Option<BackendChoice>,
     },
-    /// Record up to four V4L2 webcams at once into a new capture directory
-    /// (raw/camN/capture.mov + kernel timestamps per frame). Stop with Ctrl-C or --seconds.
+    /// Record up to four webcams at once into a new capture directory (raw/camN/capture.mov
+    /// and each frame's capture time). Stop with Ctrl-C or --seconds. Cameras come through
+    /// V4L2 (Linux) or nokhwa (Linux, macOS, Windows; a build with `--features nokhwa`).
     ///
-    /// Example: pipeline record --device /dev/video0 --device /dev/video2 --seconds 20 my_capture/
+    /// Examples: pipeline record --device /dev/video0 --device /dev/video2 --seconds 20 my_capture/
+    ///           pipeline record --backend nokhwa --device 0 --device "C920" my_capture/
+    ///           pipeline record --backend nokhwa --list
     Record(RecordArgs),
     /// Render the trained model of a capture along a camera path, outside the stage graph
     /// (the `render` stage does the same with the [render] settings).
@@ -117,13 +120,40 @@ pub struct RunArgs {
     pub backend: Option<BackendChoice>,
 }
 
+/// The library `record` talks to the cameras through.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum RecordBackend {
+    /// V4L2 directly (Linux): kernel timestamps, driver frame counters.
+    V4l2,
+    /// nokhwa: V4L2 on Linux, AVFoundation on macOS, Media Foundation on Windows (needs a
+    /// build with `--features nokhwa`).
+    Nokhwa,
+}
+
+impl From<RecordBackend> for rig::record::CaptureBackend {
+    fn from(b: RecordBackend) -> Self {
+        match b {
+            RecordBackend::V4l2 => rig::record::CaptureBackend::V4l2,
+            RecordBackend::Nokhwa => rig::record::CaptureBackend::Nokhwa,
+        }
+    }
+}
+
 #[derive(Debug, Args)]
 pub struct RecordArgs {
-    /// A V4L2 device to record (repeat for each camera, up to 4).
+    /// A camera to record (repeat for each camera, up to 4): a device path for v4l2
+    /// (/dev/video0); for nokhwa an index (0), /dev/videoN, or (part of) a camera's name.
     #[arg(long = "device", value_name = "DEVICE")]
-    pub devices: Vec<PathBuf>,
+    pub devices: Vec<String>,
     /// The capture directory to create (must not already hold a capture).
-    pub capture_dir: PathBuf,
+    #[arg(required_unless_present = "list")]
+    pub capture_dir: Option<PathBuf>,
+    /// Camera library: v4l2 or nokhwa (default: v4l2 on Linux, nokhwa elsewhere).
+    #[arg(long, value_enum)]
+    pub backend: Option<RecordBackend>,
+    /// List the cameras the backend finds, then exit.
+    #[arg(long)]
+    pub list: bool,
     /// Stop after this many seconds (default: when Ctrl-C is pressed).
     #[arg(long)]
     pub seconds: Option<f64>,

@@ -183,12 +183,34 @@ fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Record V4L2 cameras into a new capture directory until Ctrl-C or `--seconds`.
+/// Record webcams (V4L2 or nokhwa) into a new capture directory until Ctrl-C or
+/// `--seconds`; or, with `--list`, list the cameras.
 fn record(args: RecordArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
-    if args.capture_dir.join("raw").exists() {
+    let backend = args
+        .backend
+        .map(rig::record::CaptureBackend::from)
+        .unwrap_or_else(rig::record::CaptureBackend::native);
+    if args.list {
+        let cameras = rig::record::list_cameras(backend)?;
+        if reporter.mode() == OutputMode::Json {
+            reporter.json(&serde_json::json!({ "event": "cameras", "cameras": cameras }));
+        } else if cameras.is_empty() {
+            reporter.say(&format!("no camera found through {backend:?}"));
+        } else {
+            // The list is the command's output: stdout, one camera a line.
+            for camera in cameras {
+                println!("{camera}");
+            }
+        }
+        return Ok(ExitCode::SUCCESS);
+    }
+    let Some(capture_dir) = args.capture_dir else {
+        anyhow::bail!("give the capture directory to record into (pipeline record --help)");
+    };
+    if capture_dir.join("raw").exists() {
         anyhow::bail!(
             "{} already holds a capture (raw/); choose another folder or delete it first",
-            args.capture_dir.display()
+            capture_dir.display()
         );
     }
     let config = rig::record::RecordConfig {
@@ -203,7 +225,14 @@ fn record(args: RecordArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     ctrlc::set_handler(move || flag.store(true, std::sync::atomic::Ordering::Relaxed))
         .context("cannot install the Ctrl-C handler")?;
     let progress = reporter.progress("record");
-    let cameras = rig::record::record(&args.devices, &args.capture_dir, &config, &stop, &progress)?;
+    let cameras = rig::record::record_with(
+        backend,
+        &args.devices,
+        &capture_dir,
+        &config,
+        &stop,
+        &progress,
+    )?;
     shared_types::Progress::finish(&progress);
     for cam in &cameras {
         reporter.say(&format!(
@@ -215,7 +244,7 @@ fn record(args: RecordArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     }
     reporter.say(&format!(
         "recorded; next: pipeline run {}",
-        args.capture_dir.display()
+        capture_dir.display()
     ));
     Ok(ExitCode::SUCCESS)
 }

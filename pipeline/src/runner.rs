@@ -416,6 +416,7 @@ impl Pipeline {
 }
 
 /// Run one stage into its partial folder and swap the result in.
+#[allow(clippy::too_many_arguments)] // one stage's whole context, each used once
 fn execute(
     stage: &StageDef,
     run: &RunFn,

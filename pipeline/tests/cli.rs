@@ -190,3 +190,66 @@ fn record_without_devices_fails_cleanly() {
         "nothing recorded, nothing written"
     );
 }
+
+#[test]
+fn record_through_nokhwa_fails_cleanly_without_the_feature_or_a_camera() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("rec");
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .args([
+            "record",
+            "--backend",
+            "nokhwa",
+            "--device",
+            "0",
+            "--seconds",
+            "1",
+        ])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    if cfg!(feature = "nokhwa") {
+        if out.status.success() {
+            return; // a machine with a webcam recorded from it
+        }
+        assert!(
+            err.contains("no camera #0") && err.contains("--list"),
+            "{err}"
+        );
+    } else {
+        assert!(!out.status.success());
+        assert!(
+            err.contains("cargo build --release -p pipeline --features nokhwa"),
+            "{err}"
+        );
+    }
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(
+        !dir.join("raw").exists(),
+        "nothing recorded, nothing written"
+    );
+}
+
+#[test]
+fn record_lists_the_cameras_of_a_backend() {
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .args(["record", "--backend", "v4l2", "--list"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .args(["record", "--backend", "nokhwa", "--list"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.success(), cfg!(feature = "nokhwa"));
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .args(["record", "--seconds", "1"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success(), "a capture directory is required");
+}

@@ -2,9 +2,11 @@
 //! files (`CAPTURE_DIR/raw/camN/capture.mov` + `timestamps.csv`), so ingest treats a live
 //! recording like any other.
 //!
-//! Device-independent parts (format negotiation, the frame clock, the writer) are plain
-//! functions tested with any [`CameraSource`]; the V4L2 device itself is
-//! [`v4l2::V4l2Source`]. Frames carry kernel buffer timestamps (CLOCK_MONOTONIC), made
+//! Device-independent parts (format negotiation, the frame clock, the writer, pixel
+//! conversion in [`pixels`], the capture-thread source in [`live`]) are plain functions
+//! tested with any [`CameraSource`]. Devices come through [`v4l2::V4l2Source`] (kernel
+//! buffer timestamps, CLOCK_MONOTONIC) or, with the `nokhwa` feature, `nokhwa` (the
+//! backend's capture times on Linux, macOS and Windows); either way the times are made
 //! relative to one session origin shared by all cameras, so `sync.method = "timestamps"`
 //! works for cameras on one machine. This module does not synchronise or decode files.
 
@@ -19,6 +21,10 @@ use crate::source::{CameraSource, Frame, PixelLayout, SourceError, init_ffmpeg};
 use shared_types::atomic::{temp_sibling, write_atomic};
 use shared_types::progress::Progress;
 
+pub mod live;
+#[cfg(feature = "nokhwa")]
+pub mod nokhwa;
+pub mod pixels;
 pub mod v4l2;
 
 /// Errors from live recording.
@@ -29,6 +35,24 @@ pub enum RecordError {
         "no V4L2 device found ({0}); plug the cameras in, check `ls /dev/video*` and that you are in the `video` group"
     )]
     NoDevice(String),
+    /// No camera matches a `--device` through the nokhwa backend.
+    #[error(
+        "{detail} through nokhwa ({backend}); plug the camera in, close other programs that use it, and see the cameras with `pipeline record --backend nokhwa --list`"
+    )]
+    NoCamera {
+        /// nokhwa's native backend (`Video4Linux`, `AVFoundation`, `MediaFoundation`).
+        backend: String,
+        /// Which camera was asked for and which are present.
+        detail: String,
+    },
+    /// The nokhwa backend was asked for in a build without it.
+    #[error(
+        "this build has no nokhwa camera backend; rebuild with `cargo build --release -p pipeline --features nokhwa`{hint}"
+    )]
+    NokhwaNotBuilt {
+        /// What else to do on this platform.
+        hint: &'static str,
+    },
     /// Too many devices.
     #[error("{0} devices given; record at most 4 cameras at once")]
     TooMany(usize),
@@ -110,6 +134,15 @@ pub const SUPPORTED_FOURCC: [[u8; 4]; 3] = [*b"MJPG", *b"YUYV", *b"GREY"];
 /// Chooses a capture mode: a supported pixel format, the size closest to the wanted one
 /// (larger preferred on ties), the frame rate closest to the wanted one, MJPEG first.
 pub fn negotiate(offered: &[FormatOption], want: &RecordConfig) -> Option<(FormatOption, f64)> {
+    negotiate_among(offered, want, &SUPPORTED_FOURCC)
+}
+
+/// [`negotiate`] among the pixel formats `supported`, best first.
+pub fn negotiate_among(
+    offered: &[FormatOption],
+    want: &RecordConfig,
+    supported: &[[u8; 4]],
+) -> Option<(FormatOption, f64)> {
     let size_cost = |o: &FormatOption| {
         let dw = (f64::from(o.width) - f64::from(want.width)).abs();
         let dh = (f64::from(o.height) - f64::from(want.height)).abs();
@@ -130,7 +163,7 @@ pub fn negotiate(offered: &[FormatOption], want: &RecordConfig) -> Option<(Forma
     offered
         .iter()
         .filter_map(|o| {
-            SUPPORTED_FOURCC
+            supported
                 .iter()
                 .position(|f| *f == o.fourcc)
                 .map(|rank| (rank, o))
@@ -169,7 +202,13 @@ impl FrameClock {
     /// Session time of a frame with kernel timestamp `(sec, usec)` and driver `sequence`.
     /// Returns `None` for a frame that does not advance time (a repeated buffer).
     pub fn stamp(&mut self, sec: i64, usec: i64, sequence: Option<u32>) -> Option<f64> {
-        let t = sec as f64 + usec as f64 * 1e-6 - self.origin_s;
+        self.stamp_seconds(sec as f64 + usec as f64 * 1e-6, sequence)
+    }
+
+    /// Session time of a frame taken at `time_s` on the clock of `origin_s` (see
+    /// [`FrameClock::stamp`]).
+    pub fn stamp_seconds(&mut self, time_s: f64, sequence: Option<u32>) -> Option<f64> {
+        let t = time_s - self.origin_s;
         if self.last_time.is_some_and(|last| t <= last) {
             return None;
         }
@@ -407,6 +446,100 @@ pub fn record_source(
     })
 }
 
+/// The library that talks to the cameras.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CaptureBackend {
+    /// V4L2 directly (Linux): kernel buffer timestamps and driver sequence numbers.
+    V4l2,
+    /// nokhwa (feature `nokhwa`): V4L2 on Linux, AVFoundation on macOS, Media Foundation on
+    /// Windows; the backend's capture timestamps.
+    Nokhwa,
+}
+
+impl CaptureBackend {
+    /// The default here: V4L2 on Linux, nokhwa elsewhere.
+    pub fn native() -> Self {
+        if cfg!(target_os = "linux") {
+            CaptureBackend::V4l2
+        } else {
+            CaptureBackend::Nokhwa
+        }
+    }
+}
+
+/// The cameras `backend` finds, one line each (`/dev/video0`; `#0 Logitech C920`).
+pub fn list_cameras(backend: CaptureBackend) -> Result<Vec<String>, RecordError> {
+    match backend {
+        CaptureBackend::V4l2 => Ok(v4l2::list_devices()
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect()),
+        #[cfg(feature = "nokhwa")]
+        CaptureBackend::Nokhwa => Ok(nokhwa::list_cameras()?
+            .iter()
+            .map(ToString::to_string)
+            .collect()),
+        #[cfg(not(feature = "nokhwa"))]
+        CaptureBackend::Nokhwa => Err(nokhwa_not_built()),
+    }
+}
+
+#[cfg(not(feature = "nokhwa"))]
+fn nokhwa_not_built() -> RecordError {
+    RecordError::NokhwaNotBuilt {
+        hint: if cfg!(target_os = "linux") {
+            ", or record with --backend v4l2"
+        } else {
+            ""
+        },
+    }
+}
+
+/// Records `devices` through `backend` (see [`record`] and [`record_nokhwa`]); a device is
+/// a path (`/dev/video0`) for V4L2, an index, `/dev/videoN` or a camera's name for nokhwa.
+pub fn record_with(
+    backend: CaptureBackend,
+    devices: &[String],
+    capture_dir: &Path,
+    config: &RecordConfig,
+    stop: &AtomicBool,
+    progress: &dyn Progress,
+) -> Result<Vec<RecordedCamera>, RecordError> {
+    match backend {
+        CaptureBackend::V4l2 => {
+            let paths: Vec<PathBuf> = devices.iter().map(PathBuf::from).collect();
+            record(&paths, capture_dir, config, stop, progress)
+        }
+        CaptureBackend::Nokhwa => record_nokhwa(devices, capture_dir, config, stop, progress),
+    }
+}
+
+/// Records cameras through nokhwa concurrently into `capture_dir/raw/camN/`, stamped with
+/// the backend's capture times relative to one session origin. Fails cleanly with
+/// [`RecordError::NoCamera`] when a camera is missing, and with
+/// [`RecordError::NokhwaNotBuilt`] in a build without the `nokhwa` feature.
+pub fn record_nokhwa(
+    devices: &[String],
+    capture_dir: &Path,
+    config: &RecordConfig,
+    stop: &AtomicBool,
+    progress: &dyn Progress,
+) -> Result<Vec<RecordedCamera>, RecordError> {
+    #[cfg(feature = "nokhwa")]
+    {
+        if devices.len() > 4 {
+            return Err(RecordError::TooMany(devices.len()));
+        }
+        let sources = nokhwa::open_all(devices, config)?;
+        record_opened(sources, capture_dir, config, stop, progress)
+    }
+    #[cfg(not(feature = "nokhwa"))]
+    {
+        let _ = (devices, capture_dir, config, stop, progress);
+        Err(nokhwa_not_built())
+    }
+}
+
 /// Records every device concurrently into `capture_dir/raw/camN/` (see [`record_sources`]).
 /// Fails cleanly with [`RecordError::NoDevice`] when a device is missing.
 pub fn record(
@@ -443,6 +576,17 @@ pub fn record(
             origin,
         )?));
     }
+    record_opened(sources, capture_dir, config, stop, progress)
+}
+
+/// Records opened `sources` for `config.duration_s`, prompting for the flash when asked.
+fn record_opened(
+    sources: Vec<Box<dyn CameraSource>>,
+    capture_dir: &Path,
+    config: &RecordConfig,
+    stop: &AtomicBool,
+    progress: &dyn Progress,
+) -> Result<Vec<RecordedCamera>, RecordError> {
     let camera_count = sources.len();
     let prompt = config.flash_prompt;
     record_sources(

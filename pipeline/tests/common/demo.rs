@@ -72,11 +72,9 @@ pub fn demo_data(scale: usize) -> (Dataset, Dataset, PointCloud) {
             if k % 12 == 0 {
                 let i = &c.camera.intrinsics;
                 let full_w = i.width as usize;
-                for (p, &z) in depth
-                    .iter()
-                    .enumerate()
-                    .filter(|(p, _)| (p % full_w) % 12 == 0 && (p / full_w) % 12 == 0)
-                {
+                for (p, &z) in depth.iter().enumerate().filter(|(p, _)| {
+                    (p % full_w).is_multiple_of(12) && (p / full_w).is_multiple_of(12)
+                }) {
                     if !z.is_finite() {
                         continue;
                     }

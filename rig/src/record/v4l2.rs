@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use super::{FormatOption, FrameClock, RecordConfig, RecordError, negotiate};
-use crate::source::{CameraSource, Frame, PixelLayout, SourceError};
+use crate::source::{CameraSource, Frame, SourceError};
 
 /// The `/dev/video*` device nodes present, sorted.
 pub fn list_devices() -> Vec<PathBuf> {
@@ -41,25 +41,7 @@ pub fn monotonic_now() -> f64 {
     0.0
 }
 
-/// YUYV 4:2:2 (BT.601, limited range) to packed RGB8.
-pub fn yuyv_to_rgb(data: &[u8], width: u32, height: u32) -> Vec<u8> {
-    let n = (width * height) as usize;
-    let mut out = Vec::with_capacity(3 * n);
-    let px = |y: u8, u: u8, v: u8, out: &mut Vec<u8>| {
-        let c = 1.164 * (f32::from(y) - 16.0);
-        let d = f32::from(u) - 128.0;
-        let e = f32::from(v) - 128.0;
-        for x in [c + 1.596 * e, c - 0.392 * d - 0.813 * e, c + 2.017 * d] {
-            out.push(x.round().clamp(0.0, 255.0) as u8);
-        }
-    };
-    for q in data.chunks_exact(4).take(n / 2) {
-        px(q[0], q[1], q[3], &mut out);
-        px(q[2], q[1], q[3], &mut out);
-    }
-    out.resize(3 * n, 0);
-    out
-}
+pub use super::pixels::yuyv_to_rgb;
 
 /// A live V4L2 camera.
 pub struct V4l2Source {
@@ -202,6 +184,7 @@ impl CameraSource for V4l2Source {
 
     #[cfg(target_os = "linux")]
     fn next_frame(&mut self) -> Result<Option<Frame>, SourceError> {
+        use super::pixels::{PixelError, to_frame_pixels};
         use v4l::io::traits::CaptureStream;
         let dev_err = |m: String| SourceError::Device {
             device: self.device.clone(),
@@ -221,19 +204,14 @@ impl CameraSource for V4l2Source {
                 continue;
             };
             let (w, h) = self.size;
-            let (layout, data) = match &self.fourcc {
-                b"MJPG" => {
-                    match image::load_from_memory_with_format(used, image::ImageFormat::Jpeg) {
-                        Ok(img) => (PixelLayout::Rgb8, img.to_rgb8().into_raw()),
-                        Err(_) => continue, // a corrupt MJPEG frame counts as dropped
-                    }
+            let (layout, data) = match to_frame_pixels(&self.fourcc, used, w, h) {
+                Ok(pixels) => pixels,
+                // A corrupt or truncated frame counts as dropped.
+                Err(PixelError::Corrupt { .. } | PixelError::Short { .. }) => {
+                    self.clock.dropped += 1;
+                    continue;
                 }
-                b"YUYV" => (PixelLayout::Rgb8, yuyv_to_rgb(used, w, h)),
-                _ => {
-                    let mut g = used.to_vec();
-                    g.resize((w * h) as usize, 0);
-                    (PixelLayout::Gray8, g)
-                }
+                Err(e) => return Err(dev_err(e.to_string())),
             };
             let index = self.index;
             self.index += 1;

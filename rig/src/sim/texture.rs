@@ -64,7 +64,7 @@ fn open_spots(seed: u64, u: f32, v: f32, c: [f32; 3]) -> [f32; 3] {
     if w == 0.0 {
         return c;
     }
-    let target = if (h >> 8) % 2 == 0 {
+    let target = if (h >> 8).is_multiple_of(2) {
         [0.06, 0.05, 0.07]
     } else {
         let t = unit(h.rotate_left(53));
