@@ -2,13 +2,19 @@
 //! forward at 512×384 for 10k, 100k and 1M Gaussians, one view per call and a batch of 8
 //! views per call (the eval path), plus 1M at 1352×1014 (the paper's resolution). Times
 //! include uploading the model and reading the images back, as a caller sees them.
+//!
+//! `gpu_train_step`: forward + backward (a training step's render work; loss and optimiser
+//! excluded) and the backward alone, from image gradients to parameter gradients read
+//! back on the host. 2k Gaussians at 128×96 is the size a software adapter can run;
+//! 10k–1M at 512×384 and 1M at 1352×1014 (issue 17's 25 ms target) are for real GPUs.
+//!
 //! Run: `cargo bench -p splat4d --bench render_gpu` (`SPLAT4D_GPU_SOFTWARE=1` to measure
-//! a software adapter such as lavapipe).
+//! a software adapter such as lavapipe; add `-- gpu_train_step/.*128x96` for its size).
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use splat4d::render::gpu::{AdapterPolicy, GpuBackend};
 use splat4d::render::{RenderBackend, ViewRequest};
-use splat4d::{Camera, RenderOptions};
+use splat4d::{Camera, Gaussians, Gradients, ImageGradients, RenderOptions};
 use std::hint::black_box;
 
 mod common;
@@ -54,6 +60,80 @@ fn bench(c: &mut Criterion) {
                 b.iter(|| black_box(gpu.render(m, &large, 0.5, &opts).unwrap()))
             });
         }
+    }
+    group.finish();
+    train_step(c, &gpu);
+}
+
+/// Fixed upstream gradients for a `w×h` image (any values do: the work does not depend
+/// on them).
+fn upstream(w: u32, h: u32) -> (Vec<f32>, Vec<f32>) {
+    let npix = (w * h) as usize;
+    let rgb = (0..3 * npix)
+        .map(|i| ((i % 7) as f32 - 3.0) * 0.1)
+        .collect();
+    let alpha = (0..npix).map(|i| ((i % 5) as f32 - 2.0) * 0.05).collect();
+    (rgb, alpha)
+}
+
+fn train_step(c: &mut Criterion, gpu: &GpuBackend) {
+    let opts = RenderOptions::<f32>::default();
+    let mut group = c.benchmark_group("gpu_train_step");
+    group.sample_size(10);
+    let sized = |w: u32, h: u32| {
+        let mut cam: Camera = camera();
+        cam.intrinsics = cam.intrinsics.scaled_to(w, h);
+        cam
+    };
+    let cases = [
+        (2_000usize, 128u32, 96u32),
+        (10_000, 512, 384),
+        (100_000, 512, 384),
+        (1_000_000, 512, 384),
+        (1_000_000, 1352, 1014),
+    ];
+    let models: Vec<(usize, std::cell::OnceCell<Gaussians<f32>>)> =
+        [2_000, 10_000, 100_000, 1_000_000]
+            .into_iter()
+            .map(|n| (n, std::cell::OnceCell::new()))
+            .collect();
+    for (n, w, h) in cases {
+        let cam = sized(w, h);
+        let get = || {
+            let (_, cell) = models
+                .iter()
+                .find(|(m, _)| *m == n)
+                .expect("a model per size");
+            cell.get_or_init(|| scene(n))
+        };
+        let (rgb, alpha) = upstream(w, h);
+        let up = ImageGradients {
+            rgb: &rgb,
+            alpha: Some(&alpha),
+            depth: None,
+        };
+        let size = format!("{w}x{h}");
+        group.bench_function(
+            BenchmarkId::new(format!("forward_backward_{size}"), n),
+            |b| {
+                let m = get();
+                let mut grads = Gradients::zeros_like(m, false);
+                b.iter(|| {
+                    let frame = gpu.render(m, &cam, 0.5, &opts).unwrap();
+                    gpu.backward(m, &frame, &up, &mut grads).unwrap();
+                    black_box(&grads);
+                })
+            },
+        );
+        group.bench_function(BenchmarkId::new(format!("backward_{size}"), n), |b| {
+            let m = get();
+            let frame = gpu.render(m, &cam, 0.5, &opts).unwrap();
+            let mut grads = Gradients::zeros_like(m, false);
+            b.iter(|| {
+                gpu.backward(m, &frame, &up, &mut grads).unwrap();
+                black_box(&grads);
+            })
+        });
     }
     group.finish();
 }

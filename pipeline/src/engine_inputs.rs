@@ -63,8 +63,10 @@ pub fn render_backend(choice: BackendChoice) -> anyhow::Result<Box<dyn RenderBac
     Ok(backend)
 }
 
-/// The backend that trains: the CPU, whose backward pass the trainer needs (the GPU
-/// backward is not written yet).
+/// The backend that trains: the CPU. The trainer takes any `RenderBackend`, and the GPU
+/// backend has its backward (`tests/gpu_train.rs` trains with it), but loss, Adam and the
+/// decay still run on the host per view, so choosing the GPU here (from `[engine]
+/// backend`) waits for them to move to the GPU (issue 17).
 pub fn training_backend() -> Box<dyn RenderBackend> {
     let backend = Box::new(splat4d::CpuBackend);
     tracing::info!("training backend: {}", backend.describe());

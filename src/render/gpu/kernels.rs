@@ -4,6 +4,8 @@
 use wgpu::util::DeviceExt;
 
 const COMMON: &str = include_str!("shaders/common.wgsl");
+/// Per-Gaussian constants and guards of `preprocess` and its backward.
+const GAUSSIAN: &str = include_str!("shaders/gaussian.wgsl");
 
 /// Threads per 1D workgroup (`WG` in the shaders).
 pub const WG: u32 = 256;
@@ -35,6 +37,8 @@ pub struct Kernels {
     pub scatter: Kernel,
     pub ranges: Kernel,
     pub rasterise: Kernel,
+    pub rasterise_backward: Kernel,
+    pub preprocess_backward: Kernel,
 }
 
 impl Kernels {
@@ -45,7 +49,16 @@ impl Kernels {
                 source: wgpu::ShaderSource::Wgsl(format!("{COMMON}\n{body}").into()),
             })
         };
-        let preprocess = module("preprocess", include_str!("shaders/preprocess.wgsl"));
+        let with_gaussian = |name: &str, body: &str| module(name, &format!("{GAUSSIAN}\n{body}"));
+        let preprocess = with_gaussian("preprocess", include_str!("shaders/preprocess.wgsl"));
+        let preprocess_backward = with_gaussian(
+            "preprocess_backward",
+            include_str!("shaders/preprocess_backward.wgsl"),
+        );
+        let raster_backward = module(
+            "raster_backward",
+            include_str!("shaders/raster_backward.wgsl"),
+        );
         let emit = module("emit", include_str!("shaders/emit.wgsl"));
         let scan = module("scan", include_str!("shaders/scan.wgsl"));
         let sort = module("sort", include_str!("shaders/sort.wgsl"));
@@ -76,7 +89,21 @@ impl Kernels {
             rasterise: k(
                 &raster,
                 "rasterise",
-                &[Uniform, Read, Read, Read, ReadWrite, ReadWrite, ReadWrite],
+                &[
+                    Uniform, Read, Read, Read, ReadWrite, ReadWrite, ReadWrite, ReadWrite,
+                ],
+            ),
+            rasterise_backward: k(
+                &raster_backward,
+                "rasterise_backward",
+                &[Uniform, Read, Read, Read, Read, Read, Read, ReadWrite],
+            ),
+            preprocess_backward: k(
+                &preprocess_backward,
+                "preprocess_backward",
+                &[
+                    Uniform, Read, Read, Read, Read, Read, Read, ReadWrite, ReadWrite,
+                ],
             ),
         }
     }

@@ -7,8 +7,17 @@
 //! A batch of views costs two submissions and two small read-backs: the first pass learns
 //! how many (tile, splat) pairs each view has (to size the sort buffers), the second
 //! renders every view and copies the images back together. The model is uploaded once per
-//! batch. The backward pass is not on the GPU yet: [`RenderBackend::backward`] refuses.
+//! batch.
+//!
+//! Each frame keeps its forward state on the device (projected splats, tile counts and
+//! their scan, sorted entries, tile ranges, final transmittance and last contributor per
+//! pixel), and [`RenderBackend::backward`] runs on it in one submission with one read-back
+//! ([`backward`]): `rasterise_backward` per tile, back to front, then
+//! `preprocess_backward` per Gaussian (colour, projection and slicing backward). The
+//! gradients are of the model as uploaded by the render; loss and optimiser stay on the
+//! host.
 
+mod backward;
 mod device;
 mod kernels;
 mod sort;
@@ -36,8 +45,48 @@ pub struct GpuBackend {
     kernels: Kernels,
 }
 
-/// What a GPU frame keeps for a backward pass (nothing yet: the backward is not on the GPU).
-struct GpuFrame;
+/// The model as uploaded for one batch, shared by its frames.
+struct ModelBuffers {
+    /// Five vec4 per Gaussian (`params` in `shaders/preprocess.wgsl`).
+    params: wgpu::Buffer,
+    colours: wgpu::Buffer,
+    /// Ones, bound where a view has no opacity factor.
+    ones: wgpu::Buffer,
+    count: usize,
+    colour_len: usize,
+}
+
+/// What a GPU frame keeps on the device for its backward pass: the forward's projected
+/// splats, tile counts and their scan, the sorted entries, tile ranges and per-pixel
+/// final transmittance / last contributor, so the backward neither re-projects for the
+/// sort nor sorts again.
+struct GpuFrame {
+    /// The device that holds these buffers.
+    gpu: Arc<Gpu>,
+    model: Arc<ModelBuffers>,
+    uniform: ViewUniform,
+    view: wgpu::Buffer,
+    factor: Option<wgpu::Buffer>,
+    buffers: ViewBuffers,
+    /// (tile, splat) entries of this view.
+    pairs: u32,
+}
+
+/// Per-view device buffers the forward fills and the backward reads.
+struct ViewBuffers {
+    /// One `Splat` per Gaussian.
+    splats: wgpu::Buffer,
+    /// Tiles touched per Gaussian (0 when culled).
+    counts: wgpu::Buffer,
+    /// Inclusive scan of `counts`: where each Gaussian's entries end in emit order.
+    ends: wgpu::Buffer,
+    /// Gaussian index of each entry, sorted by (tile, depth).
+    values: wgpu::Buffer,
+    /// Per tile: its run of sorted entries.
+    ranges: wgpu::Buffer,
+    /// Per pixel: final transmittance bits and last contributing entry + 1.
+    pixels: wgpu::Buffer,
+}
 
 /// The per-view constants (`View` in `shaders/common.wgsl`).
 #[repr(C)]
@@ -197,8 +246,6 @@ impl GpuBackend {
 
 /// Per-Gaussian buffers shared by the views of a batch (each view overwrites them).
 struct Scratch {
-    splats: wgpu::Buffer,
-    counts: wgpu::Buffer,
     ends: wgpu::Buffer,
     radii: wgpu::Buffer,
     scan: Option<Scan>,
@@ -239,17 +286,17 @@ impl RenderBackend for GpuBackend {
             let pixels = p.uniform.width as u64 * p.uniform.height as u64;
             self.too_large("the RGB image", 12 * pixels)?;
         }
-        self.checked(|| self.render_checked(model, views, &prepared))
+        self.checked(|| self.render_checked(model, views, prepared))
     }
 
     fn backward(
         &self,
-        _model: &Gaussians<f32>,
-        _frame: &Rendered<f32>,
-        _up: &ImageGradients<f32>,
-        _out: &mut Gradients<f32>,
+        model: &Gaussians<f32>,
+        frame: &Rendered<f32>,
+        up: &ImageGradients<f32>,
+        out: &mut Gradients<f32>,
     ) -> Result<(), RenderError> {
-        Err(RenderError::BackwardUnsupported { backend: "gpu" })
+        backward::backward(self, model, frame, up, out)
     }
 }
 
@@ -258,7 +305,7 @@ impl GpuBackend {
         &self,
         model: &Gaussians<f32>,
         views: &[ViewRequest<'_>],
-        prepared: &[Prepared],
+        prepared: Vec<Prepared>,
     ) -> Result<Vec<Rendered<f32>>, RenderError> {
         let device = &self.gpu.device;
         let k = &self.kernels;
@@ -273,12 +320,14 @@ impl GpuBackend {
                 [model.opacity_logits[i], 0.0, 0.0, 0.0],
             ]);
         }
-        let params = storage_init(device, &params, "gaussians");
-        let colours = storage_init(device, &model.colours, "colours");
-        let ones = storage_init(device, &vec![1.0f32; n.max(1)], "no opacity factor");
+        let uploaded = Arc::new(ModelBuffers {
+            params: storage_init(device, &params, "gaussians"),
+            colours: storage_init(device, &model.colours, "colours"),
+            ones: storage_init(device, &vec![1.0f32; n.max(1)], "no opacity factor"),
+            count: n,
+            colour_len: model.colours.len(),
+        });
         let scratch = Scratch {
-            splats: storage(device, SPLAT_BYTES * n as u64, "splats"),
-            counts: storage(device, 4 * n as u64, "tile counts"),
             ends: storage(device, 4 * n as u64, "tile ends"),
             radii: storage(device, 4 * n as u64, "radii"),
             scan: None,
@@ -291,20 +340,31 @@ impl GpuBackend {
             .iter()
             .map(|p| uniform(device, &p.uniform))
             .collect();
+        // Per view: its splats and tile counts (kept for the backward).
+        let per_view: Vec<(wgpu::Buffer, wgpu::Buffer)> = prepared
+            .iter()
+            .map(|_| {
+                (
+                    storage(device, SPLAT_BYTES * n as u64, "splats"),
+                    storage(device, 4 * n as u64, "tile counts"),
+                )
+            })
+            .collect();
         let preprocess_groups: Vec<wgpu::BindGroup> = prepared
             .iter()
             .zip(&view_uniforms)
-            .map(|(p, u)| {
-                let factor = p.factor.as_ref().unwrap_or(&ones);
+            .zip(&per_view)
+            .map(|((p, u), (splats, counts))| {
+                let factor = p.factor.as_ref().unwrap_or(&uploaded.ones);
                 k.preprocess.bind(
                     device,
                     &[
                         u,
-                        &params,
-                        &colours,
+                        &uploaded.params,
+                        &uploaded.colours,
                         factor,
-                        &scratch.splats,
-                        &scratch.counts,
+                        splats,
+                        counts,
                         &scratch.radii,
                     ],
                 )
@@ -316,7 +376,7 @@ impl GpuBackend {
             let staging = read_buffer(device, 4 * views.len() as u64);
             let mut enc = device.create_command_encoder(&Default::default());
             for (v, group) in preprocess_groups.iter().enumerate() {
-                self.encode_counts(&mut enc, group, &scratch, n);
+                self.encode_counts(&mut enc, group, &per_view[v].1, &scratch, n);
                 if n > 0 {
                     enc.copy_buffer_to_buffer(
                         &scratch.ends,
@@ -338,17 +398,11 @@ impl GpuBackend {
 
         // Pass 2: render every view and copy its images into one read-back buffer.
         let keys = SortBuffers::new(device, max_pairs);
-        let max_tiles = prepared
-            .iter()
-            .map(|p| (p.uniform.tiles_x * p.uniform.tiles_y) as u64)
-            .max()
-            .unwrap_or(1);
         let max_pixels = prepared
             .iter()
             .map(|p| p.uniform.width as u64 * p.uniform.height as u64)
             .max()
             .unwrap_or(1);
-        let ranges = storage(device, 8 * max_tiles, "tile ranges");
         let out_rgb = storage(device, 12 * max_pixels, "rgb");
         let out_alpha = storage(device, 4 * max_pixels, "alpha");
         let out_depth = storage(device, 4 * max_pixels, "depth");
@@ -361,21 +415,38 @@ impl GpuBackend {
         let staging = read_buffer(device, 4 * total_words);
         let mut enc = device.create_command_encoder(&Default::default());
         let mut at = 0u64;
-        for (v, (p, group)) in prepared.iter().zip(&preprocess_groups).enumerate() {
+        let mut kept = Vec::with_capacity(views.len());
+        for (v, ((p, group), (splats, counts))) in prepared
+            .iter()
+            .zip(&preprocess_groups)
+            .zip(per_view)
+            .enumerate()
+        {
             let u = &p.uniform;
             let pairs = totals[v];
-            self.encode_counts(&mut enc, group, &scratch, n);
-            enc.clear_buffer(&ranges, 0, None);
             let tiles = u.tiles_x * u.tiles_y;
+            let (px, g) = layout[v];
+            let buffers = ViewBuffers {
+                splats,
+                counts,
+                ends: storage(device, 4 * n as u64, "tile ends of a view"),
+                values: storage(device, 4 * pairs as u64, "sorted entries"),
+                ranges: storage(device, 8 * tiles as u64, "tile ranges"),
+                pixels: storage(device, 8 * px, "pixel state"),
+            };
+            self.encode_counts(&mut enc, group, &buffers.counts, &scratch, n);
+            if n > 0 {
+                enc.copy_buffer_to_buffer(&scratch.ends, 0, &buffers.ends, 0, 4 * n as u64);
+            }
             let tile_bits = 32 - tiles.saturating_sub(1).leading_zeros();
-            {
+            let in_b = {
                 let mut pass = enc.begin_compute_pass(&Default::default());
                 let emit = k.emit.bind(
                     device,
                     &[
                         &view_uniforms[v],
-                        &scratch.splats,
-                        &scratch.counts,
+                        &buffers.splats,
+                        &buffers.counts,
                         &scratch.ends,
                         &keys.a[0],
                         &keys.a[1],
@@ -386,25 +457,30 @@ impl GpuBackend {
                 let in_b = encode_sort(device, k, &mut pass, &keys, pairs, tile_bits);
                 let sorted = if in_b { &keys.b } else { &keys.a };
                 let len = uniform(device, &[pairs, 0, 0, 0]);
-                let rg = k.ranges.bind(device, &[&len, &sorted[0], &ranges]);
+                let rg = k.ranges.bind(device, &[&len, &sorted[0], &buffers.ranges]);
                 k.ranges.dispatch_items(&mut pass, &rg, pairs);
                 let raster = k.rasterise.bind(
                     device,
                     &[
                         &view_uniforms[v],
-                        &scratch.splats,
+                        &buffers.splats,
                         &sorted[2],
-                        &ranges,
+                        &buffers.ranges,
                         &out_rgb,
                         &out_alpha,
                         &out_depth,
+                        &buffers.pixels,
                     ],
                 );
                 pass.set_pipeline(&k.rasterise.pipeline);
                 pass.set_bind_group(0, &raster, &[]);
                 pass.dispatch_workgroups(u.tiles_x, u.tiles_y, 1);
+                in_b
+            };
+            if pairs > 0 {
+                let sorted = if in_b { &keys.b } else { &keys.a };
+                enc.copy_buffer_to_buffer(&sorted[2], 0, &buffers.values, 0, 4 * pairs as u64);
             }
-            let (px, g) = layout[v];
             for (buf, words) in [
                 (&out_rgb, 3 * px),
                 (&out_alpha, px),
@@ -416,13 +492,19 @@ impl GpuBackend {
                 }
                 at += words;
             }
+            kept.push(buffers);
         }
         let words = self.read_back(enc, &staging, 4 * total_words)?;
         let floats: &[f32] = bytemuck::cast_slice(&words);
 
         let mut frames = Vec::with_capacity(views.len());
         let mut at = 0usize;
-        for (v, view) in views.iter().enumerate() {
+        for (v, ((view, p), (buffers, view_buffer))) in views
+            .iter()
+            .zip(prepared)
+            .zip(kept.into_iter().zip(view_uniforms))
+            .enumerate()
+        {
             let (px, g) = (layout[v].0 as usize, layout[v].1 as usize);
             let mut take = |len: usize| {
                 let s = floats[at..at + len].to_vec();
@@ -435,8 +517,8 @@ impl GpuBackend {
             let radii = take(g);
             let visible = radii.iter().filter(|r| **r > 0.0).count();
             frames.push(Rendered {
-                width: prepared[v].uniform.width,
-                height: prepared[v].uniform.height,
+                width: p.uniform.width,
+                height: p.uniform.height,
                 rgb,
                 alpha,
                 depth,
@@ -447,17 +529,27 @@ impl GpuBackend {
                     tile_pairs: totals[v] as usize,
                     blend_evaluations: 0,
                 },
-                state: Arc::new(GpuFrame),
+                state: Arc::new(GpuFrame {
+                    gpu: self.gpu.clone(),
+                    model: uploaded.clone(),
+                    uniform: p.uniform,
+                    view: view_buffer,
+                    factor: p.factor,
+                    buffers,
+                    pairs: totals[v],
+                }),
             });
         }
         Ok(frames)
     }
 
-    /// Record `preprocess` and the scan of its tile counts for one view.
+    /// Record `preprocess` (tile counts into `counts`) and the scan of the counts for one
+    /// view.
     fn encode_counts(
         &self,
         enc: &mut wgpu::CommandEncoder,
         group: &wgpu::BindGroup,
+        counts: &wgpu::Buffer,
         scratch: &Scratch,
         n: usize,
     ) {
@@ -470,7 +562,7 @@ impl GpuBackend {
                 .preprocess
                 .dispatch_items(&mut pass, group, n as u32);
         }
-        enc.copy_buffer_to_buffer(&scratch.counts, 0, &scratch.ends, 0, 4 * n as u64);
+        enc.copy_buffer_to_buffer(counts, 0, &scratch.ends, 0, 4 * n as u64);
         let mut pass = enc.begin_compute_pass(&Default::default());
         if let Some(scan) = &scratch.scan {
             scan.encode(&self.kernels, &mut pass);

@@ -2,7 +2,9 @@
 // CPU blend does (src/render/cpu/blend): `α = min(0.99, opacity·exp(power))`, splats with
 // `α < 1/255` or outside their support are skipped, and a pixel stops before its
 // transmittance would fall below 1e-4. The tile's splats are loaded 256 at a time into
-// workgroup memory; the workgroup stops as soon as every pixel has stopped.
+// workgroup memory; the workgroup stops as soon as every pixel has stopped. For the
+// backward pass it also keeps, per pixel, the final transmittance and how many list
+// entries were visited up to the last contributing one (the CPU's `final_t`, `n_contrib`).
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var<storage, read> splats: array<Splat>;
@@ -11,6 +13,8 @@
 @group(0) @binding(4) var<storage, read_write> out_rgb: array<f32>;
 @group(0) @binding(5) var<storage, read_write> out_alpha: array<f32>;
 @group(0) @binding(6) var<storage, read_write> out_depth: array<f32>;
+// Per pixel: (bits of the final transmittance, last contributing entry + 1).
+@group(0) @binding(7) var<storage, read_write> out_state: array<vec2<u32>>;
 
 const ALPHA_MAX: f32 = 0.99;
 const ALPHA_MIN: f32 = 0.003921569; // 1/255
@@ -41,6 +45,7 @@ fn rasterise(
     var trans = 1.0;
     var colour = vec3<f32>(0.0);
     var depth = 0.0;
+    var last = 0u;
     var done = !inside;
     if lid == 0u {
         atomicStore(&done_count, 0u);
@@ -88,6 +93,7 @@ fn rasterise(
             colour += s.colour.xyz * w;
             depth += s.mean_depth_opacity.z * w;
             trans = next;
+            last = start + j + 1u;
         }
     }
     if inside {
@@ -98,5 +104,6 @@ fn rasterise(
         out_rgb[3u * p + 2u] = c.z;
         out_alpha[p] = 1.0 - trans;
         out_depth[p] = depth;
+        out_state[p] = vec2<u32>(bitcast<u32>(trans), last);
     }
 }
