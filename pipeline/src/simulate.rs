@@ -286,8 +286,10 @@ mod tests {
             config.init.pointmaps.as_deref(),
             Some(Path::new("pointmaps"))
         );
+        assert!(config.init.moments >= 2, "the demo's maps are per moment");
         let t = &config.train;
         assert_eq!((t.iterations, t.batch_size), (1000, 1));
+        assert!(t.init_time_scale <= 0.5 / (config.init.moments - 1) as f64);
         assert!(t.densify.until_iteration < t.iterations);
         assert!(t.densify.max_gaussians <= 80_000);
     }
