@@ -16,7 +16,7 @@
 
 mod common;
 
-use common::{Rng, SceneSpec, at_camera, camera, hard_model, random_scene};
+use common::{Rng, SceneSpec, at_camera, camera, hard_model, push_extreme_scales, random_scene};
 use splat4d::render::gpu::{AdapterPolicy, GpuBackend};
 use splat4d::render::{CpuBackend, RenderBackend, ViewRequest, cpu};
 use splat4d::{Camera, Gaussians, Gradients, ImageGradients, RenderError, RenderOptions};
@@ -324,33 +324,7 @@ fn near_plane_and_behind_the_camera() {
 fn huge_and_tiny_scales() {
     let cam = camera(64, 48);
     let mut g = hard_model();
-    let a = g.push(
-        [0.0, 0.0, 0.0, 0.5],
-        [-14.0, -1.0, -14.0, 0.0],
-        1.5,
-        [0.9, 0.9, 0.1],
-    );
-    g.rot_left[a] = [0.8, 0.1, 0.5, 0.2];
-    let tiny = (1e-6f64).ln();
-    let huge = (1e3f64).ln();
-    g.push(
-        [-0.3, 0.2, 0.1, 0.5],
-        [tiny, tiny, tiny, 0.0],
-        3.0,
-        [1.0, 0.0, 0.0],
-    );
-    g.push(
-        [0.1, 2.0, 0.0, 0.5],
-        [huge, huge, huge, 0.0],
-        -2.0,
-        [0.0, 0.0, 1.0],
-    );
-    g.push(
-        [0.0, 0.0, 0.3, 0.5],
-        [huge, tiny, tiny, 0.0],
-        0.0,
-        [0.3, 0.3, 0.3],
-    );
+    push_extreme_scales(&mut g);
     g.push(
         [0.0, 0.1, 0.0, 0.5],
         [f64::NAN, -1.0, -1.0, 0.0],

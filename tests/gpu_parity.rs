@@ -8,7 +8,7 @@
 
 mod common;
 
-use common::{Rng, SceneSpec, at_camera, camera, hard_model, random_scene};
+use common::{Rng, SceneSpec, at_camera, camera, hard_model, push_extreme_scales, random_scene};
 use glam::DVec3;
 use splat4d::model::ColourDegrees;
 use splat4d::render::gpu::{AdapterPolicy, GpuBackend};
@@ -219,13 +219,7 @@ fn tiny_and_huge_temporal_variance() {
 fn nearly_singular_covariances_and_extreme_scales() {
     let cam = camera(64, 48);
     let mut g = hard_model();
-    let a = g.push(
-        [0.0, 0.0, 0.0, 0.5],
-        [-14.0, -1.0, -14.0, 0.0],
-        1.5,
-        [0.9, 0.9, 0.1],
-    );
-    g.rot_left[a] = [0.8, 0.1, 0.5, 0.2];
+    push_extreme_scales(&mut g);
     let b = g.push(
         [0.2, 0.0, -0.2, 0.5],
         [-1.0, -13.8, -13.8, 0.0],
@@ -233,26 +227,6 @@ fn nearly_singular_covariances_and_extreme_scales() {
         [0.1, 0.9, 0.9],
     );
     g.rot_left[b] = [0.7, -0.4, 0.1, 0.6];
-    let tiny = (1e-6f64).ln();
-    let huge = (1e3f64).ln();
-    g.push(
-        [-0.3, 0.2, 0.1, 0.5],
-        [tiny, tiny, tiny, 0.0],
-        3.0,
-        [1.0, 0.0, 0.0],
-    );
-    g.push(
-        [0.1, 2.0, 0.0, 0.5],
-        [huge, huge, huge, 0.0],
-        -2.0,
-        [0.0, 0.0, 1.0],
-    );
-    g.push(
-        [0.0, 0.0, 0.3, 0.5],
-        [huge, tiny, tiny, 0.0],
-        0.0,
-        [0.3, 0.3, 0.3],
-    );
     g.push(
         [0.0, 0.1, 0.0, 0.5],
         [f64::NAN, -1.0, -1.0, 0.0],

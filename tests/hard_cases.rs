@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{at_camera, camera, hard_model as model, weights};
+use common::{at_camera, camera, hard_model as model, push_extreme_scales, weights};
 use splat4d::render::cpu::{self, render_with};
 use splat4d::render::reference::render_reference;
 use splat4d::{Camera, Distortion, Gaussians, ImageGradients, RenderError, RenderOptions};
@@ -153,13 +153,7 @@ fn tiny_and_huge_temporal_variance() {
 fn nearly_singular_covariances_and_extreme_scales() {
     let cam = camera(64, 48);
     let mut g = model();
-    let a = g.push(
-        [0.0, 0.0, 0.0, 0.5],
-        [-14.0, -1.0, -14.0, 0.0],
-        1.5,
-        [0.9, 0.9, 0.1],
-    );
-    g.rot_left[a] = [0.8, 0.1, 0.5, 0.2];
+    push_extreme_scales(&mut g);
     let b = g.push(
         [0.2, 0.0, -0.2, 0.5],
         [-1.0, -13.8, -13.8, 0.0],
@@ -167,29 +161,6 @@ fn nearly_singular_covariances_and_extreme_scales() {
         [0.1, 0.9, 0.9],
     );
     g.rot_left[b] = [0.7, -0.4, 0.1, 0.6];
-    g.push(
-        [-0.3, 0.2, 0.1, 0.5],
-        [(1e-6f64).ln(); 3]
-            .into_iter()
-            .chain([0.0])
-            .collect::<Vec<_>>()
-            .try_into()
-            .unwrap(),
-        3.0,
-        [1.0, 0.0, 0.0],
-    );
-    g.push(
-        [0.1, 2.0, 0.0, 0.5],
-        [(1e3f64).ln(), (1e3f64).ln(), (1e3f64).ln(), 0.0],
-        -2.0,
-        [0.0, 0.0, 1.0],
-    );
-    g.push(
-        [0.0, 0.0, 0.3, 0.5],
-        [(1e3f64).ln(), (1e-6f64).ln(), (1e-6f64).ln(), 0.0],
-        0.0,
-        [0.3, 0.3, 0.3],
-    );
     let o = check(&g, &cam, 0.5);
     assert!(o.visible >= 4);
     assert_accurate(&o, "singular / extreme scales");

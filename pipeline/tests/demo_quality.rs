@@ -37,17 +37,22 @@ fn the_demo_reaches_its_measured_held_out_quality() {
         "pipeline demo failed:\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let metrics: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(dir.join("work/eval/metrics.json")).unwrap(),
-    )
-    .unwrap();
+    let metrics: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("work/eval/metrics.json")).unwrap())
+            .unwrap();
     let held = &metrics["heldout"];
     let psnr = held["mean"]["psnr"].as_f64().unwrap();
     let ssim = held["mean"]["ssim"].as_f64().unwrap();
     let moving = held["moving"]["mean"]["psnr"].as_f64().unwrap();
     eprintln!("held-out PSNR {psnr:.2} dB, SSIM {ssim:.3}; moving region {moving:.2} dB");
-    assert!(psnr >= PSNR_FLOOR, "held-out PSNR {psnr:.2} dB < {PSNR_FLOOR:.2}");
-    assert!(ssim >= SSIM_FLOOR, "held-out SSIM {ssim:.3} < {SSIM_FLOOR:.3}");
+    assert!(
+        psnr >= PSNR_FLOOR,
+        "held-out PSNR {psnr:.2} dB < {PSNR_FLOOR:.2}"
+    );
+    assert!(
+        ssim >= SSIM_FLOOR,
+        "held-out SSIM {ssim:.3} < {SSIM_FLOOR:.3}"
+    );
     assert!(
         psnr - moving <= MOVING_GAP,
         "moving region {moving:.2} dB is more than {MOVING_GAP} dB below the whole image"

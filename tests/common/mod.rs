@@ -166,6 +166,39 @@ pub fn hard_model() -> Gaussians<f64> {
     g
 }
 
+/// Push the extreme-scale Gaussians every backend's hard-case tests draw (in front of
+/// [`camera`] at t = 0.5): a flat disk (1e-6 thick, rotated), a 1e-6 point, a 1e3 blob and
+/// a 1e3 × 1e-6 × 1e-6 needle.
+pub fn push_extreme_scales(g: &mut Gaussians<f64>) {
+    let disk = g.push(
+        [0.0, 0.0, 0.0, 0.5],
+        [-14.0, -1.0, -14.0, 0.0],
+        1.5,
+        [0.9, 0.9, 0.1],
+    );
+    g.rot_left[disk] = [0.8, 0.1, 0.5, 0.2];
+    let tiny = (1e-6f64).ln();
+    let huge = (1e3f64).ln();
+    g.push(
+        [-0.3, 0.2, 0.1, 0.5],
+        [tiny, tiny, tiny, 0.0],
+        3.0,
+        [1.0, 0.0, 0.0],
+    );
+    g.push(
+        [0.1, 2.0, 0.0, 0.5],
+        [huge, huge, huge, 0.0],
+        -2.0,
+        [0.0, 0.0, 1.0],
+    );
+    g.push(
+        [0.0, 0.0, 0.3, 0.5],
+        [huge, tiny, tiny, 0.0],
+        0.0,
+        [0.3, 0.3, 0.3],
+    );
+}
+
 /// A world point (with time `t`) at camera coordinates `(x, y, z)` of `cam`.
 pub fn at_camera(cam: &Camera, x: f64, y: f64, z: f64, t: f64) -> [f64; 4] {
     let p = cam.world_to_camera.inverse_apply(DVec3::new(x, y, z));
