@@ -16,7 +16,10 @@
 
 mod common;
 
-use common::{Rng, SceneSpec, at_camera, camera, hard_model, push_extreme_scales, random_scene};
+use common::{
+    Rng, SceneSpec, at_camera, camera, hard_model, push_extreme_scales, random_scene,
+    stacked_splats,
+};
 use splat4d::render::gpu::{AdapterPolicy, GpuBackend};
 use splat4d::render::{CpuBackend, RenderBackend, ViewRequest, cpu};
 use splat4d::{Camera, Gaussians, Gradients, ImageGradients, RenderError, RenderOptions};
@@ -269,17 +272,7 @@ fn thousands_of_overlapping_splats() {
 #[test]
 fn ten_thousand_splats_stacked_on_one_pixel() {
     let cam = camera(32, 32);
-    let mut g = hard_model();
-    for k in 0..10_000 {
-        let d = 1e-5 * k as f64;
-        let id = g.push(
-            [0.0, d, 0.0, 0.5],
-            [-4.0, -4.0, -4.0, 0.0],
-            -4.5 + 1e-4 * (k % 7) as f64,
-            [(k % 3) as f64 / 2.0, 0.5, 1.0],
-        );
-        g.rot_left[id] = [1.0, 1e-3 * (k % 5) as f64, 0.0, 0.0];
-    }
+    let g = stacked_splats(10_000);
     check(&g, &cam, 0.5, "10k stacked splats");
 }
 

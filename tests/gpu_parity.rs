@@ -8,7 +8,10 @@
 
 mod common;
 
-use common::{Rng, SceneSpec, at_camera, camera, hard_model, push_extreme_scales, random_scene};
+use common::{
+    Rng, SceneSpec, at_camera, camera, hard_model, push_extreme_scales, random_scene,
+    stacked_splats,
+};
 use glam::DVec3;
 use splat4d::model::ColourDegrees;
 use splat4d::render::gpu::{AdapterPolicy, GpuBackend};
@@ -288,17 +291,7 @@ fn saturated_opacities_and_far_times() {
 #[test]
 fn ten_thousand_splats_stacked_on_one_pixel() {
     let cam = camera(32, 32);
-    let mut g = hard_model();
-    for k in 0..10_000 {
-        let d = 1e-5 * k as f64;
-        let id = g.push(
-            [0.0, d, 0.0, 0.5],
-            [-4.0, -4.0, -4.0, 0.0],
-            -4.5 + 1e-4 * (k % 7) as f64,
-            [(k % 3) as f64 / 2.0, 0.5, 1.0],
-        );
-        g.rot_left[id] = [1.0, 1e-3 * (k % 5) as f64, 0.0, 0.0];
-    }
+    let g = stacked_splats(10_000);
     check(&g, &cam, 0.5, "10k stacked splats");
 }
 

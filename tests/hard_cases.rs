@@ -4,7 +4,9 @@
 
 mod common;
 
-use common::{at_camera, camera, hard_model as model, push_extreme_scales, weights};
+use common::{
+    at_camera, camera, hard_model as model, push_extreme_scales, stacked_splats, weights,
+};
 use splat4d::render::cpu::{self, render_with};
 use splat4d::render::reference::render_reference;
 use splat4d::{Camera, Distortion, Gaussians, ImageGradients, RenderError, RenderOptions};
@@ -224,17 +226,7 @@ fn saturated_opacities_and_far_times() {
 #[test]
 fn ten_thousand_splats_stacked_on_one_pixel() {
     let cam = camera(32, 32);
-    let mut g = model();
-    for k in 0..10_000 {
-        let d = 1e-5 * k as f64;
-        let id = g.push(
-            [0.0, d, 0.0, 0.5],
-            [-4.0, -4.0, -4.0, 0.0],
-            -4.5 + 1e-4 * (k % 7) as f64,
-            [(k % 3) as f64 / 2.0, 0.5, 1.0],
-        );
-        g.rot_left[id] = [1.0, 1e-3 * (k % 5) as f64, 0.0, 0.0];
-    }
+    let g = stacked_splats(10_000);
     let o = check(&g, &cam, 0.5);
     assert_eq!(o.visible, 10_000);
     assert_accurate(&o, "stacked");

@@ -199,6 +199,23 @@ pub fn push_extreme_scales(g: &mut Gaussians<f64>) {
     );
 }
 
+/// `n` faint, nearly identical Gaussians stacked on the centre pixel of [`camera`] at
+/// t = 0.5 (1e-5 apart, tiny opacity and rotation differences): the hard-case pile.
+pub fn stacked_splats(n: usize) -> Gaussians<f64> {
+    let mut g = hard_model();
+    for k in 0..n {
+        let d = 1e-5 * k as f64;
+        let id = g.push(
+            [0.0, d, 0.0, 0.5],
+            [-4.0, -4.0, -4.0, 0.0],
+            -4.5 + 1e-4 * (k % 7) as f64,
+            [(k % 3) as f64 / 2.0, 0.5, 1.0],
+        );
+        g.rot_left[id] = [1.0, 1e-3 * (k % 5) as f64, 0.0, 0.0];
+    }
+    g
+}
+
 /// A world point (with time `t`) at camera coordinates `(x, y, z)` of `cam`.
 pub fn at_camera(cam: &Camera, x: f64, y: f64, z: f64, t: f64) -> [f64; 4] {
     let p = cam.world_to_camera.inverse_apply(DVec3::new(x, y, z));
