@@ -18,6 +18,8 @@ PACKAGES=(
   mesa-vulkan-drivers libvulkan1
   # browser viewer test (tests/viewer_browser.rs): headless Chromium, WebGL on SwiftShader
   chromium
+  # text of the plots `pipeline bench tradeoff` draws
+  fonts-dejavu-core
 )
 # The viewer's web project (viewer/) needs Node.js and npm; use any already on PATH.
 if ! command -v npm >/dev/null; then

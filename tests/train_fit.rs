@@ -63,3 +63,57 @@ fn scene_changes_over_time_and_between_cameras() {
     assert!(diff(0, 16) > 0.01, "{}", diff(0, 16));
     assert!(diff(0, 1) > 0.01, "{}", diff(0, 1));
 }
+
+/// `resolution = 0.5` trains on half-size images; the model still draws the full-size
+/// views, close to the quality of training at full size.
+#[test]
+fn half_resolution_training_renders_the_full_size_views() {
+    let data = train_scene::dataset(128, 96);
+    let init = train_scene::points(20, 15, &[0.0, 0.5, 1.0]);
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = TrainConfig {
+        iterations: 300,
+        resolution: 0.5,
+        checkpoint_every: 0,
+        ..Default::default()
+    };
+    config.degree_every = 200;
+    config.densify.from_iteration = 100;
+    config.densify.until_iteration = 250;
+    config.densify.every = 100;
+    config.densify.opacity_reset_every = 0;
+    let summary = train(
+        &CpuBackend,
+        &config,
+        &data,
+        &init,
+        dir.path(),
+        false,
+        &mut NoHooks,
+        &NoProgress,
+    )
+    .unwrap();
+    let model = load_model(&summary.model_path).unwrap();
+    let psnr = evaluate_psnr(&CpuBackend, &model, &data, config.background).unwrap();
+    let mean = psnr.iter().sum::<f64>() / psnr.len() as f64;
+    eprintln!("half resolution: mean full-size PSNR {mean:.2} dB");
+    assert!(mean > 32.0, "mean full-size PSNR {mean:.2} dB");
+    for bad in [0.0, -0.5, 1.5, f64::NAN] {
+        let c = TrainConfig {
+            resolution: bad,
+            ..config.clone()
+        };
+        let e = train(
+            &CpuBackend,
+            &c,
+            &data,
+            &init,
+            dir.path(),
+            false,
+            &mut NoHooks,
+            &NoProgress,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("resolution"), "{e}");
+    }
+}

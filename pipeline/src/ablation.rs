@@ -10,14 +10,11 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, bail};
-use calib::poses::PosesFile;
-use rig::frames::FramesIndex;
+use anyhow::Context;
 use splat4d::decay::{DecayConfig, DecayHooks};
 
+use crate::bench_inputs::{self, BenchInputs, BenchSource};
 use crate::report::Reporter;
-use crate::runner::Selection;
-use crate::{open_capture, simulate, stages};
 
 /// One row of the table.
 #[derive(Clone, Debug)]
@@ -38,47 +35,19 @@ pub fn run(
     iterations: u64,
     reporter: &Reporter,
 ) -> anyhow::Result<PathBuf> {
-    if !capture_dir.join("raw").exists() {
-        let parsed = rig::sim::Scene::from_file(scene)?;
-        simulate::simulate_into(&parsed, capture_dir, reporter)?;
-        simulate::write_truth_calibration(capture_dir)?;
-    }
-    if !capture_dir.join("groundtruth/heldout").is_dir() {
-        bail!(
-            "{} has no held-out cameras (groundtruth/heldout/); add [[cameras.heldout]] to the scene",
-            capture_dir.display()
-        );
-    }
-    let (capture, config) = open_capture(capture_dir)?;
-    let summary = stages::pipeline().run(
-        &capture,
-        &config,
-        &Selection {
-            to: Some("init".into()),
-            ..Default::default()
-        },
-        reporter,
-    )?;
-    if let Some((stage, error)) = summary.failed {
-        bail!("the {stage} stage failed: {error}");
-    }
-    let work = capture.work_dir();
-    let cameras_file = work.join("poses/cameras.json");
+    let source = BenchSource::Scene {
+        scene: scene.to_path_buf(),
+        capture_dir: capture_dir.to_path_buf(),
+    };
+    let BenchInputs {
+        config,
+        dataset,
+        points,
+        heldout,
+        bench_dir: bench,
+        ..
+    } = bench_inputs::prepare(&source, reporter)?;
     let progress = reporter.progress("ablation");
-    let dataset =
-        crate::engine_inputs::load_dataset(&work.join("frames"), &cameras_file, &progress)?;
-    let points = shared_types::points::read_points_ply(&work.join("init/points.ply"))?;
-    let index = FramesIndex::read_json(&work.join("frames/frames.json"))?;
-    let poses = PosesFile::read(&cameras_file)?;
-    let bench = work.join("bench");
-    let heldout = crate::stages::eval::heldout_views(
-        &capture,
-        &config.eval,
-        &poses.set,
-        &crate::engine_inputs::time_mapping(&index),
-        &bench.join("heldout-groundtruth"),
-        None,
-    )?;
     let train_config = config.train.with_iterations(iterations);
     let scale = iterations as f64 / config.train.iterations.max(1) as f64;
     let mut rows = Vec::new();

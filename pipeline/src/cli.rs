@@ -237,6 +237,36 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 600)]
         iterations: u64,
     },
+    /// What accuracy costs in time: train a grid of settings (iterations × training
+    /// resolution × Gaussian budget × decay × backend) and write held-out PSNR / SSIM /
+    /// DSSIM / LPIPS, wall and CPU time, peak memory and Gaussian count per setting to
+    /// work/bench/tradeoff/tradeoff.{csv,md,png} (the plot marks the Pareto front). An
+    /// interrupted bench resumes: settings already in tradeoff.csv are not trained again.
+    ///
+    /// Examples: pipeline bench tradeoff my_demo/ --iterations 300,1000 --resolution 0.5,1
+    ///           pipeline bench tradeoff fixtures/demo.toml /tmp/bench
+    Tradeoff {
+        /// A capture directory with held-out cameras (e.g. one made by `pipeline demo`), or
+        /// a scene file to simulate into CAPTURE_DIR.
+        source: PathBuf,
+        /// Where a scene file is simulated (reused when it exists); only with a scene file.
+        capture_dir: Option<PathBuf>,
+        /// Training iterations (schedules are scaled to each).
+        #[arg(long, value_delimiter = ',', default_values_t = [1000u64, 3000, 10000, 30000])]
+        iterations: Vec<u64>,
+        /// Training resolutions, fractions of the frames' size (`[train] resolution`).
+        #[arg(long, value_delimiter = ',', default_values_t = [0.25f64, 0.5, 1.0])]
+        resolution: Vec<f64>,
+        /// Gaussian budgets (`[train.densify] max_gaussians`; default: the capture's).
+        #[arg(long, value_delimiter = ',')]
+        max_gaussians: Vec<usize>,
+        /// Decay variants: none, constant, pow, exp, neural (default: the capture's).
+        #[arg(long, value_delimiter = ',', value_parser = crate::tradeoff::parse_decay)]
+        decay: Vec<splat4d::decay::DecayVariant>,
+        /// Training backends (gpu: a hardware GPU; SPLAT4D_GPU_SOFTWARE=1 allows lavapipe).
+        #[arg(long, value_delimiter = ',', value_enum, default_values_t = [crate::tradeoff::TrainOn::Cpu])]
+        backend: Vec<crate::tradeoff::TrainOn>,
+    },
 }
 
 #[cfg(test)]

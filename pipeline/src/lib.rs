@@ -15,6 +15,7 @@
 //!   `simulate` and `ablation` are the `simulate`/`demo` and `bench ablation` commands.
 
 pub mod ablation;
+pub mod bench_inputs;
 pub mod cli;
 pub mod config;
 pub mod engine_inputs;
@@ -32,6 +33,9 @@ pub mod stage_context;
 pub mod stage_def;
 pub mod stages;
 pub mod status;
+pub mod sysinfo;
+pub mod tradeoff;
+pub mod tradeoff_plot;
 
 use std::path::Path;
 

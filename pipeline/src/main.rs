@@ -69,6 +69,34 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
+        Command::Bench(BenchCommand::Tradeoff {
+            source,
+            capture_dir,
+            iterations,
+            resolution,
+            max_gaussians,
+            decay,
+            backend,
+        }) => {
+            let source =
+                pipeline::bench_inputs::BenchSource::from_args(&source, capture_dir.as_deref())?;
+            let grid = pipeline::tradeoff::Grid {
+                iterations,
+                resolution,
+                max_gaussians,
+                decay,
+                backend,
+            };
+            let table = pipeline::tradeoff::run(&source, &grid, reporter)?;
+            reporter.say(&format!(
+                "tradeoff table and plot written to {}",
+                table.parent().unwrap_or(&table).display()
+            ));
+            if reporter.mode() == OutputMode::Human {
+                print!("{}", std::fs::read_to_string(&table).unwrap_or_default());
+            }
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Record(args) => record(args, reporter),
         Command::Simulate {
             scene,

@@ -42,6 +42,27 @@ impl ImageU8 {
         out.extend(self.data.iter().map(|&v| v as f32 * (1.0 / 255.0)));
     }
 
+    /// This image resized to `width`×`height` (triangle filter); a copy when the size is
+    /// unchanged.
+    pub fn resized(&self, width: u32, height: u32) -> Self {
+        if (width, height) == (self.width, self.height) {
+            return self.clone();
+        }
+        let resized =
+            image::RgbImage::from_raw(self.width, self.height, self.data.clone()).map(|img| {
+                image::imageops::resize(&img, width, height, image::imageops::FilterType::Triangle)
+            });
+        match resized {
+            Some(img) => Self {
+                width,
+                height,
+                data: img.into_raw(),
+            },
+            // A buffer that does not hold width × height pixels: nothing to resample.
+            None => self.clone(),
+        }
+    }
+
     /// Load a PNG/JPEG, resized (Lanczos-free triangle filter) to `size` when given.
     pub fn load(path: &Path, size: Option<(u32, u32)>) -> Result<Self, ImageLoadError> {
         let err = |source| ImageLoadError::Decode {
@@ -93,6 +114,25 @@ pub struct Dataset {
 }
 
 impl Dataset {
+    /// Every view resized to `factor` of its width and height (triangle filter, at least
+    /// 1×1 pixel), with its intrinsics rescaled to match.
+    pub fn downscaled(&self, factor: f64) -> Self {
+        use rayon::prelude::*;
+        let views = self
+            .views
+            .par_iter()
+            .map(|v| {
+                let size = |n: u32| ((n as f64 * factor).round() as u32).max(1);
+                let (w, h) = (size(v.image.width), size(v.image.height));
+                View::at_image_size(v.camera.clone(), v.time, v.image.resized(w, h))
+            })
+            .collect();
+        Self {
+            views,
+            time_mapping: self.time_mapping,
+        }
+    }
+
     /// Radius of the camera centres around their mean × 1.1 (3DGS "scene extent"), at
     /// least 1e-3; 1 for a single camera.
     pub fn scene_extent(&self) -> f64 {
@@ -153,5 +193,49 @@ impl Dataset {
             views,
             time_mapping,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::TimeMapping;
+
+    #[test]
+    fn downscaling_averages_pixels_and_rescales_the_camera() {
+        let camera = crate::Camera {
+            name: "cam0".into(),
+            intrinsics: shared_types::Intrinsics::from_hfov(4, 2, 60.0),
+            distortion: Default::default(),
+            world_to_camera: shared_types::WorldToCamera::IDENTITY,
+        };
+        // Left half black, right half grey 200: the filter keeps the mean and the edge.
+        let mut data = Vec::new();
+        for _ in 0..2 {
+            for x in 0..4 {
+                data.extend([if x < 2 { 0u8 } else { 200 }; 3]);
+            }
+        }
+        let image = ImageU8 {
+            width: 4,
+            height: 2,
+            data,
+        };
+        let dataset = Dataset {
+            views: vec![View::at_image_size(camera.clone(), 0.5, image)],
+            time_mapping: TimeMapping::frames_over_30(0.0, 30.0, 1.0),
+        };
+        let half = dataset.downscaled(0.5);
+        let v = &half.views[0];
+        assert_eq!((v.image.width, v.image.height), (2, 1));
+        let d = &v.image.data;
+        assert!(d[0] < 50 && d[3] > 150, "{d:?}");
+        assert!((d[0] as i32 + d[3] as i32 - 200).abs() <= 1, "{d:?}");
+        assert_eq!(v.camera.intrinsics.width, 2);
+        assert!((v.camera.intrinsics.fx - camera.intrinsics.fx / 2.0).abs() < 1e-12);
+        assert!((v.camera.intrinsics.cx - camera.intrinsics.cx / 2.0).abs() < 1e-12);
+        assert_eq!(v.time, 0.5);
+        // A tiny factor keeps at least one pixel.
+        assert_eq!(dataset.downscaled(0.01).views[0].image.data.len(), 3);
     }
 }

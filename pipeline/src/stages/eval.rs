@@ -343,6 +343,33 @@ fn train_views(
     )
 }
 
+/// The held-out views of a capture: its `[capture] heldout` cameras (`heldout_cameras`)
+/// when it has some, else the simulator's `groundtruth/heldout/` (none: empty). Their
+/// ground-truth images are written under `gt_dir`.
+pub fn any_heldout_views(
+    capture: &Capture,
+    settings: &EvalSettings,
+    heldout_cameras: &[String],
+    poses: &CameraSet,
+    mapping: &TimeMapping,
+    gt_dir: &Path,
+    masks: Option<&MaskSource>,
+) -> anyhow::Result<Vec<EvalView>> {
+    let work = capture.work_dir();
+    if heldout_cameras.is_empty() {
+        heldout_views(capture, settings, poses, mapping, gt_dir, masks)
+    } else {
+        capture_heldout_views(
+            &work.join("frames"),
+            &work.join("poses"),
+            settings,
+            mapping,
+            gt_dir,
+            masks,
+        )
+    }
+}
+
 /// The `eval` stage; `heldout_cameras` are the held-out camera names of `[capture] heldout`.
 pub fn run(
     ctx: &StageContext,
@@ -356,25 +383,15 @@ pub fn run(
     let mapping = time_mapping(&index);
     let gt_dir = ctx.output("groundtruth");
     let masks = MaskSource::find(&ctx.capture.root, &ctx.stage_dir("sync").join("sync.json"))?;
-    let heldout = if heldout_cameras.is_empty() {
-        heldout_views(
-            ctx.capture,
-            settings,
-            &poses.set,
-            &mapping,
-            &gt_dir.join("heldout"),
-            masks.as_ref(),
-        )?
-    } else {
-        capture_heldout_views(
-            &ctx.stage_dir("frames"),
-            &ctx.stage_dir("poses"),
-            settings,
-            &mapping,
-            &gt_dir.join("heldout"),
-            masks.as_ref(),
-        )?
-    };
+    let heldout = any_heldout_views(
+        ctx.capture,
+        settings,
+        heldout_cameras,
+        &poses.set,
+        &mapping,
+        &gt_dir.join("heldout"),
+        masks.as_ref(),
+    )?;
     if heldout.is_empty() {
         tracing::warn!(
             "no held-out views (no [capture] heldout cameras and no groundtruth/heldout/): only training views are measured, which shows fit, not novel-view quality"

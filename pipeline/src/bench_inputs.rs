@@ -1,0 +1,154 @@
+//! What the training benches (`pipeline bench ablation`, `pipeline bench tradeoff`) train
+//! and measure: a capture brought up to its `init` stage (a simulated scene is simulated
+//! first, with its true video cameras as the calibration, so pose errors do not blur the
+//! comparison), its training dataset, initial points and held-out views.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use calib::poses::PosesFile;
+use rig::frames::FramesIndex;
+use splat4d::eval::EvalView;
+use splat4d::train::Dataset;
+use splat4d::train::PointCloud;
+
+use crate::config::CaptureConfig;
+use crate::layout::Capture;
+use crate::masks::MaskSource;
+use crate::report::Reporter;
+use crate::runner::Selection;
+use crate::{open_capture, simulate, stages};
+
+/// A capture ready to train and measure.
+pub struct BenchInputs {
+    pub capture: Capture,
+    pub config: CaptureConfig,
+    pub dataset: Dataset,
+    pub points: PointCloud,
+    pub heldout: Vec<EvalView>,
+    /// `work/bench/` of the capture: where the benches write.
+    pub bench_dir: PathBuf,
+}
+
+/// Where a bench's inputs come from.
+#[derive(Clone, Debug)]
+pub enum BenchSource {
+    /// A scene file, simulated into the capture directory (reused when it exists).
+    Scene {
+        scene: PathBuf,
+        capture_dir: PathBuf,
+    },
+    /// An existing capture directory (simulated or real) with held-out cameras.
+    Capture(PathBuf),
+}
+
+impl BenchSource {
+    /// `SOURCE [CAPTURE_DIR]` of the command line: a `.toml` scene needs a capture
+    /// directory to simulate into; a capture directory needs none.
+    pub fn from_args(source: &Path, capture_dir: Option<&Path>) -> anyhow::Result<Self> {
+        if source.is_dir() {
+            if let Some(extra) = capture_dir {
+                bail!(
+                    "{} is a capture directory, so the bench writes into it; remove the second path {}",
+                    source.display(),
+                    extra.display()
+                );
+            }
+            return Ok(Self::Capture(source.to_path_buf()));
+        }
+        if !source.is_file() {
+            bail!(
+                "{} is neither a scene file nor a capture directory",
+                source.display()
+            );
+        }
+        match capture_dir {
+            Some(dir) => Ok(Self::Scene {
+                scene: source.to_path_buf(),
+                capture_dir: dir.to_path_buf(),
+            }),
+            None => bail!(
+                "{} is a scene file: give a capture directory to simulate it into, e.g. `{} /tmp/bench`",
+                source.display(),
+                source.display()
+            ),
+        }
+    }
+
+    /// The capture directory the bench works in.
+    pub fn capture_dir(&self) -> &Path {
+        match self {
+            Self::Scene { capture_dir, .. } => capture_dir,
+            Self::Capture(dir) => dir,
+        }
+    }
+
+    /// A short name for table headers.
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Scene { scene, .. } => format!("scene {}", scene.display()),
+            Self::Capture(dir) => format!("capture {}", dir.display()),
+        }
+    }
+}
+
+/// Simulate (for a scene), run the stages up to `init`, and load what training needs.
+pub fn prepare(source: &BenchSource, reporter: &Reporter) -> anyhow::Result<BenchInputs> {
+    let capture_dir = source.capture_dir();
+    if let BenchSource::Scene { scene, .. } = source
+        && !capture_dir.join("raw").exists()
+    {
+        let parsed = rig::sim::Scene::from_file(scene)?;
+        simulate::simulate_into(&parsed, capture_dir, reporter)?;
+        simulate::write_truth_calibration(capture_dir)?;
+    }
+    let (capture, config) = open_capture(capture_dir)?;
+    let summary = stages::pipeline().run(
+        &capture,
+        &config,
+        &Selection {
+            to: Some("init".into()),
+            ..Default::default()
+        },
+        reporter,
+    )?;
+    if let Some((stage, error)) = summary.failed {
+        bail!("the {stage} stage failed: {error}");
+    }
+    let work = capture.work_dir();
+    let cameras_file = work.join("poses/cameras.json");
+    let progress = reporter.progress("load");
+    let dataset =
+        crate::engine_inputs::load_dataset(&work.join("frames"), &cameras_file, &progress)?;
+    shared_types::Progress::finish(&progress);
+    let points_file = work.join("init/points.ply");
+    let points = shared_types::points::read_points_ply(&points_file)
+        .with_context(|| format!("cannot read the initial points {}", points_file.display()))?;
+    let index = FramesIndex::read_json(&work.join("frames/frames.json"))?;
+    let poses = PosesFile::read(&cameras_file)?;
+    let bench_dir = work.join("bench");
+    let masks = MaskSource::find(&capture.root, &work.join("sync/sync.json"))?;
+    let heldout = stages::eval::any_heldout_views(
+        &capture,
+        &config.eval,
+        &config.capture.heldout,
+        &poses.set,
+        &crate::engine_inputs::time_mapping(&index),
+        &bench_dir.join("heldout-groundtruth"),
+        masks.as_ref(),
+    )?;
+    if heldout.is_empty() {
+        bail!(
+            "{} has no held-out cameras: add `[capture] heldout` cameras (real captures) or `[[cameras.heldout]]` to the scene (simulated ones); a bench measures novel views",
+            capture_dir.display()
+        );
+    }
+    Ok(BenchInputs {
+        capture,
+        config,
+        dataset,
+        points,
+        heldout,
+        bench_dir,
+    })
+}

@@ -1,0 +1,119 @@
+//! `pipeline bench tradeoff` on a small simulated capture (`fixtures/tiny.toml`, 160×120,
+//! one held-out camera): two settings are trained and measured, the table, CSV and plot
+//! are written, a wider grid trains only the new setting (the measured rows stay as they
+//! were), and bad sources are refused with errors that say what to give.
+
+mod common;
+
+use std::fs;
+
+use common::fixture;
+use pipeline::bench_inputs::BenchSource;
+use pipeline::report::{OutputMode, Reporter};
+use pipeline::simulate;
+use pipeline::tradeoff::{Grid, TrainOn, read_csv};
+use splat4d::decay::DecayVariant;
+
+const SETTINGS: &str = "[sync]\nmethod = \"timestamps\"\n\
+    [train]\niterations = 20\nbatch_size = 2\ncheckpoint_every = 0\n\
+    [decay]\nwarmup = 5\n";
+
+#[test]
+fn a_grid_is_measured_plotted_and_resumed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("capture");
+    let reporter = Reporter::new(OutputMode::Quiet);
+    let scene = rig::sim::Scene::from_file(&fixture("tiny.toml")).unwrap();
+    simulate::simulate_into(&scene, &root, &reporter).unwrap();
+    simulate::write_truth_calibration(&root).unwrap();
+    fs::write(root.join("capture.toml"), SETTINGS).unwrap();
+
+    let source = BenchSource::from_args(&root, None).unwrap();
+    let mut grid = Grid {
+        iterations: vec![10, 30],
+        resolution: vec![0.5],
+        max_gaussians: vec![],
+        decay: vec![DecayVariant::Neural],
+        backend: vec![TrainOn::Cpu],
+    };
+    let md = pipeline::tradeoff::run(&source, &grid, &reporter).unwrap();
+    let out = md.parent().unwrap().to_path_buf();
+    let csv_path = out.join("tradeoff.csv");
+    let rows = read_csv(&csv_path).unwrap();
+    assert_eq!(rows.len(), 2);
+    for r in &rows {
+        let psnr = r.psnr.unwrap();
+        eprintln!(
+            "{}: {:.2} s, {:?} CPU s, {:?} MiB, {} Gaussians, {psnr:.2} dB, moving {:?}",
+            r.setting.key(),
+            r.seconds,
+            r.cpu_seconds,
+            r.peak_ram_mib,
+            r.gaussians,
+            r.moving_psnr
+        );
+        assert!(psnr > 5.0 && psnr < 60.0, "{psnr}");
+        assert!(r.seconds > 0.0 && r.gaussians > 0);
+        assert!(r.cpu_seconds.unwrap() > 0.0);
+        assert!(r.peak_ram_mib.unwrap() > 10.0);
+        // The simulator masks its held-out camera: the moving region is measured too.
+        assert!(r.moving_psnr.unwrap().is_finite());
+        assert!(r.lpips.is_none());
+        assert_eq!(r.setting.resolution, 0.5);
+    }
+    // More steps fit the held-out view better (same points, seed and settings).
+    assert!(rows[1].psnr.unwrap() > rows[0].psnr.unwrap(), "{rows:?}");
+    let table = fs::read_to_string(&md).unwrap();
+    assert!(
+        table.contains("★") && table.contains("tradeoff.png"),
+        "{table}"
+    );
+    assert!(
+        table.contains("| 10 |") && table.contains("| 30 |"),
+        "{table}"
+    );
+    assert!(table.contains("Machine:"), "{table}");
+    let png = image::open(out.join("tradeoff.png")).unwrap().into_rgb8();
+    assert_eq!(png.dimensions(), (1000, 640));
+    let red = png
+        .pixels()
+        .filter(|p| p[0] > 200 && p[1] < 60 && p[2] < 60)
+        .count();
+    let ink = png.pixels().filter(|p| p[0] < 100 && p[1] < 100).count();
+    assert!(red > 50, "the Pareto front is drawn in red: {red} pixels");
+    assert!(ink > 2000, "axes, labels and points: {ink} dark pixels");
+
+    // A wider grid trains only the new setting; the measured lines stay as written.
+    let before = fs::read_to_string(&csv_path).unwrap();
+    grid.iterations.push(20);
+    pipeline::tradeoff::run(&source, &grid, &reporter).unwrap();
+    let after = fs::read_to_string(&csv_path).unwrap();
+    assert!(after.starts_with(&before), "{before}\n---\n{after}");
+    assert_eq!(read_csv(&csv_path).unwrap().len(), 3);
+
+    // Bad sources.
+    let scene_file = fixture("tiny.toml");
+    let e = BenchSource::from_args(&scene_file, None)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("capture directory to simulate"), "{e}");
+    let e = BenchSource::from_args(&root, Some(&root))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("remove the second path"), "{e}");
+    let e = BenchSource::from_args(&tmp.path().join("nope"), None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("neither a scene file nor a capture directory"),
+        "{e}"
+    );
+    let bad = Grid {
+        resolution: vec![0.0],
+        ..grid
+    };
+    let e = pipeline::tradeoff::run(&source, &bad, &reporter)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("--resolution"), "{e}");
+}
