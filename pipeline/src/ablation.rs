@@ -49,11 +49,10 @@ pub fn run(
     } = bench_inputs::prepare(&source, reporter)?;
     let progress = reporter.progress("ablation");
     let train_config = config.train.with_iterations(iterations);
-    let scale = iterations as f64 / config.train.iterations.max(1) as f64;
     let mut rows = Vec::new();
     let backend = crate::engine_inputs::training_backend();
-    for (label, mut decay) in DecayConfig::variants_for_ablation() {
-        decay.warmup = (decay.warmup as f64 * scale).round() as u64;
+    for (label, decay) in DecayConfig::variants_for_ablation() {
+        let (_, decay) = crate::presets::schedule_for(&config.train, &decay, iterations);
         reporter.say(&format!(
             "ablation: training `{label}` ({iterations} iterations)"
         ));

@@ -60,6 +60,9 @@ pub enum Command {
         /// Renderer of the `render` and `eval` stages (overrides `[engine] backend`).
         #[arg(long, value_enum)]
         backend: Option<BackendChoice>,
+        /// Training preset (overrides the demo's schedule; README "Presets").
+        #[arg(long, value_enum)]
+        preset: Option<crate::presets::Preset>,
     },
     /// Record up to four webcams at once into a new capture directory (raw/camN/capture.mov
     /// and each frame's capture time). Stop with Ctrl-C or --seconds. Cameras come through
@@ -118,6 +121,10 @@ pub struct RunArgs {
     /// Renderer of the `render` and `eval` stages (overrides `[engine] backend`).
     #[arg(long, value_enum)]
     pub backend: Option<BackendChoice>,
+    /// Training preset: preview | balanced | best (overrides `[train] preset` and the
+    /// iterations, resolution and Gaussian budget of capture.toml; README "Presets").
+    #[arg(long, value_enum)]
+    pub preset: Option<crate::presets::Preset>,
 }
 
 /// The library `record` talks to the cameras through.

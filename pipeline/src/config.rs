@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::layout::CONFIG_FILE;
+use crate::presets::{PRESET_KEYS, Preset};
 use crate::stages::eval;
 use crate::stages::export;
 use crate::stages::frames;
@@ -110,11 +111,42 @@ impl CaptureConfig {
     }
 
     /// Parse settings text; `path` is only used in error messages.
+    /// A `[train] preset` sets its keys (`crate::presets`) over the rest of the file.
     pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
-        let config: Self = toml::from_str(text).map_err(|e| ConfigError::Invalid {
+        let invalid = |message: String| ConfigError::Invalid {
             path: path.to_path_buf(),
-            message: e.to_string().trim_end().to_string(),
-        })?;
+            message: message.trim_end().to_string(),
+        };
+        let table: toml::Table = toml::from_str(text).map_err(|e| invalid(e.to_string()))?;
+        let config = match table
+            .get("train")
+            .and_then(|t| t.as_table())
+            .and_then(|t| t.get("preset"))
+        {
+            // The common case parses the text itself, so errors point at its lines.
+            None => toml::from_str::<Self>(text).map_err(|e| invalid(e.to_string()))?,
+            Some(value) => {
+                let preset = Preset::deserialize(value.clone()).map_err(|_| {
+                    invalid(format!(
+                        "[train] preset = {value} is not a preset: use \"preview\", \"balanced\" or \"best\""
+                    ))
+                })?;
+                let mut table = table.clone();
+                if let Some(train) = table.get_mut("train").and_then(|t| t.as_table_mut()) {
+                    train.remove("preset");
+                    if let Some(key) = PRESET_KEYS.iter().find(|k| has_dotted(train, k)) {
+                        return Err(invalid(format!(
+                            "[train] preset = \"{}\" sets `{key}` ({}); remove `{key}` or the preset",
+                            preset.name(),
+                            preset.describe()
+                        )));
+                    }
+                }
+                Self::deserialize(table)
+                    .map_err(|e| invalid(e.to_string()))?
+                    .with_preset(preset)
+            }
+        };
         if config.capture.cameras == 0 {
             return Err(ConfigError::Invalid {
                 path: path.to_path_buf(),
@@ -130,12 +162,29 @@ impl CaptureConfig {
         Ok(config)
     }
 
+    /// These settings with a training preset applied over them.
+    pub fn with_preset(mut self, preset: Preset) -> Self {
+        (self.train, self.decay) = preset.apply(&self.train, &self.decay);
+        self
+    }
+
     /// The parameters of one stage as JSON (its section of this file).
     pub fn section(&self, stage: &str) -> serde_json::Value {
         let all = serde_json::to_value(self).unwrap_or_default();
         all.get(stage)
             .cloned()
             .unwrap_or(serde_json::Value::Object(Default::default()))
+    }
+}
+
+/// Whether `table` has the dotted key `key` (`densify.max_gaussians`).
+fn has_dotted(table: &toml::Table, key: &str) -> bool {
+    match key.split_once('.') {
+        Some((head, rest)) => table
+            .get(head)
+            .and_then(|t| t.as_table())
+            .is_some_and(|t| has_dotted(t, rest)),
+        None => table.contains_key(key),
     }
 }
 
@@ -181,6 +230,45 @@ mod tests {
         let c = CaptureConfig::parse("[train]\niterations = 5\n", Path::new("c.toml")).unwrap();
         assert_eq!(c.train.iterations, 5);
         assert!(CaptureConfig::parse("[capture]\ncameras = 0\n", Path::new("c.toml")).is_err());
+    }
+
+    #[test]
+    fn a_preset_sets_its_keys_and_refuses_them_beside_it() {
+        let text = "[train]\npreset = \"preview\"\nbatch_size = 2\n[decay]\nwarmup = 3000\n";
+        let c = CaptureConfig::parse(text, Path::new("c.toml")).unwrap();
+        let v = Preset::Preview.values();
+        assert_eq!(c.train.iterations, v.iterations);
+        assert_eq!(c.train.resolution, v.resolution);
+        assert_eq!(c.train.densify.max_gaussians, v.max_gaussians);
+        assert_eq!(c.train.batch_size, 2);
+        // The warm-up scales with the iterations (30 000 → the preset's).
+        assert_eq!(c.decay.warmup, (3000 * v.iterations).div_ceil(30_000));
+        assert_eq!(c.section("train")["iterations"], v.iterations);
+        for (text, needle) in [
+            (
+                "[train]\npreset = \"best\"\niterations = 5\n",
+                "remove `iterations`",
+            ),
+            (
+                "[train]\npreset = \"best\"\n[train.densify]\nmax_gaussians = 5\n",
+                "remove `densify.max_gaussians`",
+            ),
+            (
+                "[train]\npreset = \"fast\"\n",
+                "\"preview\", \"balanced\" or \"best\"",
+            ),
+            ("[train]\npreset = \"best\"\nitertions = 5\n", "itertions"),
+        ] {
+            let err = CaptureConfig::parse(text, Path::new("/x/c.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(needle) && err.contains("/x/c.toml"), "{err}");
+        }
+        // Without a preset, errors keep their line numbers.
+        let err = CaptureConfig::parse("\n[train]\nitertions = 5\n", Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("line 3"), "{err}");
     }
 
     #[test]

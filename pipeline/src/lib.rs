@@ -26,6 +26,7 @@ pub mod lock;
 pub mod manifest;
 pub mod masks;
 pub mod partial_dir;
+pub mod presets;
 pub mod report;
 pub mod runner;
 pub mod simulate;

@@ -55,7 +55,11 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Command::Demo { out_dir, backend } => demo(&out_dir, backend, reporter),
+        Command::Demo {
+            out_dir,
+            backend,
+            preset,
+        } => demo(&out_dir, backend, preset, reporter),
         Command::Render(args) => render(args, reporter),
         Command::Bench(BenchCommand::Ablation {
             scene,
@@ -134,6 +138,7 @@ fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     if let Some(b) = args.backend {
         config.engine.backend = b;
     }
+    config = apply_preset(config, args.preset, reporter);
     let selection = Selection {
         from: args.from,
         to: args.to,
@@ -294,9 +299,25 @@ fn capture_summary(capture: &pipeline::layout::Capture) -> String {
 
 /// Simulate the built-in scene (once) and run every stage on it. Stages that are not
 /// implemented yet are reported but do not make the demo fail; a failing stage does.
+/// `--preset` over the capture's settings, said to the user.
+fn apply_preset(
+    config: pipeline::config::CaptureConfig,
+    preset: Option<pipeline::presets::Preset>,
+    reporter: &Reporter,
+) -> pipeline::config::CaptureConfig {
+    match preset {
+        Some(p) => {
+            reporter.say(&format!("preset {}: {}", p.name(), p.describe()));
+            config.with_preset(p)
+        }
+        None => config,
+    }
+}
+
 fn demo(
     out_dir: &std::path::Path,
     backend: Option<pipeline::engine_inputs::BackendChoice>,
+    preset: Option<pipeline::presets::Preset>,
     reporter: &Reporter,
 ) -> anyhow::Result<ExitCode> {
     if out_dir.join("raw").exists() {
@@ -319,6 +340,7 @@ fn demo(
     if let Some(b) = backend {
         config.engine.backend = b;
     }
+    config = apply_preset(config, preset, reporter);
     if !out_dir.join("pointmaps").exists() {
         // No MASt3R weights ship with the tool: the demo stands in for the point-map model
         // with the simulator's true depth at the init moments (docs/init.md), which are

@@ -463,13 +463,11 @@ fn measure(
     reporter: &Reporter,
 ) -> anyhow::Result<Row> {
     let config = &inputs.config;
-    let mut train = config.train.with_iterations(setting.iterations);
+    let (mut train, mut decay) =
+        crate::presets::schedule_for(&config.train, &config.decay, setting.iterations);
     train.resolution = setting.resolution;
     train.densify.max_gaussians = setting.max_gaussians;
-    let mut decay = config.decay.clone();
     decay.variant = setting.decay;
-    let scale = setting.iterations as f64 / config.train.iterations.max(1) as f64;
-    decay.warmup = (decay.warmup as f64 * scale).round() as u64;
     let backend: Box<dyn RenderBackend> = match setting.backend {
         TrainOn::Cpu => Box::new(splat4d::CpuBackend),
         TrainOn::Gpu => Box::new(

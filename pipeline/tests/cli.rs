@@ -44,19 +44,39 @@ fn unknown_stages_and_conflicting_flags_are_rejected() {
 
 #[test]
 fn demo_has_a_default_output_directory() {
-    let Cmd::Demo { out_dir, backend } = parse(&["demo"]).unwrap().command else {
+    let Cmd::Demo {
+        out_dir,
+        backend,
+        preset,
+    } = parse(&["demo"]).unwrap().command
+    else {
         panic!()
     };
     assert_eq!(out_dir.to_str(), Some("4c4d-demo"));
     assert_eq!(backend, None, "no --backend: capture.toml decides");
-    let Cmd::Demo { out_dir, backend } = parse(&["--json", "demo", "/tmp/x", "--backend", "cpu"])
-        .unwrap()
-        .command
+    assert_eq!(preset, None, "no --preset: capture.toml decides");
+    let Cmd::Demo {
+        out_dir,
+        backend,
+        preset,
+    } = parse(&[
+        "--json",
+        "demo",
+        "/tmp/x",
+        "--backend",
+        "cpu",
+        "--preset",
+        "preview",
+    ])
+    .unwrap()
+    .command
     else {
         panic!()
     };
     assert_eq!(out_dir.to_str(), Some("/tmp/x"));
     assert_eq!(backend, Some(pipeline::engine_inputs::BackendChoice::Cpu));
+    assert_eq!(preset, Some(pipeline::presets::Preset::Preview));
+    assert!(parse(&["run", "x", "--preset", "fastest"]).is_err());
     assert!(
         parse(&["demo", "--backend", "cuda"]).is_err(),
         "an unknown backend is refused"

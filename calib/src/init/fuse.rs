@@ -47,7 +47,7 @@ pub fn unproject(camera: &Camera, p: DVec2, z: f64) -> DVec3 {
 /// Average the points of each `voxel`-sized cube (xyz, colour and time); `voxel ≤ 0`
 /// keeps every point. The output is ordered by voxel, so it does not depend on hash order.
 pub fn voxel_downsample(points: &[FusedPoint], voxel: f64) -> Vec<FusedPoint> {
-    if !(voxel > 0.0) {
+    if voxel.is_nan() || voxel <= 0.0 {
         return points.to_vec();
     }
     type Cell = (DVec3, [f64; 3], f64, f64, usize);

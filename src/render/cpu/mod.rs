@@ -113,10 +113,11 @@ pub fn render_with<F: Real>(
     let period = period_of(model);
 
     // Per-Gaussian stages, in parallel; the visible splats keep the Gaussians' order.
-    let (ids, (splats, (rects, (colour_mask, radius)))): (
+    type Columns<F> = (
         Vec<u32>,
         (Vec<Splat<F>>, (Vec<[u32; 4]>, (Vec<u8>, Vec<F>))),
-    ) = (0..n)
+    );
+    let (ids, (splats, (rects, (colour_mask, radius)))): Columns<F> = (0..n)
         .into_par_iter()
         .with_min_len(1024)
         .filter_map(|i| {

@@ -1,0 +1,131 @@
+//! Training presets: `--preset preview|balanced|best` on `run` and `demo`, or `[train]
+//! preset` in `capture.toml`. Each is a point on the Pareto front of held-out PSNR against
+//! training time that `pipeline bench tradeoff` measured on the demo scene
+//! (docs/bench/tradeoff.md): it sets the iterations (every schedule that counts iterations
+//! scales with them, as [`schedule_for`] does), the training resolution and the Gaussian
+//! budget; every other setting stays as configured.
+
+use serde::{Deserialize, Serialize};
+use splat4d::decay::DecayConfig;
+use splat4d::train::TrainConfig;
+
+/// A named speed/quality point.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Preset {
+    /// A quick look: fewest steps at half resolution.
+    Preview,
+    /// The demo's schedule.
+    Balanced,
+    /// The most accurate point measured on 2 CPU cores.
+    Best,
+}
+
+/// What a preset sets.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PresetValues {
+    pub iterations: u64,
+    /// `[train] resolution`.
+    pub resolution: f64,
+    /// `[train.densify] max_gaussians`.
+    pub max_gaussians: usize,
+}
+
+/// The `[train]` keys a preset sets: giving one of them beside `preset` is an error.
+pub const PRESET_KEYS: [&str; 3] = ["iterations", "resolution", "densify.max_gaussians"];
+
+impl Preset {
+    pub fn values(self) -> PresetValues {
+        match self {
+            Self::Preview => PresetValues {
+                iterations: 300,
+                resolution: 0.5,
+                max_gaussians: 80_000,
+            },
+            Self::Balanced => PresetValues {
+                iterations: 1000,
+                resolution: 1.0,
+                max_gaussians: 80_000,
+            },
+            Self::Best => PresetValues {
+                iterations: 2000,
+                resolution: 1.0,
+                max_gaussians: 80_000,
+            },
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Preview => "preview",
+            Self::Balanced => "balanced",
+            Self::Best => "best",
+        }
+    }
+
+    /// The training and decay settings with this preset applied (checkpoints keep their
+    /// interval, capped to the run's length).
+    pub fn apply(self, train: &TrainConfig, decay: &DecayConfig) -> (TrainConfig, DecayConfig) {
+        let v = self.values();
+        let (mut t, d) = schedule_for(train, decay, v.iterations);
+        t.resolution = v.resolution;
+        t.densify.max_gaussians = v.max_gaussians;
+        t.checkpoint_every = train.checkpoint_every.min(v.iterations);
+        (t, d)
+    }
+
+    /// "1000 iterations at resolution 1, at most 80000 Gaussians".
+    pub fn describe(self) -> String {
+        let v = self.values();
+        format!(
+            "{} iterations at resolution {}, at most {} Gaussians",
+            v.iterations, v.resolution, v.max_gaussians
+        )
+    }
+}
+
+/// `train` and `decay` shortened (or lengthened) to `iterations`: every schedule counted
+/// in iterations (colour degree, densification window, position decay, the decay's
+/// warm-up) scales by the same factor; checkpoints only at the end.
+pub fn schedule_for(
+    train: &TrainConfig,
+    decay: &DecayConfig,
+    iterations: u64,
+) -> (TrainConfig, DecayConfig) {
+    let scale = iterations as f64 / train.iterations.max(1) as f64;
+    let mut d = decay.clone();
+    d.warmup = (decay.warmup as f64 * scale).round() as u64;
+    (train.with_iterations(iterations), d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_scale_the_schedules_and_set_their_values() {
+        let train = TrainConfig::default();
+        let decay = DecayConfig::default();
+        for preset in [Preset::Preview, Preset::Balanced, Preset::Best] {
+            let v = preset.values();
+            let (t, d) = preset.apply(&train, &decay);
+            assert_eq!(t.iterations, v.iterations);
+            assert_eq!(t.resolution, v.resolution);
+            assert_eq!(t.densify.max_gaussians, v.max_gaussians);
+            let scale = v.iterations as f64 / train.iterations as f64;
+            let close = |a: u64, b: u64| (a as f64 - b as f64 * scale).abs() <= 1.0;
+            assert!(close(
+                t.densify.until_iteration,
+                train.densify.until_iteration
+            ));
+            assert!(close(d.warmup, decay.warmup));
+            assert!(t.checkpoint_every >= 1 && t.checkpoint_every <= v.iterations);
+            assert_eq!(t.batch_size, train.batch_size);
+        }
+        // Cheaper to better.
+        let it = |p: Preset| p.values().iterations as f64 * p.values().resolution.powi(2);
+        assert!(
+            it(Preset::Preview) < it(Preset::Balanced) && it(Preset::Balanced) < it(Preset::Best)
+        );
+    }
+}
