@@ -5,7 +5,8 @@
 //! region's PSNR when masks exist). Writes `work/bench/tradeoff/tradeoff.{csv,md,png}`:
 //! the table, and held-out PSNR against time with the Pareto front marked. Each finished
 //! setting is appended to the CSV at once, so an interrupted bench resumes where it
-//! stopped; settings already in the CSV are not trained again.
+//! stopped; settings already in the CSV are not trained again, and a later grid adds its
+//! rows to the same table and plot.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -391,15 +392,11 @@ pub fn run(source: &BenchSource, grid: &Grid, reporter: &Reporter) -> anyhow::Re
         shared_types::Progress::advance(&grid_progress, setting.work());
     }
     shared_types::Progress::finish(&grid_progress);
-    // The table and plot show this grid's settings (the CSV keeps every row measured).
-    let keys: Vec<String> = settings.iter().map(Setting::key).collect();
-    let shown: Vec<Row> = rows
-        .iter()
-        .filter(|r| keys.contains(&r.setting.key()))
-        .cloned()
-        .collect();
+    // The table and plot show every setting measured on this capture (this grid's and
+    // earlier ones'); delete tradeoff.csv to start afresh.
+    let shown = rows;
     let header = format!(
-        "{}, {} training views of {}×{}, {} held-out views, seed {}. Machine: {}. Command: `pipeline bench tradeoff {}`.",
+        "{}, {} training views of {}×{}, {} held-out views, seed {}. Machine: {}. Last command: `pipeline bench tradeoff {}`.",
         source.describe(),
         inputs.dataset.views.len(),
         inputs.dataset.views[0].image.width,

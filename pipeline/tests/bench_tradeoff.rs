@@ -90,6 +90,15 @@ fn a_grid_is_measured_plotted_and_resumed() {
     let after = fs::read_to_string(&csv_path).unwrap();
     assert!(after.starts_with(&before), "{before}\n---\n{after}");
     assert_eq!(read_csv(&csv_path).unwrap().len(), 3);
+    // A grid of one setting still shows every row measured on this capture.
+    grid.iterations = vec![10];
+    pipeline::tradeoff::run(&source, &grid, &reporter).unwrap();
+    assert_eq!(fs::read_to_string(&csv_path).unwrap(), after);
+    let table = fs::read_to_string(&md).unwrap();
+    assert!(
+        table.contains("| 20 |") && table.contains("| 30 |"),
+        "{table}"
+    );
 
     // Bad sources.
     let scene_file = fixture("tiny.toml");
