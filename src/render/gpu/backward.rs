@@ -19,7 +19,7 @@ use std::sync::Arc;
 /// Bytes of one (tile, Gaussian) gradient record: three vec4 (`partials` in the shaders).
 const PARTIAL_BYTES: u64 = 48;
 /// Floats of one Gaussian's non-colour gradients (five vec4, like the uploaded params).
-const PARAM_FLOATS: usize = 20;
+pub(super) const PARAM_FLOATS: usize = 20;
 
 /// [`crate::render::RenderBackend::backward`] of the GPU backend.
 pub(super) fn backward(

@@ -14,14 +14,21 @@
 //! pixel), and [`RenderBackend::backward`] runs on it in one submission with one read-back
 //! ([`backward`]): `rasterise_backward` per tile, back to front, then
 //! `preprocess_backward` per Gaussian (colour, projection and slicing backward). The
-//! gradients are of the model as uploaded by the render; loss and optimiser stay on the
+//! gradients are of the model as uploaded by the render.
+//!
+//! For a training step on the device: [`GpuBackend::image_loss`] (the L1 + D-SSIM loss and
+//! its image gradient, [`loss`]) and [`GpuAdam`] (Adam with the model and its moments
+//! resident, [`adam`]). The trainer does not chain them yet: it runs loss and Adam on the
 //! host.
 
+mod adam;
 mod backward;
 mod device;
 mod kernels;
+mod loss;
 mod sort;
 
+pub use adam::GpuAdam;
 pub use device::{AdapterPolicy, Gpu, GpuError};
 
 use super::{
@@ -310,16 +317,7 @@ impl GpuBackend {
         let device = &self.gpu.device;
         let k = &self.kernels;
         let n = model.len();
-        let mut params: Vec<[f32; 4]> = Vec::with_capacity(5 * n);
-        for i in 0..n {
-            params.extend_from_slice(&[
-                model.means[i],
-                model.log_scales[i],
-                model.rot_left[i],
-                model.rot_right[i],
-                [model.opacity_logits[i], 0.0, 0.0, 0.0],
-            ]);
-        }
+        let params = pack_params(model);
         let uploaded = Arc::new(ModelBuffers {
             params: storage_init(device, &params, "gaussians"),
             colours: storage_init(device, &model.colours, "colours"),
@@ -568,6 +566,23 @@ impl GpuBackend {
             scan.encode(&self.kernels, &mut pass);
         }
     }
+}
+
+/// The model's non-colour parameters as uploaded: five vec4 per Gaussian (mean,
+/// log-scales, left and right rotation, opacity logit and padding).
+fn pack_params(model: &Gaussians<f32>) -> Vec<[f32; 4]> {
+    let n = model.len();
+    let mut params: Vec<[f32; 4]> = Vec::with_capacity(5 * n);
+    for i in 0..n {
+        params.extend_from_slice(&[
+            model.means[i],
+            model.log_scales[i],
+            model.rot_left[i],
+            model.rot_right[i],
+            [model.opacity_logits[i], 0.0, 0.0, 0.0],
+        ]);
+    }
+    params
 }
 
 /// A buffer the host can map and read, of at least 4 bytes.
