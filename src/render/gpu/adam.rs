@@ -33,9 +33,9 @@ struct AdamUniform {
 }
 
 /// One per-Gaussian array set on the device: packed parameters and colours.
-struct Packed {
-    params: wgpu::Buffer,
-    colours: wgpu::Buffer,
+pub(super) struct Packed {
+    pub params: wgpu::Buffer,
+    pub colours: wgpu::Buffer,
 }
 
 impl Packed {
@@ -49,13 +49,14 @@ impl Packed {
 
 /// Adam with the model and its moments resident on the GPU.
 pub struct GpuAdam {
-    gpu: Arc<Gpu>,
-    count: usize,
-    colour_len: usize,
+    pub(super) gpu: Arc<Gpu>,
+    pub(super) count: usize,
+    pub(super) colour_len: usize,
     /// Colour values per Gaussian (`3 × coefficients`).
     colour_stride: usize,
-    params: Packed,
-    grads: Packed,
+    pub(super) params: Packed,
+    /// The gradients of the next step.
+    pub(super) grads: Packed,
     m: Packed,
     v: Packed,
     step: u64,
@@ -98,7 +99,7 @@ impl GpuAdam {
         self.step
     }
 
-    fn same_device(&self, backend: &GpuBackend) -> Result<(), RenderError> {
+    pub(super) fn same_device(&self, backend: &GpuBackend) -> Result<(), RenderError> {
         if Arc::ptr_eq(&self.gpu, &backend.gpu) {
             Ok(())
         } else {
@@ -106,7 +107,7 @@ impl GpuAdam {
         }
     }
 
-    fn check_count(&self, got: usize) -> Result<(), RenderError> {
+    pub(super) fn check_count(&self, got: usize) -> Result<(), RenderError> {
         if got == self.count {
             Ok(())
         } else {
@@ -166,76 +167,89 @@ impl GpuAdam {
     pub fn step(&mut self, backend: &GpuBackend, rates: &GroupRates) -> Result<(), RenderError> {
         self.same_device(backend)?;
         backend.checked(|| {
-            let device = &self.gpu.device;
-            let k = &backend.kernels;
-            let t = (self.step + 1).min(i32::MAX as u64) as i32;
-            let base = AdamUniform {
-                count: 0,
-                stride: 1,
-                pad0: [0; 2],
-                beta1: BETA1,
-                beta2: BETA2,
-                one_minus_beta1: 1.0 - BETA1,
-                one_minus_beta2: 1.0 - BETA2,
-                bc1: 1.0 - BETA1.powi(t),
-                bc2: 1.0 - BETA2.powi(t),
-                epsilon: EPSILON,
-                pad1: 0.0,
-                rates: [0.0; 20],
-            };
-            let r = rates;
-            let mut param_rates = [-1.0f32; 20];
-            param_rates[..4].copy_from_slice(&[r.position, r.position, r.position, r.time]);
-            param_rates[4..8].fill(r.scale);
-            param_rates[8..16].fill(r.rotation);
-            param_rates[16] = r.opacity;
-            let mut colour_rates = [r.colour_rest; 20];
-            colour_rates[..3].fill(r.colour_dc);
-            let mut enc = device.create_command_encoder(&Default::default());
-            let groups = [
-                (
-                    PARAM_FLOATS * self.count,
-                    PARAM_FLOATS,
-                    param_rates,
-                    &self.grads.params,
-                    &self.params.params,
-                    &self.m.params,
-                    &self.v.params,
-                ),
-                (
-                    self.colour_len,
-                    self.colour_stride.max(1),
-                    colour_rates,
-                    &self.grads.colours,
-                    &self.params.colours,
-                    &self.m.colours,
-                    &self.v.colours,
-                ),
-            ];
-            {
-                let mut pass = enc.begin_compute_pass(&Default::default());
-                for (count, stride, rates, g, p, m, v) in groups {
-                    if count == 0 {
-                        continue;
-                    }
-                    let u = uniform(
-                        device,
-                        &AdamUniform {
-                            count: count as u32,
-                            stride: stride as u32,
-                            rates,
-                            ..base
-                        },
-                    );
-                    let bind = k.adam_step.bind(device, &[&u, g, p, m, v]);
-                    k.adam_step.dispatch_items(&mut pass, &bind, count as u32);
-                }
-            }
+            let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+            self.encode_step(backend, rates, &mut enc);
             self.gpu.queue.submit([enc.finish()]);
             Ok(())
         })?;
-        self.step += 1;
+        self.stepped();
         Ok(())
+    }
+
+    /// Record the next step (the caller counts it with `stepped` once submitted).
+    pub(super) fn encode_step(
+        &self,
+        backend: &GpuBackend,
+        rates: &GroupRates,
+        enc: &mut wgpu::CommandEncoder,
+    ) {
+        let device = &self.gpu.device;
+        let k = &backend.kernels;
+        let t = (self.step + 1).min(i32::MAX as u64) as i32;
+        let base = AdamUniform {
+            count: 0,
+            stride: 1,
+            pad0: [0; 2],
+            beta1: BETA1,
+            beta2: BETA2,
+            one_minus_beta1: 1.0 - BETA1,
+            one_minus_beta2: 1.0 - BETA2,
+            bc1: 1.0 - BETA1.powi(t),
+            bc2: 1.0 - BETA2.powi(t),
+            epsilon: EPSILON,
+            pad1: 0.0,
+            rates: [0.0; 20],
+        };
+        let r = rates;
+        let mut param_rates = [-1.0f32; 20];
+        param_rates[..4].copy_from_slice(&[r.position, r.position, r.position, r.time]);
+        param_rates[4..8].fill(r.scale);
+        param_rates[8..16].fill(r.rotation);
+        param_rates[16] = r.opacity;
+        let mut colour_rates = [r.colour_rest; 20];
+        colour_rates[..3].fill(r.colour_dc);
+        let groups = [
+            (
+                PARAM_FLOATS * self.count,
+                PARAM_FLOATS,
+                param_rates,
+                &self.grads.params,
+                &self.params.params,
+                &self.m.params,
+                &self.v.params,
+            ),
+            (
+                self.colour_len,
+                self.colour_stride.max(1),
+                colour_rates,
+                &self.grads.colours,
+                &self.params.colours,
+                &self.m.colours,
+                &self.v.colours,
+            ),
+        ];
+        let mut pass = enc.begin_compute_pass(&Default::default());
+        for (count, stride, rates, g, p, m, v) in groups {
+            if count == 0 {
+                continue;
+            }
+            let u = uniform(
+                device,
+                &AdamUniform {
+                    count: count as u32,
+                    stride: stride as u32,
+                    rates,
+                    ..base
+                },
+            );
+            let bind = k.adam_step.bind(device, &[&u, g, p, m, v]);
+            k.adam_step.dispatch_items(&mut pass, &bind, count as u32);
+        }
+    }
+
+    /// Count a step recorded with `encode_step` and submitted.
+    pub(super) fn stepped(&mut self) {
+        self.step += 1;
     }
 
     /// Read `set` (packed parameters and colours) back as flat floats.
@@ -290,6 +304,14 @@ impl GpuAdam {
         let m = backend.checked(|| self.read(backend, &self.m))?;
         let v = backend.checked(|| self.read(backend, &self.v))?;
         Ok((self.unpack(&m), self.unpack(&v)))
+    }
+
+    /// The gradients of the last step (summed over its batch by
+    /// [`GpuAdam::train_step`], or as set by [`GpuAdam::set_gradients`]).
+    pub fn gradients(&self, backend: &GpuBackend) -> Result<ParamBuffers, RenderError> {
+        self.same_device(backend)?;
+        let g = backend.checked(|| self.read(backend, &self.grads))?;
+        Ok(self.unpack(&g))
     }
 
     /// Flat packed values (parameters, then colours) to per-group arrays.

@@ -46,6 +46,7 @@ pub struct Kernels {
     pub reduce_sums: Kernel,
     pub unpack_bytes: Kernel,
     pub adam_step: Kernel,
+    pub add_into: Kernel,
 }
 
 impl Kernels {
@@ -74,6 +75,7 @@ impl Kernels {
         let loss = module("loss", include_str!("shaders/loss.wgsl"));
         let unpack = module("unpack", include_str!("shaders/unpack.wgsl"));
         let adam = module("adam", include_str!("shaders/adam.wgsl"));
+        let add = module("add", include_str!("shaders/add.wgsl"));
         let k = |m: &wgpu::ShaderModule, entry: &str, slots: &[Slot]| {
             kernel(device, m, entry, &layout(device, entry, slots))
         };
@@ -127,6 +129,7 @@ impl Kernels {
             ssim_grad: kernel(device, &loss, "ssim_grad", &loss_layout),
             reduce_sums: kernel(device, &loss, "reduce_sums", &loss_layout),
             unpack_bytes: k(&unpack, "unpack_bytes", &[Uniform, Read, ReadWrite]),
+            add_into: k(&add, "add_into", &[Uniform, Read, ReadWrite]),
             adam_step: k(
                 &adam,
                 "adam_step",

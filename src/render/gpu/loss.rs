@@ -62,7 +62,9 @@ pub(super) struct LossPass {
 
 impl LossPass {
     /// Buffers for the loss of `rendered` against `target` (both `3·width·height` f32 on
-    /// the device), gradient weighted by `scale`. `width·height > 0`.
+    /// the device), gradient weighted by `scale` and written into `grad` (a new buffer
+    /// when `None`). `width·height > 0`.
+    #[allow(clippy::too_many_arguments)]
     pub fn new(
         device: &wgpu::Device,
         kernels: &Kernels,
@@ -71,6 +73,7 @@ impl LossPass {
         target: &wgpu::Buffer,
         lambda_ssim: f64,
         scale: f32,
+        grad: Option<&wgpu::Buffer>,
     ) -> Self {
         let count = 3 * width * height;
         let (x, y) = grid(count.div_ceil(WG));
@@ -94,7 +97,10 @@ impl LossPass {
         let tmp = storage(device, 8 * count as u64, "loss blurred images");
         let partial = storage(device, 20 * count as u64, "loss partials");
         let sums = storage(device, 16 * (groups as u64 + 1), "loss sums");
-        let grad = storage(device, 4 * count as u64, "loss gradient");
+        let grad = match grad {
+            Some(g) => g.clone(),
+            None => storage(device, 4 * count as u64, "loss gradient"),
+        };
         let bind = kernels.ssim_pixel.bind(
             device,
             &[&params, rendered, target, &tmp, &partial, &sums, &grad],
@@ -141,6 +147,31 @@ impl LossPass {
             mse: total[2] as f64 / n,
         }
     }
+}
+
+/// Bytes four to a word, little-endian (zero padded), as `shaders/unpack.wgsl` reads them.
+pub(super) fn pack_bytes(bytes: &[u8]) -> Vec<u32> {
+    let mut words = vec![0u32; bytes.len().div_ceil(4)];
+    for (i, b) in bytes.iter().enumerate() {
+        words[i / 4] |= (*b as u32) << (8 * (i % 4));
+    }
+    words
+}
+
+/// Record the conversion of `count` packed bytes to floats in [0, 1]; the float buffer.
+pub(super) fn unpack(
+    device: &wgpu::Device,
+    k: &Kernels,
+    enc: &mut wgpu::CommandEncoder,
+    packed: &wgpu::Buffer,
+    count: u32,
+) -> wgpu::Buffer {
+    let out = storage(device, 4 * count as u64, "target image");
+    let len = uniform(device, &[count, 0, 0, 0]);
+    let bind = k.unpack_bytes.bind(device, &[&len, packed, &out]);
+    let mut pass = enc.begin_compute_pass(&Default::default());
+    k.unpack_bytes.dispatch_items(&mut pass, &bind, count);
+    out
 }
 
 /// A target image as the host has it.
@@ -260,17 +291,8 @@ impl GpuBackend {
         let target_buf = match target {
             Target::Floats(t) => storage_init(device, t, "target image"),
             Target::Bytes(t) => {
-                let out = storage(device, 4 * count as u64, "target image");
-                let mut words = vec![0u32; t.len().div_ceil(4)];
-                for (i, b) in t.iter().enumerate() {
-                    words[i / 4] |= (*b as u32) << (8 * (i % 4));
-                }
-                let packed = storage_init(device, &words, "target bytes");
-                let len = uniform(device, &[count, 0, 0, 0]);
-                let bind = k.unpack_bytes.bind(device, &[&len, &packed, &out]);
-                let mut pass = enc.begin_compute_pass(&Default::default());
-                k.unpack_bytes.dispatch_items(&mut pass, &bind, count);
-                out
+                let packed = storage_init(device, &pack_bytes(t), "target bytes");
+                unpack(device, k, &mut enc, &packed, count)
             }
         };
         let loss = LossPass::new(
@@ -281,6 +303,7 @@ impl GpuBackend {
             &target_buf,
             lambda_ssim,
             1.0,
+            None,
         );
         {
             let mut pass = enc.begin_compute_pass(&Default::default());

@@ -18,8 +18,9 @@
 //!
 //! For a training step on the device: [`GpuBackend::image_loss`] (the L1 + D-SSIM loss and
 //! its image gradient, [`loss`]) and [`GpuAdam`] (Adam with the model and its moments
-//! resident, [`adam`]). The trainer does not chain them yet: it runs loss and Adam on the
-//! host.
+//! resident, [`adam`]), chained with render and backward into one iteration by
+//! [`GpuAdam::train_step`] ([`step`]). The trainer does not use them yet: it runs loss and
+//! Adam on the host.
 
 mod adam;
 mod backward;
@@ -27,9 +28,11 @@ mod device;
 mod kernels;
 mod loss;
 mod sort;
+mod step;
 
 pub use adam::GpuAdam;
 pub use device::{AdapterPolicy, Gpu, GpuError};
+pub use step::{GpuImage, StepResult, TrainView};
 
 use super::{
     Gradients, ImageGradients, RenderBackend, RenderError, RenderStats, Rendered, ViewRequest,
@@ -81,6 +84,8 @@ struct GpuFrame {
 
 /// Per-view device buffers the forward fills and the backward reads.
 struct ViewBuffers {
+    /// The rendered image (interleaved RGB), for a loss on the device.
+    rgb: wgpu::Buffer,
     /// One `Splat` per Gaussian.
     splats: wgpu::Buffer,
     /// Tiles touched per Gaussian (0 when culled).
@@ -135,6 +140,16 @@ impl GpuBackend {
     /// The adapter this backend renders on.
     pub fn adapter(&self) -> &wgpu::AdapterInfo {
         &self.gpu.info
+    }
+
+    /// Wait until the device has finished all submitted work (e.g. [`GpuAdam::step`],
+    /// which returns once its work is submitted).
+    pub fn wait(&self) -> Result<(), RenderError> {
+        self.gpu
+            .device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| RenderError::Gpu(format!("waiting for the GPU: {e}")))
     }
 
     /// The largest storage buffer one kernel may bind on this device.
@@ -315,7 +330,6 @@ impl GpuBackend {
         prepared: Vec<Prepared>,
     ) -> Result<Vec<Rendered<f32>>, RenderError> {
         let device = &self.gpu.device;
-        let k = &self.kernels;
         let n = model.len();
         let params = pack_params(model);
         let uploaded = Arc::new(ModelBuffers {
@@ -325,6 +339,19 @@ impl GpuBackend {
             count: n,
             colour_len: model.colours.len(),
         });
+        self.render_uploaded(uploaded, views, prepared)
+    }
+
+    /// Render `views` of a model already on the device.
+    fn render_uploaded(
+        &self,
+        uploaded: Arc<ModelBuffers>,
+        views: &[ViewRequest<'_>],
+        prepared: Vec<Prepared>,
+    ) -> Result<Vec<Rendered<f32>>, RenderError> {
+        let device = &self.gpu.device;
+        let k = &self.kernels;
+        let n = uploaded.count;
         let scratch = Scratch {
             ends: storage(device, 4 * n as u64, "tile ends"),
             radii: storage(device, 4 * n as u64, "radii"),
@@ -401,7 +428,6 @@ impl GpuBackend {
             .map(|p| p.uniform.width as u64 * p.uniform.height as u64)
             .max()
             .unwrap_or(1);
-        let out_rgb = storage(device, 12 * max_pixels, "rgb");
         let out_alpha = storage(device, 4 * max_pixels, "alpha");
         let out_depth = storage(device, 4 * max_pixels, "depth");
         let layout: Vec<(u64, u64)> = prepared
@@ -425,6 +451,7 @@ impl GpuBackend {
             let tiles = u.tiles_x * u.tiles_y;
             let (px, g) = layout[v];
             let buffers = ViewBuffers {
+                rgb: storage(device, 12 * px, "rgb"),
                 splats,
                 counts,
                 ends: storage(device, 4 * n as u64, "tile ends of a view"),
@@ -464,7 +491,7 @@ impl GpuBackend {
                         &buffers.splats,
                         &sorted[2],
                         &buffers.ranges,
-                        &out_rgb,
+                        &buffers.rgb,
                         &out_alpha,
                         &out_depth,
                         &buffers.pixels,
@@ -480,7 +507,7 @@ impl GpuBackend {
                 enc.copy_buffer_to_buffer(&sorted[2], 0, &buffers.values, 0, 4 * pairs as u64);
             }
             for (buf, words) in [
-                (&out_rgb, 3 * px),
+                (&buffers.rgb, 3 * px),
                 (&out_alpha, px),
                 (&out_depth, px),
                 (&scratch.radii, g),
