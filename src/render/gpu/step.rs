@@ -27,9 +27,11 @@ pub struct GpuImage {
 
 /// One view of a training batch.
 pub struct TrainView<'a> {
+    /// Pinhole camera of the view, sized like its target.
     pub camera: &'a Camera,
     /// Model time of the view.
     pub t: f32,
+    /// The view's image, uploaded with [`GpuBackend::upload_image`].
     pub target: &'a GpuImage,
 }
 
