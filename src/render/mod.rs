@@ -46,6 +46,12 @@ pub enum RenderError {
         expected: usize,
         got: usize,
     },
+    #[error("the {what} has {got} values, expected {expected} (3 × width × height)")]
+    ImageLength {
+        what: &'static str,
+        expected: u64,
+        got: usize,
+    },
     #[error(
         "backward called with a model of {got} Gaussians, but {expected} were rendered; pass the rendered model"
     )]

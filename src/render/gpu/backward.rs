@@ -11,7 +11,7 @@
 //! terms in the order the CPU backward does.
 
 use super::kernels::{storage, storage_init};
-use super::{GpuBackend, GpuFrame, TILE, read_buffer};
+use super::{GpuBackend, GpuFrame, read_buffer};
 use crate::model::Gaussians;
 use crate::render::{Gradients, ImageGradients, RenderError, Rendered, check_backward_inputs};
 use std::sync::Arc;
@@ -19,7 +19,7 @@ use std::sync::Arc;
 /// Bytes of one (tile, Gaussian) gradient record: three vec4 (`partials` in the shaders).
 const PARTIAL_BYTES: u64 = 48;
 /// Floats of one Gaussian's non-colour gradients (five vec4, like the uploaded params).
-const PARAM_FLOATS: usize = 20;
+pub(super) const PARAM_FLOATS: usize = 20;
 
 /// [`crate::render::RenderBackend::backward`] of the GPU backend.
 pub(super) fn backward(
@@ -60,8 +60,6 @@ fn run(
     up: &ImageGradients<f32>,
 ) -> Result<(Vec<f32>, Vec<f32>), RenderError> {
     let device = &backend.gpu.device;
-    let k = &backend.kernels;
-    let b = &state.buffers;
     let n = state.model.count;
     let colour_len = state.model.colour_len;
     let npix = frame.width as usize * frame.height as usize;
@@ -76,11 +74,6 @@ fn run(
         }
     }
     let upstream = storage_init(device, &upstream, "upstream gradients");
-    let partials = storage(
-        device,
-        PARTIAL_BYTES * state.pairs as u64,
-        "per-tile gradients",
-    );
     let out_params = storage(device, 4 * (PARAM_FLOATS * n) as u64, "gradients");
     let out_colours = storage(device, 4 * colour_len as u64, "colour gradients");
     let param_words = (PARAM_FLOATS * n) as u64;
@@ -88,48 +81,14 @@ fn run(
     let staging = read_buffer(device, 4 * total_words);
 
     let mut enc = device.create_command_encoder(&Default::default());
-    // Entries no pixel reached keep a zero record.
-    enc.clear_buffer(&partials, 0, None);
-    if n > 0 {
-        let factor = state.factor.as_ref().unwrap_or(&state.model.ones);
-        let raster = k.rasterise_backward.bind(
-            device,
-            &[
-                &state.view,
-                &b.splats,
-                &b.values,
-                &b.ranges,
-                &b.pixels,
-                &upstream,
-                &b.ends,
-                &partials,
-            ],
-        );
-        let per_gaussian = k.preprocess_backward.bind(
-            device,
-            &[
-                &state.view,
-                &state.model.params,
-                &state.model.colours,
-                factor,
-                &b.counts,
-                &b.ends,
-                &partials,
-                &out_params,
-                &out_colours,
-            ],
-        );
-        let mut pass = enc.begin_compute_pass(&Default::default());
-        if state.pairs > 0 {
-            pass.set_pipeline(&k.rasterise_backward.pipeline);
-            pass.set_bind_group(0, &raster, &[]);
-            let u = &state.uniform;
-            debug_assert_eq!(u.tiles_x, frame.width.div_ceil(TILE));
-            pass.dispatch_workgroups(u.tiles_x, u.tiles_y, 1);
-        }
-        k.preprocess_backward
-            .dispatch_items(&mut pass, &per_gaussian, n as u32);
-    }
+    encode(
+        backend,
+        state,
+        &upstream,
+        &out_params,
+        &out_colours,
+        &mut enc,
+    );
     if param_words > 0 {
         enc.copy_buffer_to_buffer(&out_params, 0, &staging, 0, 4 * param_words);
     }
@@ -146,6 +105,69 @@ fn run(
     let floats: &[f32] = bytemuck::cast_slice(&words);
     let (params, colours) = floats.split_at(param_words as usize);
     Ok((params.to_vec(), colours.to_vec()))
+}
+
+/// Record both kernels of `state`'s backward from `upstream` (RGB, alpha and depth planes
+/// of the image gradient) into `out_params` (five vec4 per Gaussian) and `out_colours`.
+pub(super) fn encode(
+    backend: &GpuBackend,
+    state: &GpuFrame,
+    upstream: &wgpu::Buffer,
+    out_params: &wgpu::Buffer,
+    out_colours: &wgpu::Buffer,
+    enc: &mut wgpu::CommandEncoder,
+) {
+    let device = &backend.gpu.device;
+    let k = &backend.kernels;
+    let b = &state.buffers;
+    let n = state.model.count;
+    let partials = storage(
+        device,
+        PARTIAL_BYTES * state.pairs as u64,
+        "per-tile gradients",
+    );
+    // Entries no pixel reached keep a zero record.
+    enc.clear_buffer(&partials, 0, None);
+    if n == 0 {
+        return;
+    }
+    let factor = state.factor.as_ref().unwrap_or(&state.model.ones);
+    let raster = k.rasterise_backward.bind(
+        device,
+        &[
+            &state.view,
+            &b.splats,
+            &b.values,
+            &b.ranges,
+            &b.pixels,
+            upstream,
+            &b.ends,
+            &partials,
+        ],
+    );
+    let per_gaussian = k.preprocess_backward.bind(
+        device,
+        &[
+            &state.view,
+            &state.model.params,
+            &state.model.colours,
+            factor,
+            &b.counts,
+            &b.ends,
+            &partials,
+            out_params,
+            out_colours,
+        ],
+    );
+    let mut pass = enc.begin_compute_pass(&Default::default());
+    if state.pairs > 0 {
+        pass.set_pipeline(&k.rasterise_backward.pipeline);
+        pass.set_bind_group(0, &raster, &[]);
+        let u = &state.uniform;
+        pass.dispatch_workgroups(u.tiles_x, u.tiles_y, 1);
+    }
+    k.preprocess_backward
+        .dispatch_items(&mut pass, &per_gaussian, n as u32);
 }
 
 /// Scatter the read-back gradient records into `out`, laid out like the model.

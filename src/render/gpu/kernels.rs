@@ -39,6 +39,14 @@ pub struct Kernels {
     pub rasterise: Kernel,
     pub rasterise_backward: Kernel,
     pub preprocess_backward: Kernel,
+    /// The loss passes (`shaders/loss.wgsl`), sharing one bind group.
+    pub ssim_blur_h: Kernel,
+    pub ssim_pixel: Kernel,
+    pub ssim_grad: Kernel,
+    pub reduce_sums: Kernel,
+    pub unpack_bytes: Kernel,
+    pub adam_step: Kernel,
+    pub add_into: Kernel,
 }
 
 impl Kernels {
@@ -64,12 +72,23 @@ impl Kernels {
         let sort = module("sort", include_str!("shaders/sort.wgsl"));
         let ranges = module("ranges", include_str!("shaders/ranges.wgsl"));
         let raster = module("raster", include_str!("shaders/raster.wgsl"));
+        let loss = module("loss", include_str!("shaders/loss.wgsl"));
+        let unpack = module("unpack", include_str!("shaders/unpack.wgsl"));
+        let adam = module("adam", include_str!("shaders/adam.wgsl"));
+        let add = module("add", include_str!("shaders/add.wgsl"));
         let k = |m: &wgpu::ShaderModule, entry: &str, slots: &[Slot]| {
             kernel(device, m, entry, &layout(device, entry, slots))
         };
         // Kernels that share bind groups share one layout.
         let scan_layout = layout(device, "scan", &[Uniform, ReadWrite, ReadWrite]);
         let sort_layout = layout(device, "sort", &SORT_SLOTS);
+        let loss_layout = layout(
+            device,
+            "loss",
+            &[
+                Uniform, Read, Read, ReadWrite, ReadWrite, ReadWrite, ReadWrite,
+            ],
+        );
         Self {
             preprocess: k(
                 &preprocess,
@@ -104,6 +123,17 @@ impl Kernels {
                 &[
                     Uniform, Read, Read, Read, Read, Read, Read, ReadWrite, ReadWrite,
                 ],
+            ),
+            ssim_blur_h: kernel(device, &loss, "ssim_blur_h", &loss_layout),
+            ssim_pixel: kernel(device, &loss, "ssim_pixel", &loss_layout),
+            ssim_grad: kernel(device, &loss, "ssim_grad", &loss_layout),
+            reduce_sums: kernel(device, &loss, "reduce_sums", &loss_layout),
+            unpack_bytes: k(&unpack, "unpack_bytes", &[Uniform, Read, ReadWrite]),
+            add_into: k(&add, "add_into", &[Uniform, Read, ReadWrite]),
+            adam_step: k(
+                &adam,
+                "adam_step",
+                &[Uniform, Read, ReadWrite, ReadWrite, ReadWrite],
             ),
         }
     }
@@ -191,7 +221,7 @@ impl Kernel {
         self.dispatch_groups(pass, group, items.div_ceil(WG));
     }
 
-    /// Run `groups` 1D workgroups.
+    /// Run `groups` 1D workgroups (as [`grid`] lays them out).
     pub fn dispatch_groups(
         &self,
         pass: &mut wgpu::ComputePass<'_>,
@@ -203,9 +233,15 @@ impl Kernel {
         }
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, group, &[]);
-        let x = groups.min(MAX_GROUPS);
-        pass.dispatch_workgroups(x, groups.div_ceil(x), 1);
+        let (x, y) = grid(groups);
+        pass.dispatch_workgroups(x, y, 1);
     }
+}
+
+/// The (x, y) workgroup grid that runs at least `groups` workgroups (x·y may be more).
+pub fn grid(groups: u32) -> (u32, u32) {
+    let x = groups.clamp(1, MAX_GROUPS);
+    (x, groups.div_ceil(x))
 }
 
 /// A uniform buffer holding `value`.

@@ -14,15 +14,25 @@
 //! pixel), and [`RenderBackend::backward`] runs on it in one submission with one read-back
 //! ([`backward`]): `rasterise_backward` per tile, back to front, then
 //! `preprocess_backward` per Gaussian (colour, projection and slicing backward). The
-//! gradients are of the model as uploaded by the render; loss and optimiser stay on the
-//! host.
+//! gradients are of the model as uploaded by the render.
+//!
+//! For a training step on the device: [`GpuBackend::image_loss`] (the L1 + D-SSIM loss and
+//! its image gradient, [`loss`]) and [`GpuAdam`] (Adam with the model and its moments
+//! resident, [`adam`]), chained with render and backward into one iteration by
+//! [`GpuAdam::train_step`] ([`step`]). The trainer does not use them yet: it runs loss and
+//! Adam on the host.
 
+mod adam;
 mod backward;
 mod device;
 mod kernels;
+mod loss;
 mod sort;
+mod step;
 
+pub use adam::GpuAdam;
 pub use device::{AdapterPolicy, Gpu, GpuError};
+pub use step::{GpuImage, StepResult, TrainView};
 
 use super::{
     Gradients, ImageGradients, RenderBackend, RenderError, RenderStats, Rendered, ViewRequest,
@@ -74,6 +84,8 @@ struct GpuFrame {
 
 /// Per-view device buffers the forward fills and the backward reads.
 struct ViewBuffers {
+    /// The rendered image (interleaved RGB), for a loss on the device.
+    rgb: wgpu::Buffer,
     /// One `Splat` per Gaussian.
     splats: wgpu::Buffer,
     /// Tiles touched per Gaussian (0 when culled).
@@ -128,6 +140,16 @@ impl GpuBackend {
     /// The adapter this backend renders on.
     pub fn adapter(&self) -> &wgpu::AdapterInfo {
         &self.gpu.info
+    }
+
+    /// Wait until the device has finished all submitted work (e.g. [`GpuAdam::step`],
+    /// which returns once its work is submitted).
+    pub fn wait(&self) -> Result<(), RenderError> {
+        self.gpu
+            .device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| RenderError::Gpu(format!("waiting for the GPU: {e}")))
     }
 
     /// The largest storage buffer one kernel may bind on this device.
@@ -308,18 +330,8 @@ impl GpuBackend {
         prepared: Vec<Prepared>,
     ) -> Result<Vec<Rendered<f32>>, RenderError> {
         let device = &self.gpu.device;
-        let k = &self.kernels;
         let n = model.len();
-        let mut params: Vec<[f32; 4]> = Vec::with_capacity(5 * n);
-        for i in 0..n {
-            params.extend_from_slice(&[
-                model.means[i],
-                model.log_scales[i],
-                model.rot_left[i],
-                model.rot_right[i],
-                [model.opacity_logits[i], 0.0, 0.0, 0.0],
-            ]);
-        }
+        let params = pack_params(model);
         let uploaded = Arc::new(ModelBuffers {
             params: storage_init(device, &params, "gaussians"),
             colours: storage_init(device, &model.colours, "colours"),
@@ -327,6 +339,19 @@ impl GpuBackend {
             count: n,
             colour_len: model.colours.len(),
         });
+        self.render_uploaded(uploaded, views, prepared)
+    }
+
+    /// Render `views` of a model already on the device.
+    fn render_uploaded(
+        &self,
+        uploaded: Arc<ModelBuffers>,
+        views: &[ViewRequest<'_>],
+        prepared: Vec<Prepared>,
+    ) -> Result<Vec<Rendered<f32>>, RenderError> {
+        let device = &self.gpu.device;
+        let k = &self.kernels;
+        let n = uploaded.count;
         let scratch = Scratch {
             ends: storage(device, 4 * n as u64, "tile ends"),
             radii: storage(device, 4 * n as u64, "radii"),
@@ -403,7 +428,6 @@ impl GpuBackend {
             .map(|p| p.uniform.width as u64 * p.uniform.height as u64)
             .max()
             .unwrap_or(1);
-        let out_rgb = storage(device, 12 * max_pixels, "rgb");
         let out_alpha = storage(device, 4 * max_pixels, "alpha");
         let out_depth = storage(device, 4 * max_pixels, "depth");
         let layout: Vec<(u64, u64)> = prepared
@@ -427,6 +451,7 @@ impl GpuBackend {
             let tiles = u.tiles_x * u.tiles_y;
             let (px, g) = layout[v];
             let buffers = ViewBuffers {
+                rgb: storage(device, 12 * px, "rgb"),
                 splats,
                 counts,
                 ends: storage(device, 4 * n as u64, "tile ends of a view"),
@@ -466,7 +491,7 @@ impl GpuBackend {
                         &buffers.splats,
                         &sorted[2],
                         &buffers.ranges,
-                        &out_rgb,
+                        &buffers.rgb,
                         &out_alpha,
                         &out_depth,
                         &buffers.pixels,
@@ -482,7 +507,7 @@ impl GpuBackend {
                 enc.copy_buffer_to_buffer(&sorted[2], 0, &buffers.values, 0, 4 * pairs as u64);
             }
             for (buf, words) in [
-                (&out_rgb, 3 * px),
+                (&buffers.rgb, 3 * px),
                 (&out_alpha, px),
                 (&out_depth, px),
                 (&scratch.radii, g),
@@ -568,6 +593,23 @@ impl GpuBackend {
             scan.encode(&self.kernels, &mut pass);
         }
     }
+}
+
+/// The model's non-colour parameters as uploaded: five vec4 per Gaussian (mean,
+/// log-scales, left and right rotation, opacity logit and padding).
+fn pack_params(model: &Gaussians<f32>) -> Vec<[f32; 4]> {
+    let n = model.len();
+    let mut params: Vec<[f32; 4]> = Vec::with_capacity(5 * n);
+    for i in 0..n {
+        params.extend_from_slice(&[
+            model.means[i],
+            model.log_scales[i],
+            model.rot_left[i],
+            model.rot_right[i],
+            [model.opacity_logits[i], 0.0, 0.0, 0.0],
+        ]);
+    }
+    params
 }
 
 /// A buffer the host can map and read, of at least 4 bytes.

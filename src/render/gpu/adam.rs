@@ -1,0 +1,334 @@
+//! Adam on the GPU (`shaders/adam.wgsl`): the model's trainable values and their first
+//! and second moments stay in device buffers between steps, laid out as the renderer
+//! uploads a model (five vec4 per Gaussian, then the colour coefficients). A step is one
+//! submission of two dispatches with the step's scheduled rates as uniforms and no
+//! read-back; it computes what `train::optim::Adam::step` does, in the same f32 order.
+
+use super::backward::PARAM_FLOATS;
+use super::kernels::{storage, storage_init, uniform};
+use super::{Gpu, GpuBackend, pack_params, read_buffer};
+use crate::model::Gaussians;
+use crate::render::{Gradients, RenderError};
+use crate::train::optim::{BETA1, BETA2, EPSILON, GroupRates, ParamBuffers};
+use std::sync::Arc;
+
+/// The step constants (`AdamParams` in `shaders/adam.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct AdamUniform {
+    count: u32,
+    stride: u32,
+    pad0: [u32; 2],
+    beta1: f32,
+    beta2: f32,
+    one_minus_beta1: f32,
+    one_minus_beta2: f32,
+    bc1: f32,
+    bc2: f32,
+    epsilon: f32,
+    pad1: f32,
+    /// Rate per position in the stride (the last one for positions past 19); negative:
+    /// not trained.
+    rates: [f32; 20],
+}
+
+/// One per-Gaussian array set on the device: packed parameters and colours.
+pub(super) struct Packed {
+    pub params: wgpu::Buffer,
+    pub colours: wgpu::Buffer,
+}
+
+impl Packed {
+    fn zeros(device: &wgpu::Device, count: usize, colour_len: usize, label: &str) -> Self {
+        Self {
+            params: storage(device, 4 * (PARAM_FLOATS * count) as u64, label),
+            colours: storage(device, 4 * colour_len as u64, label),
+        }
+    }
+}
+
+/// Adam with the model and its moments resident on the GPU.
+pub struct GpuAdam {
+    pub(super) gpu: Arc<Gpu>,
+    pub(super) count: usize,
+    pub(super) colour_len: usize,
+    /// Colour values per Gaussian (`3 × coefficients`).
+    colour_stride: usize,
+    pub(super) params: Packed,
+    /// The gradients of the next step.
+    pub(super) grads: Packed,
+    m: Packed,
+    v: Packed,
+    step: u64,
+}
+
+impl GpuAdam {
+    /// Upload `model` with zero moments (as `Adam::new`).
+    pub fn new(backend: &GpuBackend, model: &Gaussians<f32>) -> Result<Self, RenderError> {
+        model
+            .check_consistent()
+            .map_err(RenderError::InconsistentModel)?;
+        let count = model.len();
+        backend.too_large("the model's parameters", 4 * (PARAM_FLOATS * count) as u64)?;
+        backend.too_large(
+            "the model's colour coefficients",
+            4 * model.colours.len() as u64,
+        )?;
+        let device = &backend.gpu.device;
+        let colour_len = model.colours.len();
+        backend.checked(|| {
+            Ok(Self {
+                gpu: backend.gpu.clone(),
+                count,
+                colour_len,
+                colour_stride: 3 * model.coeffs_per_channel(),
+                params: Packed {
+                    params: storage_init(device, &pack_params(model), "trained parameters"),
+                    colours: storage_init(device, &model.colours, "trained colours"),
+                },
+                grads: Packed::zeros(device, count, colour_len, "Adam gradients"),
+                m: Packed::zeros(device, count, colour_len, "Adam first moments"),
+                v: Packed::zeros(device, count, colour_len, "Adam second moments"),
+                step: 0,
+            })
+        })
+    }
+
+    /// Steps taken.
+    pub fn steps(&self) -> u64 {
+        self.step
+    }
+
+    pub(super) fn same_device(&self, backend: &GpuBackend) -> Result<(), RenderError> {
+        if Arc::ptr_eq(&self.gpu, &backend.gpu) {
+            Ok(())
+        } else {
+            Err(RenderError::WrongBackend { backend: "gpu" })
+        }
+    }
+
+    pub(super) fn check_count(&self, got: usize) -> Result<(), RenderError> {
+        if got == self.count {
+            Ok(())
+        } else {
+            Err(RenderError::ModelMismatch {
+                expected: self.count,
+                got,
+            })
+        }
+    }
+
+    /// Upload the gradients of the next step (laid out like the model).
+    pub fn set_gradients(
+        &self,
+        backend: &GpuBackend,
+        grads: &Gradients<f32>,
+    ) -> Result<(), RenderError> {
+        self.same_device(backend)?;
+        self.check_count(grads.means.len())?;
+        let n = self.count;
+        let lengths = [
+            ("log-scale", grads.log_scales.len(), n),
+            ("left rotation", grads.rot_left.len(), n),
+            ("right rotation", grads.rot_right.len(), n),
+            ("opacity", grads.opacity_logits.len(), n),
+            ("colour", grads.colours.len(), self.colour_len),
+        ];
+        for (what, got, expected) in lengths {
+            if got != expected {
+                return Err(RenderError::GradientLength {
+                    what,
+                    expected,
+                    got,
+                });
+            }
+        }
+        let mut packed: Vec<[f32; 4]> = Vec::with_capacity(5 * n);
+        for i in 0..n {
+            packed.extend_from_slice(&[
+                grads.means[i],
+                grads.log_scales[i],
+                grads.rot_left[i],
+                grads.rot_right[i],
+                [grads.opacity_logits[i], 0.0, 0.0, 0.0],
+            ]);
+        }
+        let queue = &self.gpu.queue;
+        if n > 0 {
+            queue.write_buffer(&self.grads.params, 0, bytemuck::cast_slice(&packed));
+        }
+        if self.colour_len > 0 {
+            queue.write_buffer(&self.grads.colours, 0, bytemuck::cast_slice(&grads.colours));
+        }
+        Ok(())
+    }
+
+    /// One Adam step with the uploaded gradients and this step's `rates`.
+    pub fn step(&mut self, backend: &GpuBackend, rates: &GroupRates) -> Result<(), RenderError> {
+        self.same_device(backend)?;
+        backend.checked(|| {
+            let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+            self.encode_step(backend, rates, &mut enc);
+            self.gpu.queue.submit([enc.finish()]);
+            Ok(())
+        })?;
+        self.stepped();
+        Ok(())
+    }
+
+    /// Record the next step (the caller counts it with `stepped` once submitted).
+    pub(super) fn encode_step(
+        &self,
+        backend: &GpuBackend,
+        rates: &GroupRates,
+        enc: &mut wgpu::CommandEncoder,
+    ) {
+        let device = &self.gpu.device;
+        let k = &backend.kernels;
+        let t = (self.step + 1).min(i32::MAX as u64) as i32;
+        let base = AdamUniform {
+            count: 0,
+            stride: 1,
+            pad0: [0; 2],
+            beta1: BETA1,
+            beta2: BETA2,
+            one_minus_beta1: 1.0 - BETA1,
+            one_minus_beta2: 1.0 - BETA2,
+            bc1: 1.0 - BETA1.powi(t),
+            bc2: 1.0 - BETA2.powi(t),
+            epsilon: EPSILON,
+            pad1: 0.0,
+            rates: [0.0; 20],
+        };
+        let r = rates;
+        let mut param_rates = [-1.0f32; 20];
+        param_rates[..4].copy_from_slice(&[r.position, r.position, r.position, r.time]);
+        param_rates[4..8].fill(r.scale);
+        param_rates[8..16].fill(r.rotation);
+        param_rates[16] = r.opacity;
+        let mut colour_rates = [r.colour_rest; 20];
+        colour_rates[..3].fill(r.colour_dc);
+        let groups = [
+            (
+                PARAM_FLOATS * self.count,
+                PARAM_FLOATS,
+                param_rates,
+                &self.grads.params,
+                &self.params.params,
+                &self.m.params,
+                &self.v.params,
+            ),
+            (
+                self.colour_len,
+                self.colour_stride.max(1),
+                colour_rates,
+                &self.grads.colours,
+                &self.params.colours,
+                &self.m.colours,
+                &self.v.colours,
+            ),
+        ];
+        let mut pass = enc.begin_compute_pass(&Default::default());
+        for (count, stride, rates, g, p, m, v) in groups {
+            if count == 0 {
+                continue;
+            }
+            let u = uniform(
+                device,
+                &AdamUniform {
+                    count: count as u32,
+                    stride: stride as u32,
+                    rates,
+                    ..base
+                },
+            );
+            let bind = k.adam_step.bind(device, &[&u, g, p, m, v]);
+            k.adam_step.dispatch_items(&mut pass, &bind, count as u32);
+        }
+    }
+
+    /// Count a step recorded with `encode_step` and submitted.
+    pub(super) fn stepped(&mut self) {
+        self.step += 1;
+    }
+
+    /// Read `set` (packed parameters and colours) back as flat floats.
+    fn read(&self, backend: &GpuBackend, set: &Packed) -> Result<Vec<f32>, RenderError> {
+        let device = &self.gpu.device;
+        let param_bytes = 4 * (PARAM_FLOATS * self.count) as u64;
+        let colour_bytes = 4 * self.colour_len as u64;
+        let staging = read_buffer(device, param_bytes + colour_bytes);
+        let mut enc = device.create_command_encoder(&Default::default());
+        if param_bytes > 0 {
+            enc.copy_buffer_to_buffer(&set.params, 0, &staging, 0, param_bytes);
+        }
+        if colour_bytes > 0 {
+            enc.copy_buffer_to_buffer(&set.colours, 0, &staging, param_bytes, colour_bytes);
+        }
+        let words = backend.read_back(enc, &staging, param_bytes + colour_bytes)?;
+        Ok(bytemuck::cast_slice(&words).to_vec())
+    }
+
+    /// Copy the trained values into `model` (the model uploaded, same size).
+    pub fn download(
+        &self,
+        backend: &GpuBackend,
+        model: &mut Gaussians<f32>,
+    ) -> Result<(), RenderError> {
+        self.same_device(backend)?;
+        self.check_count(model.len())?;
+        if model.colours.len() != self.colour_len {
+            return Err(RenderError::InconsistentModel(format!(
+                "{} colour values, {} uploaded",
+                model.colours.len(),
+                self.colour_len
+            )));
+        }
+        let values = backend.checked(|| self.read(backend, &self.params))?;
+        let b = self.unpack(&values);
+        model.means = b.means;
+        model.log_scales = b.log_scales;
+        model.rot_left = b.rot_left;
+        model.rot_right = b.rot_right;
+        model.opacity_logits = b.opacity_logits;
+        model.colours = b.colours;
+        Ok(())
+    }
+
+    /// The first and second moments, laid out as `Adam::m` and `Adam::v`.
+    pub fn moments(
+        &self,
+        backend: &GpuBackend,
+    ) -> Result<(ParamBuffers, ParamBuffers), RenderError> {
+        self.same_device(backend)?;
+        let m = backend.checked(|| self.read(backend, &self.m))?;
+        let v = backend.checked(|| self.read(backend, &self.v))?;
+        Ok((self.unpack(&m), self.unpack(&v)))
+    }
+
+    /// The gradients of the last step (summed over its batch by
+    /// [`GpuAdam::train_step`], or as set by [`GpuAdam::set_gradients`]).
+    pub fn gradients(&self, backend: &GpuBackend) -> Result<ParamBuffers, RenderError> {
+        self.same_device(backend)?;
+        let g = backend.checked(|| self.read(backend, &self.grads))?;
+        Ok(self.unpack(&g))
+    }
+
+    /// Flat packed values (parameters, then colours) to per-group arrays.
+    fn unpack(&self, values: &[f32]) -> ParamBuffers {
+        let n = self.count;
+        let (params, colours) = values.split_at(PARAM_FLOATS * n);
+        let vec4 = |i: usize, k: usize| -> [f32; 4] {
+            let at = PARAM_FLOATS * i + 4 * k;
+            [params[at], params[at + 1], params[at + 2], params[at + 3]]
+        };
+        ParamBuffers {
+            means: (0..n).map(|i| vec4(i, 0)).collect(),
+            log_scales: (0..n).map(|i| vec4(i, 1)).collect(),
+            rot_left: (0..n).map(|i| vec4(i, 2)).collect(),
+            rot_right: (0..n).map(|i| vec4(i, 3)).collect(),
+            opacity_logits: (0..n).map(|i| params[PARAM_FLOATS * i + 16]).collect(),
+            colours: colours.to_vec(),
+        }
+    }
+}

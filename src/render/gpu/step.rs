@@ -1,0 +1,224 @@
+//! One training iteration on the device, on the parameters a [`GpuAdam`] keeps resident:
+//! render the batch's views, then in one submission per view the loss against its target
+//! (uploaded once as bytes, converted on the device), the backward from the loss's image
+//! gradient (weighted 1/batch), the views' gradients added in batch order, and the Adam
+//! step; one 16-byte loss total per view is read back. The render still reads its images
+//! back (the caller sees them, as in training); densification statistics, the anisotropy
+//! cap and hooks are not part of the step.
+
+use super::adam::GpuAdam;
+use super::kernels::{storage, storage_init, uniform};
+use super::loss::{LossPass, pack_bytes, unpack};
+use super::{GpuBackend, GpuFrame, ModelBuffers, read_buffer};
+use crate::Camera;
+use crate::model::Gaussians;
+use crate::render::{RenderError, RenderOptions, Rendered, ViewRequest};
+use crate::train::dataset::ImageU8;
+use crate::train::loss::LossValue;
+use crate::train::optim::GroupRates;
+use std::sync::Arc;
+
+/// A target image on the device: its bytes, four to a word.
+pub struct GpuImage {
+    packed: wgpu::Buffer,
+    width: u32,
+    height: u32,
+}
+
+/// One view of a training batch.
+pub struct TrainView<'a> {
+    /// Pinhole camera of the view, sized like its target.
+    pub camera: &'a Camera,
+    /// Model time of the view.
+    pub t: f32,
+    /// The view's image, uploaded with [`GpuBackend::upload_image`].
+    pub target: &'a GpuImage,
+}
+
+/// What one iteration gives back.
+pub struct StepResult {
+    /// The loss of each view (unweighted by the batch).
+    pub losses: Vec<LossValue>,
+    /// The rendered views, as the render read them back.
+    pub frames: Vec<Rendered<f32>>,
+}
+
+impl GpuBackend {
+    /// Upload a training image once (as bytes).
+    pub fn upload_image(&self, image: &ImageU8) -> Result<GpuImage, RenderError> {
+        let expected = 3 * image.width as u64 * image.height as u64;
+        if image.data.len() as u64 != expected {
+            return Err(RenderError::ImageLength {
+                what: "training image",
+                expected,
+                got: image.data.len(),
+            });
+        }
+        self.too_large("the training image", image.data.len() as u64)?;
+        self.checked(|| {
+            Ok(GpuImage {
+                packed: storage_init(&self.gpu.device, &pack_bytes(&image.data), "target"),
+                width: image.width,
+                height: image.height,
+            })
+        })
+    }
+}
+
+impl GpuAdam {
+    /// One training iteration of `views` (one batch) on the resident parameters: render,
+    /// loss `(1 − λ)·L1 + λ·(1 − SSIM)`, backward, gradients summed over the batch with
+    /// weight 1/batch, one Adam step with `rates`. `model` gives the layout and schedule
+    /// (active colour degrees, time mapping); its values are not read.
+    pub fn train_step(
+        &mut self,
+        backend: &GpuBackend,
+        model: &Gaussians<f32>,
+        views: &[TrainView<'_>],
+        background: [f32; 3],
+        lambda_ssim: f64,
+        rates: &GroupRates,
+    ) -> Result<StepResult, RenderError> {
+        self.same_device(backend)?;
+        self.check_count(model.len())?;
+        if model.colours.len() != self.colour_len {
+            return Err(RenderError::InconsistentModel(format!(
+                "{} colour values, {} uploaded",
+                model.colours.len(),
+                self.colour_len
+            )));
+        }
+        let requests: Vec<ViewRequest<'_>> = views
+            .iter()
+            .map(|v| ViewRequest {
+                camera: v.camera,
+                t: v.t,
+                options: RenderOptions {
+                    background,
+                    ..Default::default()
+                },
+            })
+            .collect();
+        let prepared = requests
+            .iter()
+            .map(|r| backend.prepare(model, r))
+            .collect::<Result<Vec<_>, _>>()?;
+        for (p, v) in prepared.iter().zip(views) {
+            let (w, h) = (p.uniform.width, p.uniform.height);
+            if (w, h) != (v.target.width, v.target.height) {
+                return Err(RenderError::ImageLength {
+                    what: "target image",
+                    expected: 3 * w as u64 * h as u64,
+                    got: 3 * v.target.width as usize * v.target.height as usize,
+                });
+            }
+            backend.too_large("the loss's partials", 60 * w as u64 * h as u64)?;
+        }
+        if views.is_empty() {
+            return Ok(StepResult {
+                losses: Vec::new(),
+                frames: Vec::new(),
+            });
+        }
+        let n = self.count;
+        let frames = backend.checked(|| {
+            let uploaded = Arc::new(ModelBuffers {
+                params: self.params.params.clone(),
+                colours: self.params.colours.clone(),
+                ones: storage_init(
+                    &backend.gpu.device,
+                    &vec![1.0f32; n.max(1)],
+                    "no opacity factor",
+                ),
+                count: n,
+                colour_len: self.colour_len,
+            });
+            backend.render_uploaded(uploaded, &requests, prepared)
+        })?;
+        let totals =
+            backend.checked(|| self.encode_and_run(backend, &frames, views, lambda_ssim, rates))?;
+        self.stepped();
+        Ok(StepResult {
+            losses: totals,
+            frames,
+        })
+    }
+
+    /// Loss, backward and gradient sums of every view, then Adam: one submission.
+    fn encode_and_run(
+        &self,
+        backend: &GpuBackend,
+        frames: &[Rendered<f32>],
+        views: &[TrainView<'_>],
+        lambda_ssim: f64,
+        rates: &GroupRates,
+    ) -> Result<Vec<LossValue>, RenderError> {
+        let device = &backend.gpu.device;
+        let k = &backend.kernels;
+        let scale = 1.0 / views.len() as f32;
+        let staging = read_buffer(device, 16 * views.len() as u64);
+        let mut enc = device.create_command_encoder(&Default::default());
+        let param_words = (super::backward::PARAM_FLOATS * self.count) as u32;
+        let colour_words = self.colour_len as u32;
+        // Later views' gradients, added into the batch's.
+        let part_params = storage(device, 4 * param_words as u64, "view gradients");
+        let part_colours = storage(device, 4 * colour_words as u64, "view colour gradients");
+        let mut passes = Vec::with_capacity(views.len());
+        for (v, (frame, view)) in frames.iter().zip(views).enumerate() {
+            let state = frame
+                .state
+                .downcast_ref::<GpuFrame>()
+                .ok_or(RenderError::WrongBackend { backend: "gpu" })?;
+            let (w, h) = (frame.width, frame.height);
+            let npix = w as u64 * h as u64;
+            let target = unpack(device, k, &mut enc, &view.target.packed, 3 * npix as u32);
+            // RGB, alpha and depth planes; the loss writes RGB, the rest stay zero.
+            let upstream = storage(device, 20 * npix, "upstream gradients");
+            enc.clear_buffer(&upstream, 0, None);
+            let loss = LossPass::new(
+                device,
+                k,
+                (w, h),
+                &state.buffers.rgb,
+                &target,
+                lambda_ssim,
+                scale,
+                Some(&upstream),
+            );
+            {
+                let mut pass = enc.begin_compute_pass(&Default::default());
+                loss.encode(k, &mut pass);
+            }
+            enc.copy_buffer_to_buffer(&loss.sums, loss.total_offset(), &staging, 16 * v as u64, 16);
+            let (out_params, out_colours) = if v == 0 {
+                (&self.grads.params, &self.grads.colours)
+            } else {
+                (&part_params, &part_colours)
+            };
+            // Culled Gaussians get no record: start from zeros.
+            enc.clear_buffer(out_params, 0, None);
+            enc.clear_buffer(out_colours, 0, None);
+            super::backward::encode(backend, state, &upstream, out_params, out_colours, &mut enc);
+            if v > 0 {
+                let mut pass = enc.begin_compute_pass(&Default::default());
+                for (words, part, sum) in [
+                    (param_words, &part_params, &self.grads.params),
+                    (colour_words, &part_colours, &self.grads.colours),
+                ] {
+                    let len = uniform(device, &[words, 0, 0, 0]);
+                    let bind = k.add_into.bind(device, &[&len, part, sum]);
+                    k.add_into.dispatch_items(&mut pass, &bind, words);
+                }
+            }
+            passes.push(loss);
+        }
+        self.encode_step(backend, rates, &mut enc);
+        let words = backend.read_back(enc, &staging, 16 * views.len() as u64)?;
+        let floats: &[f32] = bytemuck::cast_slice(&words);
+        Ok(passes
+            .iter()
+            .zip(floats.chunks_exact(4))
+            .map(|(p, t)| p.value([t[0], t[1], t[2], t[3]], lambda_ssim))
+            .collect())
+    }
+}
