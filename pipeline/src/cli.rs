@@ -237,6 +237,31 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 600)]
         iterations: u64,
     },
+    /// Sync error against time: every sync method and setting (audio with/without the clap
+    /// window and acoustic correction, flash with/without the rolling-shutter readout and
+    /// exposure declared) on simulated scenes, against their true offsets. Writes
+    /// OUT_DIR/sync.csv + sync.md; rows already in sync.csv are not recomputed.
+    ///
+    /// Example: pipeline bench sync /tmp/bench
+    Sync {
+        /// Where the simulated captures and the results go (reused when it exists).
+        out_dir: PathBuf,
+        /// A small grid (4 settings on 2 scenes), for tests.
+        #[arg(long)]
+        quick: bool,
+    },
+    /// Pose error against time: COLMAP with each max_num_features and max_image_size on a
+    /// simulated static scene, against the true cameras, with COLMAP's time per step.
+    /// Writes OUT_DIR/poses.csv + poses.md; rows already in poses.csv are not recomputed.
+    ///
+    /// Example: pipeline bench poses /tmp/bench
+    Poses {
+        /// Where the simulated capture, the COLMAP runs and the results go (reused).
+        out_dir: PathBuf,
+        /// One setting only (1024 features, 320 px), for tests.
+        #[arg(long)]
+        quick: bool,
+    },
 }
 
 #[cfg(test)]

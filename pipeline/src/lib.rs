@@ -12,9 +12,11 @@
 //! - `runner` decides what is stale and runs it, with `manifest` (`stage.json`),
 //!   `partial_dir` (outputs appear only when complete) and `lock` (one run per capture).
 //! - `report` shows progress, `status` prints the table, `cli` is the command line;
-//!   `simulate` and `ablation` are the `simulate`/`demo` and `bench ablation` commands.
+//!   `simulate` and `ablation` are the `simulate`/`demo` and `bench ablation` commands,
+//!   `bench` the `bench sync` and `bench poses` commands (and their resumable results table).
 
 pub mod ablation;
+pub mod bench;
 pub mod cli;
 pub mod config;
 pub mod engine_inputs;

@@ -69,6 +69,14 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
+        Command::Bench(BenchCommand::Sync { out_dir, quick }) => {
+            let bench = pipeline::bench::sync::run(&out_dir, quick, reporter)?;
+            bench_done(&bench.markdown, &bench.csv, bench.summary, reporter)
+        }
+        Command::Bench(BenchCommand::Poses { out_dir, quick }) => {
+            let bench = pipeline::bench::poses::run(&out_dir, quick, reporter)?;
+            bench_done(&bench.markdown, &bench.csv, bench.summary, reporter)
+        }
         Command::Record(args) => record(args, reporter),
         Command::Simulate {
             scene,
@@ -99,6 +107,33 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+/// Say where a bench wrote its table and how many rows it computed; print the table.
+fn bench_done(
+    markdown: &std::path::Path,
+    csv: &std::path::Path,
+    summary: pipeline::bench::table::FillSummary,
+    reporter: &Reporter,
+) -> anyhow::Result<ExitCode> {
+    reporter.say(&format!(
+        "{} settings computed, {} already in {}; table written to {}",
+        summary.computed,
+        summary.reused,
+        csv.display(),
+        markdown.display()
+    ));
+    reporter.json(&serde_json::json!({
+        "event": "bench_finished",
+        "markdown": markdown,
+        "csv": csv,
+        "computed": summary.computed,
+        "reused": summary.reused,
+    }));
+    if reporter.mode() == OutputMode::Human {
+        print!("{}", std::fs::read_to_string(markdown).unwrap_or_default());
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
