@@ -268,11 +268,36 @@ pub enum BenchCommand {
         #[arg(long, value_delimiter = ',')]
         max_gaussians: Vec<usize>,
         /// Decay variants: none, constant, pow, exp, neural (default: the capture's).
-        #[arg(long, value_delimiter = ',', value_parser = crate::tradeoff::parse_decay)]
+        #[arg(long, value_delimiter = ',', value_parser = crate::bench::tradeoff::parse_decay)]
         decay: Vec<splat4d::decay::DecayVariant>,
         /// Training backends (gpu: a hardware GPU; SPLAT4D_GPU_SOFTWARE=1 allows lavapipe).
-        #[arg(long, value_delimiter = ',', value_enum, default_values_t = [crate::tradeoff::TrainOn::Cpu])]
-        backend: Vec<crate::tradeoff::TrainOn>,
+        #[arg(long, value_delimiter = ',', value_enum, default_values_t = [crate::bench::tradeoff::TrainOn::Cpu])]
+        backend: Vec<crate::bench::tradeoff::TrainOn>,
+    },
+    /// Sync error against time: every sync method and setting (audio with/without the clap
+    /// window and acoustic correction, flash with/without the rolling-shutter readout and
+    /// exposure declared) on simulated scenes, against their true offsets. Writes
+    /// OUT_DIR/sync.csv + sync.md; rows already in sync.csv are not recomputed.
+    ///
+    /// Example: pipeline bench sync /tmp/bench
+    Sync {
+        /// Where the simulated captures and the results go (reused when it exists).
+        out_dir: PathBuf,
+        /// A small grid (4 settings on 2 scenes), for tests.
+        #[arg(long)]
+        quick: bool,
+    },
+    /// Pose error against time: COLMAP with each max_num_features and max_image_size on a
+    /// simulated static scene, against the true cameras, with COLMAP's time per step.
+    /// Writes OUT_DIR/poses.csv + poses.md; rows already in poses.csv are not recomputed.
+    ///
+    /// Example: pipeline bench poses /tmp/bench
+    Poses {
+        /// Where the simulated capture, the COLMAP runs and the results go (reused).
+        out_dir: PathBuf,
+        /// One setting only (1024 features, 320 px), for tests.
+        #[arg(long)]
+        quick: bool,
     },
 }
 

@@ -12,10 +12,10 @@
 //! - `runner` decides what is stale and runs it, with `manifest` (`stage.json`),
 //!   `partial_dir` (outputs appear only when complete) and `lock` (one run per capture).
 //! - `report` shows progress, `status` prints the table, `cli` is the command line;
-//!   `simulate` and `ablation` are the `simulate`/`demo` and `bench ablation` commands.
+//!   `simulate` and `ablation` are the `simulate`/`demo` and `bench ablation` commands,
+//!   `bench` the `bench sync` and `bench poses` commands (and their resumable results table).
 
-pub mod ablation;
-pub mod bench_inputs;
+pub mod bench;
 pub mod cli;
 pub mod config;
 pub mod engine_inputs;
@@ -34,9 +34,6 @@ pub mod stage_context;
 pub mod stage_def;
 pub mod stages;
 pub mod status;
-pub mod sysinfo;
-pub mod tradeoff;
-pub mod tradeoff_plot;
 
 use std::path::Path;
 

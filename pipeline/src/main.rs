@@ -66,7 +66,7 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             capture_dir,
             iterations,
         }) => {
-            let table = pipeline::ablation::run(&scene, &capture_dir, iterations, reporter)?;
+            let table = pipeline::bench::ablation::run(&scene, &capture_dir, iterations, reporter)?;
             reporter.say(&format!("ablation table written to {}", table.display()));
             if reporter.mode() == OutputMode::Human {
                 print!("{}", std::fs::read_to_string(&table).unwrap_or_default());
@@ -83,15 +83,15 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             backend,
         }) => {
             let source =
-                pipeline::bench_inputs::BenchSource::from_args(&source, capture_dir.as_deref())?;
-            let grid = pipeline::tradeoff::Grid {
+                pipeline::bench::inputs::BenchSource::from_args(&source, capture_dir.as_deref())?;
+            let grid = pipeline::bench::tradeoff::Grid {
                 iterations,
                 resolution,
                 max_gaussians,
                 decay,
                 backend,
             };
-            let table = pipeline::tradeoff::run(&source, &grid, reporter)?;
+            let table = pipeline::bench::tradeoff::run(&source, &grid, reporter)?;
             reporter.say(&format!(
                 "tradeoff table and plot written to {}",
                 table.parent().unwrap_or(&table).display()
@@ -100,6 +100,14 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
                 print!("{}", std::fs::read_to_string(&table).unwrap_or_default());
             }
             Ok(ExitCode::SUCCESS)
+        }
+        Command::Bench(BenchCommand::Sync { out_dir, quick }) => {
+            let bench = pipeline::bench::sync::run(&out_dir, quick, reporter)?;
+            bench_done(&bench.markdown, &bench.csv, bench.summary, reporter)
+        }
+        Command::Bench(BenchCommand::Poses { out_dir, quick }) => {
+            let bench = pipeline::bench::poses::run(&out_dir, quick, reporter)?;
+            bench_done(&bench.markdown, &bench.csv, bench.summary, reporter)
         }
         Command::Record(args) => record(args, reporter),
         Command::Simulate {
@@ -131,6 +139,33 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+/// Say where a bench wrote its table and how many rows it computed; print the table.
+fn bench_done(
+    markdown: &std::path::Path,
+    csv: &std::path::Path,
+    summary: pipeline::bench::table::FillSummary,
+    reporter: &Reporter,
+) -> anyhow::Result<ExitCode> {
+    reporter.say(&format!(
+        "{} settings computed, {} already in {}; table written to {}",
+        summary.computed,
+        summary.reused,
+        csv.display(),
+        markdown.display()
+    ));
+    reporter.json(&serde_json::json!({
+        "event": "bench_finished",
+        "markdown": markdown,
+        "csv": csv,
+        "computed": summary.computed,
+        "reused": summary.reused,
+    }));
+    if reporter.mode() == OutputMode::Human {
+        print!("{}", std::fs::read_to_string(markdown).unwrap_or_default());
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {

@@ -86,8 +86,9 @@ pub fn demo_settings(scene: &rig::sim::Scene) -> String {
     )
 }
 
-/// The simulator's true video cameras (`groundtruth/cameras.json`, names `cam*`).
-fn truth_video_cameras(
+/// The simulator's true video cameras (`groundtruth/cameras.json`, names `cam*`), with
+/// the file's path.
+pub fn truth_video_cameras(
     capture_dir: &Path,
 ) -> anyhow::Result<(std::path::PathBuf, Vec<shared_types::Camera>)> {
     let path = capture_dir.join("groundtruth/cameras.json");

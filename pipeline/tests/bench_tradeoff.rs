@@ -8,10 +8,10 @@ mod common;
 use std::fs;
 
 use common::fixture;
-use pipeline::bench_inputs::BenchSource;
+use pipeline::bench::inputs::BenchSource;
+use pipeline::bench::tradeoff::{Grid, TrainOn, read_csv};
 use pipeline::report::{OutputMode, Reporter};
 use pipeline::simulate;
-use pipeline::tradeoff::{Grid, TrainOn, read_csv};
 use splat4d::decay::DecayVariant;
 
 const SETTINGS: &str = "[sync]\nmethod = \"timestamps\"\n\
@@ -36,7 +36,7 @@ fn a_grid_is_measured_plotted_and_resumed() {
         decay: vec![DecayVariant::Neural],
         backend: vec![TrainOn::Cpu],
     };
-    let md = pipeline::tradeoff::run(&source, &grid, &reporter).unwrap();
+    let md = pipeline::bench::tradeoff::run(&source, &grid, &reporter).unwrap();
     let out = md.parent().unwrap().to_path_buf();
     let csv_path = out.join("tradeoff.csv");
     let rows = read_csv(&csv_path).unwrap();
@@ -86,13 +86,13 @@ fn a_grid_is_measured_plotted_and_resumed() {
     // A wider grid trains only the new setting; the measured lines stay as written.
     let before = fs::read_to_string(&csv_path).unwrap();
     grid.iterations.push(20);
-    pipeline::tradeoff::run(&source, &grid, &reporter).unwrap();
+    pipeline::bench::tradeoff::run(&source, &grid, &reporter).unwrap();
     let after = fs::read_to_string(&csv_path).unwrap();
     assert!(after.starts_with(&before), "{before}\n---\n{after}");
     assert_eq!(read_csv(&csv_path).unwrap().len(), 3);
     // A grid of one setting still shows every row measured on this capture.
     grid.iterations = vec![10];
-    pipeline::tradeoff::run(&source, &grid, &reporter).unwrap();
+    pipeline::bench::tradeoff::run(&source, &grid, &reporter).unwrap();
     assert_eq!(fs::read_to_string(&csv_path).unwrap(), after);
     let table = fs::read_to_string(&md).unwrap();
     assert!(
@@ -121,7 +121,7 @@ fn a_grid_is_measured_plotted_and_resumed() {
         resolution: vec![0.0],
         ..grid
     };
-    let e = pipeline::tradeoff::run(&source, &bad, &reporter)
+    let e = pipeline::bench::tradeoff::run(&source, &bad, &reporter)
         .unwrap_err()
         .to_string();
     assert!(e.contains("--resolution"), "{e}");

@@ -120,7 +120,10 @@ fn capture_cameras(
 }
 
 /// (camera name, its first aligned frame) of every camera of a frames index.
-fn first_frames(index: &FramesIndex, frames_dir: &Path) -> anyhow::Result<Vec<(String, PathBuf)>> {
+pub fn first_frames(
+    index: &FramesIndex,
+    frames_dir: &Path,
+) -> anyhow::Result<Vec<(String, PathBuf)>> {
     let first = index
         .frames
         .first()

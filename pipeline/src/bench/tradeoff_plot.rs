@@ -11,7 +11,7 @@ use plotters::prelude::*;
 use plotters::style::FontStyle;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use crate::tradeoff::{Row, pareto_front};
+use crate::bench::tradeoff::{Row, pareto_front};
 
 const SIZE: (u32, u32) = (1000, 640);
 

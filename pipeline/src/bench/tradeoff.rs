@@ -17,9 +17,9 @@ use serde::{Deserialize, Serialize};
 use splat4d::RenderBackend;
 use splat4d::decay::{DecayHooks, DecayVariant};
 
-use crate::bench_inputs::{self, BenchInputs, BenchSource};
+use crate::bench::inputs::{self, BenchInputs, BenchSource};
+use crate::bench::sysinfo;
 use crate::report::Reporter;
-use crate::sysinfo;
 
 /// The backend a setting trains on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -342,7 +342,7 @@ pub fn out_dir(bench_dir: &Path) -> PathBuf {
 /// Run the bench; returns the path of `tradeoff.md`.
 pub fn run(source: &BenchSource, grid: &Grid, reporter: &Reporter) -> anyhow::Result<PathBuf> {
     grid.check()?;
-    let inputs = bench_inputs::prepare(source, reporter)?;
+    let inputs = inputs::prepare(source, reporter)?;
     let out = out_dir(&inputs.bench_dir);
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     let csv_path = out.join("tradeoff.csv");
@@ -406,7 +406,7 @@ pub fn run(source: &BenchSource, grid: &Grid, reporter: &Reporter) -> anyhow::Re
         sysinfo::describe_machine(),
         grid.describe(source)
     );
-    crate::tradeoff_plot::plot(&shown, &out.join("tradeoff.png"))?;
+    crate::bench::tradeoff_plot::plot(&shown, &out.join("tradeoff.png"))?;
     let md = out.join("tradeoff.md");
     shared_types::atomic::write_atomic(&md, markdown(&header, &shown).as_bytes())?;
     Ok(md)

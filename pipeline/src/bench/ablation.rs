@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use splat4d::decay::{DecayConfig, DecayHooks};
 
-use crate::bench_inputs::{self, BenchInputs, BenchSource};
+use crate::bench::inputs::{self, BenchInputs, BenchSource};
 use crate::report::Reporter;
 
 /// One row of the table.
@@ -46,7 +46,7 @@ pub fn run(
         heldout,
         bench_dir: bench,
         ..
-    } = bench_inputs::prepare(&source, reporter)?;
+    } = inputs::prepare(&source, reporter)?;
     let progress = reporter.progress("ablation");
     let train_config = config.train.with_iterations(iterations);
     let mut rows = Vec::new();
