@@ -19,6 +19,7 @@ use splat4d::decay::{DecayHooks, DecayVariant};
 
 use crate::bench::inputs::{self, BenchInputs, BenchSource};
 use crate::bench::sysinfo;
+use crate::bench::table::{self, Table};
 use crate::report::Reporter;
 
 /// The backend a setting trains on.
@@ -165,44 +166,69 @@ pub struct Row {
     pub moving_psnr: Option<f64>,
 }
 
-const CSV_HEADER: &str = "iterations,resolution,max_gaussians,decay,backend,seconds,cpu_seconds,peak_ram_mib,gaussians,psnr,ssim,dssim1,dssim2,lpips,moving_psnr";
+/// The CSV's columns: the setting (the key), then what was measured.
+const KEY_COLUMNS: [&str; 5] = [
+    "iterations",
+    "resolution",
+    "max_gaussians",
+    "decay",
+    "backend",
+];
+const VALUE_COLUMNS: [&str; 10] = [
+    "seconds",
+    "cpu_seconds",
+    "peak_ram_mib",
+    "gaussians",
+    "psnr",
+    "ssim",
+    "dssim1",
+    "dssim2",
+    "lpips",
+    "moving_psnr",
+];
 
 fn opt(v: Option<f64>) -> String {
     v.map_or(String::new(), |v| format!("{v}"))
 }
 
+impl Setting {
+    fn key_cells(&self) -> Vec<String> {
+        vec![
+            self.iterations.to_string(),
+            self.resolution.to_string(),
+            self.max_gaussians.to_string(),
+            decay_name(self.decay),
+            self.backend.name().to_string(),
+        ]
+    }
+}
+
 impl Row {
-    fn csv_line(&self) -> String {
-        let s = &self.setting;
-        format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
-            s.iterations,
-            s.resolution,
-            s.max_gaussians,
-            decay_name(s.decay),
-            s.backend.name(),
-            self.seconds,
-            opt(self.cpu_seconds),
-            opt(self.peak_ram_mib),
-            self.gaussians,
-            opt(self.psnr),
-            opt(self.ssim),
-            opt(self.dssim1),
-            opt(self.dssim2),
-            opt(self.lpips),
-            opt(self.moving_psnr),
-        )
+    fn to_table_row(&self) -> table::Row {
+        table::Row {
+            key: self.setting.key_cells(),
+            values: vec![
+                self.seconds.to_string(),
+                opt(self.cpu_seconds),
+                opt(self.peak_ram_mib),
+                self.gaussians.to_string(),
+                opt(self.psnr),
+                opt(self.ssim),
+                opt(self.dssim1),
+                opt(self.dssim2),
+                opt(self.lpips),
+                opt(self.moving_psnr),
+            ],
+        }
     }
 
-    fn parse(line: &str) -> Result<Self, String> {
-        let f: Vec<&str> = line.split(',').collect();
-        if f.len() != CSV_HEADER.split(',').count() {
-            return Err(format!(
-                "{} fields, not {}",
-                f.len(),
-                CSV_HEADER.split(',').count()
-            ));
-        }
+    fn from_table_row(row: &table::Row) -> Result<Self, String> {
+        let f: Vec<&str> = row
+            .key
+            .iter()
+            .chain(&row.values)
+            .map(String::as_str)
+            .collect();
         let num = |i: usize| -> Result<f64, String> {
             f[i].parse::<f64>()
                 .map_err(|_| format!("'{}' is not a number", f[i]))
@@ -245,38 +271,31 @@ impl Row {
     }
 }
 
-/// The rows of a tradeoff CSV; an error names the file and the bad line.
+/// The tradeoff table kept in `path` (empty when it does not exist).
+fn open_table(path: &Path) -> anyhow::Result<Table> {
+    Table::open(path, &KEY_COLUMNS, &VALUE_COLUMNS)
+}
+
+/// The rows of a tradeoff CSV; an error names the file and the bad row.
 pub fn read_csv(path: &Path) -> anyhow::Result<Vec<Row>> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let mut lines = text.lines();
-    if lines.next() != Some(CSV_HEADER) {
-        bail!(
-            "{} is not a tradeoff table of this version (its header differs); move it away to start the bench afresh",
-            path.display()
-        );
-    }
-    lines
+    rows_of(&open_table(path)?)
+}
+
+fn rows_of(table: &Table) -> anyhow::Result<Vec<Row>> {
+    table
+        .rows()
+        .iter()
         .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty())
-        .map(|(i, l)| {
-            Row::parse(l).map_err(|e| {
+        .map(|(i, r)| {
+            Row::from_table_row(r).map_err(|e| {
                 anyhow::anyhow!(
-                    "{} line {}: {e}; fix or delete that line (it is measured again)",
-                    path.display(),
+                    "{} row {}: {e}; fix or delete that row (it is measured again)",
+                    table.path().display(),
                     i + 2
                 )
             })
         })
         .collect()
-}
-
-fn csv(rows: &[Row]) -> String {
-    let mut s = format!("{CSV_HEADER}\n");
-    for r in rows {
-        let _ = writeln!(s, "{}", r.csv_line());
-    }
-    s
 }
 
 /// Indices of the rows on the Pareto front of (less time, more held-out PSNR): no other
@@ -346,11 +365,8 @@ pub fn run(source: &BenchSource, grid: &Grid, reporter: &Reporter) -> anyhow::Re
     let out = out_dir(&inputs.bench_dir);
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     let csv_path = out.join("tradeoff.csv");
-    let mut rows = if csv_path.exists() {
-        read_csv(&csv_path)?
-    } else {
-        Vec::new()
-    };
+    let mut table = open_table(&csv_path)?;
+    let mut rows = rows_of(&table)?;
     let settings = grid.settings(
         inputs.config.train.densify.max_gaussians,
         inputs.config.decay.variant,
@@ -387,8 +403,9 @@ pub fn run(source: &BenchSource, grid: &Grid, reporter: &Reporter) -> anyhow::Re
             crate::report::format_duration(row.seconds),
             row.psnr.map_or("–".into(), |p| format!("{p:.2} dB"))
         ));
+        table.insert(row.to_table_row())?;
+        table.write_csv()?;
         rows.push(row);
-        shared_types::atomic::write_atomic(&csv_path, csv(&rows).as_bytes())?;
         shared_types::Progress::advance(&grid_progress, setting.work());
     }
     shared_types::Progress::finish(&grid_progress);
@@ -567,14 +584,25 @@ mod tests {
         let rows = vec![row(100, 10.5, Some(18.25)), row(200, 20.0, None)];
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("tradeoff.csv");
-        std::fs::write(&path, csv(&rows)).unwrap();
+        let mut table = open_table(&path).unwrap();
+        for r in &rows {
+            table.insert(r.to_table_row()).unwrap();
+        }
+        table.write_csv().unwrap();
         assert_eq!(read_csv(&path).unwrap(), rows);
-        std::fs::write(&path, csv(&rows) + "1,2,3\n").unwrap();
+        let good = std::fs::read_to_string(&path).unwrap();
+        std::fs::write(&path, good.clone() + "1,2,3\n").unwrap();
         let e = read_csv(&path).unwrap_err().to_string();
-        assert!(e.contains("tradeoff.csv line 4"), "{e}");
+        assert!(e.contains("tradeoff.csv: row 4"), "{e}");
+        std::fs::write(&path, good.replace(",neural,", ",nerual,")).unwrap();
+        let e = read_csv(&path).unwrap_err().to_string();
+        assert!(
+            e.contains("tradeoff.csv row 2") && e.contains("nerual"),
+            "{e}"
+        );
         std::fs::write(&path, "a,b\n").unwrap();
         let e = read_csv(&path).unwrap_err().to_string();
-        assert!(e.contains("header"), "{e}");
+        assert!(e.contains("columns"), "{e}");
     }
 
     #[test]
