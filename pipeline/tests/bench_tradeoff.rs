@@ -1,7 +1,8 @@
 //! `pipeline bench tradeoff` on a small simulated capture (`fixtures/tiny.toml`, 160×120,
 //! one held-out camera): two settings are trained and measured, the table, CSV and plot
 //! are written, a wider grid trains only the new setting (the measured rows stay as they
-//! were), and bad sources are refused with errors that say what to give.
+//! were), LPIPS is measured with the capture's `[eval] lpips` weights, and bad sources are
+//! refused with errors that say what to give.
 
 mod common;
 
@@ -16,7 +17,8 @@ use splat4d::decay::DecayVariant;
 
 const SETTINGS: &str = "[sync]\nmethod = \"timestamps\"\n\
     [train]\niterations = 20\nbatch_size = 2\ncheckpoint_every = 0\n\
-    [decay]\nwarmup = 5\n";
+    [decay]\nwarmup = 5\n\
+    [eval]\nlpips = \"lpips.onnx\"\n";
 
 #[test]
 fn a_grid_is_measured_plotted_and_resumed() {
@@ -27,6 +29,9 @@ fn a_grid_is_measured_plotted_and_resumed() {
     simulate::simulate_into(&scene, &root, &reporter).unwrap();
     simulate::write_truth_calibration(&root).unwrap();
     fs::write(root.join("capture.toml"), SETTINGS).unwrap();
+    // `[eval] lpips` weights: a stand-in network (mean absolute difference) in ONNX.
+    let net = fixture("onnx/lpips_tiny/mean_abs_diff.onnx");
+    fs::copy(net, root.join("lpips.onnx")).unwrap();
 
     let source = BenchSource::from_args(&root, None).unwrap();
     let mut grid = Grid {
@@ -58,7 +63,9 @@ fn a_grid_is_measured_plotted_and_resumed() {
         assert!(r.peak_ram_mib.unwrap() > 10.0);
         // The simulator masks its held-out camera: the moving region is measured too.
         assert!(r.moving_psnr.unwrap().is_finite());
-        assert!(r.lpips.is_none());
+        // The stand-in network's LPIPS is the mean absolute difference: in (0, 1).
+        let lpips = r.lpips.expect("LPIPS with [eval] lpips set");
+        assert!(lpips > 0.0 && lpips < 1.0, "{lpips}");
         assert_eq!(r.setting.resolution, 0.5);
     }
     // More steps fit the held-out view better (same points, seed and settings).

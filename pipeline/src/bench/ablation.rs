@@ -44,6 +44,7 @@ pub fn run(
         dataset,
         points,
         heldout,
+        lpips,
         bench_dir: bench,
         ..
     } = inputs::prepare(&source, reporter)?;
@@ -76,7 +77,7 @@ pub fn run(
             &heldout,
             &[],
             &dir.join("eval"),
-            None,
+            lpips.as_ref(),
             &progress,
         )?;
         let m = &report.heldout;

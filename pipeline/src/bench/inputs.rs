@@ -26,6 +26,8 @@ pub struct BenchInputs {
     pub dataset: Dataset,
     pub points: PointCloud,
     pub heldout: Vec<EvalView>,
+    /// The LPIPS model of `[eval] lpips`, when the capture sets one.
+    pub lpips: Option<splat4d::metrics::lpips::Lpips>,
     /// `work/bench/` of the capture: where the benches write.
     pub bench_dir: PathBuf,
 }
@@ -143,7 +145,9 @@ pub fn prepare(source: &BenchSource, reporter: &Reporter) -> anyhow::Result<Benc
             capture_dir.display()
         );
     }
+    let lpips = stages::eval::load_lpips(&capture, &config.eval)?;
     Ok(BenchInputs {
+        lpips,
         capture,
         config,
         dataset,

@@ -15,7 +15,7 @@ use anyhow::Context;
 use calib::poses::{PoseSource, PosesConfig, PosesFile, PosesInputs};
 use shared_types::Camera;
 
-use super::table::{FillSummary, Table};
+use super::table::{BenchFiles, Table};
 use super::{fixed, now, prepare_out_dir, simulate_once, sysinfo};
 use crate::report::{OutputMode, Reporter};
 use crate::runner::Selection;
@@ -225,19 +225,9 @@ fn measure(
     Ok(row)
 }
 
-/// What a run of the bench did.
-#[derive(Clone, Debug)]
-pub struct PosesBench {
-    /// `OUT_DIR/poses.md`.
-    pub markdown: PathBuf,
-    /// `OUT_DIR/poses.csv`.
-    pub csv: PathBuf,
-    pub summary: FillSummary,
-}
-
 /// Run the poses bench into `out_dir` (the full grid, or one setting with `quick`). Needs
 /// COLMAP (`$COLMAP_BIN` or `colmap` on `PATH`).
-pub fn run(out_dir: &Path, quick: bool, reporter: &Reporter) -> anyhow::Result<PosesBench> {
+pub fn run(out_dir: &Path, quick: bool, reporter: &Reporter) -> anyhow::Result<BenchFiles> {
     prepare_out_dir(out_dir)?;
     calib::colmap_runner::find_colmap(None)
         .context("the poses bench runs COLMAP: install it (scripts/setup.sh) or set COLMAP_BIN")?;
@@ -260,30 +250,17 @@ pub fn run(out_dir: &Path, quick: bool, reporter: &Reporter) -> anyhow::Result<P
         },
         &progress,
     )?;
-    let markdown = out_dir.join("poses.md");
-    let text = table.markdown(
+    table.write_markdown(
         "Pose error against time",
         &header(&table),
         &["computed_at", "machine"],
-    );
-    shared_types::atomic::write_atomic(&markdown, text.as_bytes())
-        .with_context(|| format!("cannot write {}", markdown.display()))?;
-    Ok(PosesBench {
-        markdown,
-        csv,
         summary,
-    })
+    )
 }
 
 /// The Markdown header: what was measured, on which scene and machines.
 fn header(table: &Table) -> String {
-    let mut machines: Vec<&str> = table
-        .rows()
-        .iter()
-        .filter_map(|r| table.cell(r, "machine"))
-        .collect();
-    machines.sort_unstable();
-    machines.dedup();
+    let machines = table.distinct("machine");
     format!(
         "COLMAP (`calib::poses::solve`: one thread per step, RANSAC seed 0, up to 3 mapper \
          attempts) on the first frame of the 4 video cameras and the 8 stills of \

@@ -24,7 +24,7 @@ use rig::sync::audio::{AcousticConfig, AudioSyncConfig};
 use rig::sync::{SyncConfig, SyncMethod, SyncResult};
 use shared_types::progress::NoProgress;
 
-use super::table::{FillSummary, Table};
+use super::table::{BenchFiles, Table};
 use super::{edit_scene, fixed, now, prepare_out_dir, simulate_once, sysinfo};
 use crate::report::{OutputMode, Reporter};
 use crate::runner::Selection;
@@ -409,18 +409,8 @@ fn measure(point: &Point, scene: &Prepared) -> anyhow::Result<Vec<String>> {
     ])
 }
 
-/// What a run of the bench did.
-#[derive(Clone, Debug)]
-pub struct SyncBench {
-    /// `OUT_DIR/sync.md`.
-    pub markdown: PathBuf,
-    /// `OUT_DIR/sync.csv`.
-    pub csv: PathBuf,
-    pub summary: FillSummary,
-}
-
 /// Run the sync bench into `out_dir` (the full grid, or a small one with `quick`).
-pub fn run(out_dir: &Path, quick: bool, reporter: &Reporter) -> anyhow::Result<SyncBench> {
+pub fn run(out_dir: &Path, quick: bool, reporter: &Reporter) -> anyhow::Result<BenchFiles> {
     prepare_out_dir(out_dir)?;
     let csv = out_dir.join("sync.csv");
     let mut table = Table::open(&csv, &KEY_COLUMNS, &VALUE_COLUMNS)?;
@@ -444,30 +434,17 @@ pub fn run(out_dir: &Path, quick: bool, reporter: &Reporter) -> anyhow::Result<S
         },
         &progress,
     )?;
-    let markdown = out_dir.join("sync.md");
-    let text = table.markdown(
+    table.write_markdown(
         "Sync error against time",
         &header(&table),
         &["computed_at", "machine"],
-    );
-    shared_types::atomic::write_atomic(&markdown, text.as_bytes())
-        .with_context(|| format!("cannot write {}", markdown.display()))?;
-    Ok(SyncBench {
-        markdown,
-        csv,
         summary,
-    })
+    )
 }
 
 /// The Markdown header: what was measured, on which scenes and machines.
 fn header(table: &Table) -> String {
-    let mut machines: Vec<&str> = table
-        .rows()
-        .iter()
-        .filter_map(|r| table.cell(r, "machine"))
-        .collect();
-    machines.sort_unstable();
-    machines.dedup();
+    let machines = table.distinct("machine");
     format!(
         "Offsets found by `rig::sync::synchronise` against the simulator's true offsets \
          (`groundtruth/offsets.json`) on simulated 4-camera scenes (160×120, 30 fps, start \

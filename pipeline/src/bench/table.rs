@@ -26,6 +26,14 @@ pub struct Table {
     rows: Vec<Row>,
 }
 
+/// What a bench wrote: its Markdown table, its CSV and how much it computed.
+#[derive(Clone, Debug)]
+pub struct BenchFiles {
+    pub markdown: PathBuf,
+    pub csv: PathBuf,
+    pub summary: FillSummary,
+}
+
 /// How many settings of a grid were computed and how many were taken from the CSV.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct FillSummary {
@@ -100,6 +108,38 @@ impl Table {
     /// The row with this key.
     pub fn get(&self, key: &[String]) -> Option<&Row> {
         self.rows.iter().find(|r| r.key == key)
+    }
+
+    /// Write the table as Markdown next to the CSV (`name.md` beside `name.csv`), without
+    /// the `hidden` columns.
+    pub fn write_markdown(
+        &self,
+        title: &str,
+        header: &str,
+        hidden: &[&str],
+        summary: FillSummary,
+    ) -> anyhow::Result<BenchFiles> {
+        let markdown = self.path.with_extension("md");
+        let text = self.markdown(title, header, hidden);
+        shared_types::atomic::write_atomic(&markdown, text.as_bytes())
+            .with_context(|| format!("cannot write {}", markdown.display()))?;
+        Ok(BenchFiles {
+            markdown,
+            csv: self.path.clone(),
+            summary,
+        })
+    }
+
+    /// The distinct values of `column` over the rows, sorted (e.g. the machines measured on).
+    pub fn distinct(&self, column: &str) -> Vec<&str> {
+        let mut values: Vec<&str> = self
+            .rows
+            .iter()
+            .filter_map(|r| self.cell(r, column))
+            .collect();
+        values.sort_unstable();
+        values.dedup();
+        values
     }
 
     /// The value of `column` in `row` (key or value column).

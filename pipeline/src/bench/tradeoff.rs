@@ -20,6 +20,7 @@ use splat4d::decay::{DecayHooks, DecayVariant};
 use crate::bench::inputs::{self, BenchInputs, BenchSource};
 use crate::bench::sysinfo;
 use crate::bench::table::{self, Table};
+use crate::bench::tradeoff_plot::PlotPoint;
 use crate::report::Reporter;
 
 /// The backend a setting trains on.
@@ -317,6 +318,40 @@ pub fn pareto_front(rows: &[Row]) -> Vec<usize> {
         .collect()
 }
 
+/// The rows with a PSNR as plot points, labelled with their iterations and whatever else
+/// varies between the rows (decay, budget, backend).
+pub fn plot_points(rows: &[Row]) -> Vec<PlotPoint> {
+    let varies =
+        |f: &dyn Fn(&Setting) -> String| rows.iter().any(|r| f(&r.setting) != f(&rows[0].setting));
+    let decay_varies = varies(&|s| decay_name(s.decay));
+    let cap_varies = varies(&|s| s.max_gaussians.to_string());
+    let backend_varies = varies(&|s| s.backend.name().to_string());
+    let front = pareto_front(rows);
+    rows.iter()
+        .enumerate()
+        .filter_map(|(i, r)| {
+            let s = &r.setting;
+            let mut label = format!("{} it", s.iterations);
+            if decay_varies {
+                label += &format!(" {}", decay_name(s.decay));
+            }
+            if cap_varies {
+                label += &format!(" {}k", s.max_gaussians / 1000);
+            }
+            if backend_varies {
+                label += &format!(" {}", s.backend.name());
+            }
+            Some(PlotPoint {
+                seconds: r.seconds,
+                psnr: r.psnr?,
+                resolution: s.resolution,
+                label,
+                on_front: front.contains(&i),
+            })
+        })
+        .collect()
+}
+
 /// The rows as a Markdown table sorted by time, Pareto rows marked ★.
 pub fn markdown(header: &str, rows: &[Row]) -> String {
     let front = pareto_front(rows);
@@ -423,7 +458,7 @@ pub fn run(source: &BenchSource, grid: &Grid, reporter: &Reporter) -> anyhow::Re
         sysinfo::describe_machine(),
         grid.describe(source)
     );
-    crate::bench::tradeoff_plot::plot(&shown, &out.join("tradeoff.png"))?;
+    crate::bench::tradeoff_plot::plot(&plot_points(&shown), &out.join("tradeoff.png"))?;
     let md = out.join("tradeoff.md");
     shared_types::atomic::write_atomic(&md, markdown(&header, &shown).as_bytes())?;
     Ok(md)
@@ -519,7 +554,7 @@ fn measure(
         &inputs.heldout,
         &[],
         &dir.join("eval"),
-        None,
+        inputs.lpips.as_ref(),
         &progress,
     )?;
     shared_types::Progress::finish(&progress);
@@ -577,6 +612,19 @@ mod tests {
             row(700, 10.0, Some(18.0)), // a tie with the first: one of the two
         ];
         assert_eq!(pareto_front(&rows), vec![0, 2]);
+    }
+
+    #[test]
+    fn plot_points_label_what_varies_and_mark_the_front() {
+        let mut rows = vec![row(100, 10.0, Some(18.0)), row(200, 20.0, Some(17.0))];
+        let points = plot_points(&rows);
+        assert_eq!(points[0].label, "100 it");
+        assert!(points[0].on_front && !points[1].on_front);
+        rows[1].setting.decay = DecayVariant::None;
+        rows.push(row(300, 5.0, None));
+        let points = plot_points(&rows);
+        assert_eq!(points.len(), 2, "a row without PSNR is not drawn");
+        assert_eq!(points[1].label, "200 it none");
     }
 
     #[test]

@@ -1,7 +1,6 @@
 //! The tradeoff bench's plot: held-out PSNR against training time (log scale), one colour
-//! per training resolution, each point labelled with its iterations (and its decay and
-//! budget when the grid varies them), the Pareto front drawn as a red line through ringed
-//! points. Drawn with `plotters` into an RGB buffer and written as PNG by `image`.
+//! per training resolution, each point labelled, the Pareto front drawn as a red line
+//! through ringed points. Drawn with `plotters` into an RGB buffer and written as PNG by `image`.
 
 use std::path::Path;
 use std::sync::OnceLock;
@@ -10,8 +9,6 @@ use anyhow::{Context, bail};
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
-
-use crate::bench::tradeoff::{Row, pareto_front};
 
 const SIZE: (u32, u32) = (1000, 640);
 
@@ -61,46 +58,39 @@ const PALETTE: [RGBColor; 6] = [
     RGBColor(140, 86, 75),
 ];
 
-/// Draw `rows` (those with a PSNR) into a PNG at `path` (written atomically).
-pub fn plot(rows: &[Row], path: &Path) -> anyhow::Result<()> {
+/// One measured setting on the plot.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlotPoint {
+    /// Training wall time.
+    pub seconds: f64,
+    /// Held-out PSNR (dB).
+    pub psnr: f64,
+    /// Training resolution: one colour each.
+    pub resolution: f64,
+    /// The text beside the point ("1000 it none").
+    pub label: String,
+    /// On the Pareto front: ringed and joined by the red line.
+    pub on_front: bool,
+}
+
+/// Draw `points` into a PNG at `path` (written atomically).
+pub fn plot(points: &[PlotPoint], path: &Path) -> anyhow::Result<()> {
     register_font()?;
-    let points: Vec<(usize, f64, f64)> = rows
-        .iter()
-        .enumerate()
-        .filter_map(|(i, r)| r.psnr.map(|p| (i, r.seconds.max(1e-3).log10(), p)))
-        .collect();
     if points.is_empty() {
         bail!("no setting has a held-out PSNR to plot");
     }
+    let x = |p: &PlotPoint| p.seconds.max(1e-3).log10();
     let (mut t0, mut t1, mut p0, mut p1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-    for &(_, t, p) in &points {
-        let t = 10f64.powf(t);
-        (t0, t1, p0, p1) = (t0.min(t), t1.max(t), p0.min(p), p1.max(p));
+    for p in points {
+        (t0, t1) = (t0.min(x(p)), t1.max(x(p)));
+        (p0, p1) = (p0.min(p.psnr), p1.max(p.psnr));
     }
     // x is log10(seconds) on a linear axis, so that every range gets labelled ticks.
-    let x_range = (t0.log10() - 0.15)..(t1.log10() + 0.15);
+    let x_range = (t0 - 0.15)..(t1 + 0.15);
     let y_range = (p0 - 0.6)..(p1 + 0.6);
-    let mut resolutions: Vec<f64> = rows.iter().map(|r| r.setting.resolution).collect();
+    let mut resolutions: Vec<f64> = points.iter().map(|p| p.resolution).collect();
     resolutions.sort_by(f64::total_cmp);
     resolutions.dedup();
-    let varies = |f: &dyn Fn(&Row) -> String| rows.iter().any(|r| f(r) != f(&rows[0]));
-    let decay_varies = varies(&|r| format!("{:?}", r.setting.decay));
-    let cap_varies = varies(&|r| r.setting.max_gaussians.to_string());
-    let backend_varies = varies(&|r| format!("{:?}", r.setting.backend));
-    let label = |r: &Row| {
-        let mut s = format!("{} it", r.setting.iterations);
-        if decay_varies {
-            s += &format!(" {:?}", r.setting.decay).to_lowercase();
-        }
-        if cap_varies {
-            s += &format!(" {}k", r.setting.max_gaussians / 1000);
-        }
-        if backend_varies {
-            s += &format!(" {:?}", r.setting.backend).to_lowercase();
-        }
-        s
-    };
-    let front = pareto_front(rows);
 
     let mut buffer = vec![0u8; (SIZE.0 * SIZE.1 * 3) as usize];
     {
@@ -144,9 +134,10 @@ pub fn plot(rows: &[Row], path: &Path) -> anyhow::Result<()> {
             .map_err(|e| draw_err(&e))?;
         }
         // The Pareto front, fastest first.
-        let mut line: Vec<(f64, f64)> = front
+        let mut line: Vec<(f64, f64)> = points
             .iter()
-            .filter_map(|&i| rows[i].psnr.map(|p| (rows[i].seconds.max(1e-3).log10(), p)))
+            .filter(|p| p.on_front)
+            .map(|p| (x(p), p.psnr))
             .collect();
         line.sort_by(|a, b| a.0.total_cmp(&b.0));
         chart
@@ -164,8 +155,8 @@ pub fn plot(rows: &[Row], path: &Path) -> anyhow::Result<()> {
             let colour = PALETTE[k % PALETTE.len()];
             let series: Vec<(f64, f64, String)> = points
                 .iter()
-                .filter(|(i, _, _)| rows[*i].setting.resolution == res)
-                .map(|&(i, t, p)| (t, p, label(&rows[i])))
+                .filter(|p| p.resolution == res)
+                .map(|p| (x(p), p.psnr, p.label.clone()))
                 .collect();
             chart
                 .draw_series(

@@ -343,6 +343,24 @@ fn train_views(
     )
 }
 
+/// The LPIPS model of `[eval] lpips` (a path relative to the capture), if one is set.
+pub fn load_lpips(
+    capture: &Capture,
+    settings: &EvalSettings,
+) -> anyhow::Result<Option<splat4d::metrics::lpips::Lpips>> {
+    let Some(path) = &settings.lpips else {
+        return Ok(None);
+    };
+    let path = capture.resolve(path);
+    let lpips = splat4d::metrics::lpips::Lpips::load(&path).with_context(|| {
+        format!(
+            "[eval] lpips = {}: cannot load the LPIPS model",
+            path.display()
+        )
+    })?;
+    Ok(Some(lpips))
+}
+
 /// The held-out views of a capture: its `[capture] heldout` cameras (`heldout_cameras`)
 /// when it has some, else the simulator's `groundtruth/heldout/` (none: empty). Their
 /// ground-truth images are written under `gt_dir`.
@@ -407,20 +425,7 @@ pub fn run(
         masks.as_ref(),
     )?;
     log_masks(masks.as_ref(), &heldout, &train);
-    let lpips = match &settings.lpips {
-        Some(path) => {
-            let path = ctx.capture.resolve(path);
-            Some(
-                splat4d::metrics::lpips::Lpips::load(&path).with_context(|| {
-                    format!(
-                        "[eval] lpips = {}: cannot load the LPIPS model",
-                        path.display()
-                    )
-                })?,
-            )
-        }
-        None => None,
-    };
+    let lpips = load_lpips(ctx.capture, settings)?;
     let backend = crate::engine_inputs::render_backend(engine.backend)?;
     ctx.record_tool("render backend", &backend.describe());
     let report = splat4d::eval::evaluate(
