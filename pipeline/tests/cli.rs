@@ -273,3 +273,37 @@ fn record_lists_the_cameras_of_a_backend() {
         .unwrap();
     assert!(!out.status.success(), "a capture directory is required");
 }
+
+#[test]
+fn presets_are_announced_and_keys_they_set_are_refused_beside_them() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = make_capture(tmp.path(), 4, 8);
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .arg("run")
+        .arg(&root)
+        .args(["--preset", "preview", "--only", "ingest"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let v = pipeline::presets::Preset::Preview.values();
+    assert!(
+        stderr.contains(&format!("preset preview: {} iterations", v.iterations)),
+        "{stderr}"
+    );
+    std::fs::write(
+        root.join("capture.toml"),
+        "[train]\npreset = \"best\"\niterations = 5\n",
+    )
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .arg("status")
+        .arg(&root)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("remove `iterations` or the preset") && stderr.contains("capture.toml"),
+        "{stderr}"
+    );
+}
