@@ -5,7 +5,7 @@
 //! scales with them, as [`schedule_for`] does), the training resolution and the Gaussian
 //! budget; every other setting, the decay variant included, stays as configured. Half
 //! and quarter resolution were measured too and left off the presets: with the time in the
-//! Gaussians rather than the pixels they saved 20–45 % for 0.7–4 dB.
+//! Gaussians rather than the pixels they saved 10–45 % for 0.7–4 dB.
 
 use serde::{Deserialize, Serialize};
 use splat4d::decay::DecayConfig;
