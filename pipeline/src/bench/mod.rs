@@ -23,6 +23,25 @@ use anyhow::{Context, bail};
 
 use crate::report::Reporter;
 
+/// Run the capture in `dir` quietly up to stage `to` and return it; a failed stage is an
+/// error naming the folder.
+pub fn run_stages_to(dir: &Path, to: &str) -> anyhow::Result<crate::layout::Capture> {
+    let (capture, config) = crate::open_capture(dir)?;
+    let summary = crate::stages::pipeline().run(
+        &capture,
+        &config,
+        &crate::runner::Selection {
+            to: Some(to.into()),
+            ..Default::default()
+        },
+        &crate::report::Reporter::new(crate::report::OutputMode::Quiet),
+    )?;
+    if let Some((stage, error)) = summary.failed {
+        anyhow::bail!("{}: the {stage} stage failed: {error}", dir.display());
+    }
+    Ok(capture)
+}
+
 /// Create the benchmark's output folder (or accept an existing one).
 pub fn prepare_out_dir(out_dir: &Path) -> anyhow::Result<()> {
     if out_dir.exists() && !out_dir.is_dir() {

@@ -17,8 +17,7 @@ use shared_types::Camera;
 
 use super::table::{BenchFiles, Table};
 use super::{fixed, now, prepare_out_dir, simulate_once, sysinfo};
-use crate::report::{OutputMode, Reporter};
-use crate::runner::Selection;
+use crate::report::Reporter;
 
 /// The pose scene (`fixtures/poses.toml`).
 pub const POSES_SCENE: &str = include_str!("../../../fixtures/poses.toml");
@@ -134,19 +133,7 @@ fn prepare(out_dir: &Path, reporter: &Reporter) -> anyhow::Result<Prepared> {
         shared_types::atomic::write_atomic(&settings, b"[sync]\nmethod = \"timestamps\"\n")
             .with_context(|| format!("cannot write {}", settings.display()))?;
     }
-    let (capture, config) = crate::open_capture(&dir)?;
-    let summary = crate::stages::pipeline().run(
-        &capture,
-        &config,
-        &Selection {
-            to: Some("frames".into()),
-            ..Default::default()
-        },
-        &Reporter::new(OutputMode::Quiet),
-    )?;
-    if let Some((stage, error)) = summary.failed {
-        anyhow::bail!("{}: the {stage} stage failed: {error}", dir.display());
-    }
+    let capture = super::run_stages_to(&dir, "frames")?;
     let frames_dir = capture.work_dir().join("frames");
     let index = rig::frames::FramesIndex::read_json(&frames_dir.join("frames.json"))?;
     let (_, truth) = crate::simulate::truth_video_cameras(&dir)?;

@@ -26,8 +26,7 @@ use shared_types::progress::NoProgress;
 
 use super::table::{BenchFiles, Table};
 use super::{edit_scene, fixed, now, prepare_out_dir, simulate_once, sysinfo};
-use crate::report::{OutputMode, Reporter};
-use crate::runner::Selection;
+use crate::report::Reporter;
 
 /// The audio sync scene (`fixtures/sync-audio.toml`).
 pub const SYNC_AUDIO_SCENE: &str = include_str!("../../../fixtures/sync-audio.toml");
@@ -265,19 +264,7 @@ fn prepare(scene: &BenchScene, out_dir: &Path, reporter: &Reporter) -> anyhow::R
         &dir,
         reporter,
     )?;
-    let (capture, config) = crate::open_capture(&dir)?;
-    let summary = crate::stages::pipeline().run(
-        &capture,
-        &config,
-        &Selection {
-            to: Some("ingest".into()),
-            ..Default::default()
-        },
-        &Reporter::new(OutputMode::Quiet),
-    )?;
-    if let Some((stage, error)) = summary.failed {
-        anyhow::bail!("{}: the {stage} stage failed: {error}", dir.display());
-    }
+    let capture = super::run_stages_to(&dir, "ingest")?;
     let streams = Streams::read_json(&capture.work_dir().join("ingest/streams.json"))?;
     let truth: OffsetsFile = read_json(&dir.join("groundtruth/offsets.json"))?;
     let cameras: shared_types::CameraSet = read_json(&dir.join("groundtruth/cameras.json"))?;
