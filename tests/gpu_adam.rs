@@ -12,30 +12,15 @@ mod common;
 
 use common::{Rng, SceneSpec, random_scene};
 use splat4d::render::RenderError;
-use splat4d::render::gpu::{AdapterPolicy, GpuAdam, GpuBackend};
+use splat4d::render::gpu::{GpuAdam, GpuBackend};
 use splat4d::train::optim::{Adam, LearningRates, ParamBuffers};
 use splat4d::{Gaussians, Gradients};
-use std::sync::OnceLock;
 
 /// Largest accepted relative error per element.
 const TOLERANCE: f64 = 1e-5;
 
 fn gpu() -> Option<&'static GpuBackend> {
-    static GPU: OnceLock<Result<GpuBackend, String>> = OnceLock::new();
-    match GPU
-        .get_or_init(|| GpuBackend::new(AdapterPolicy::AllowSoftware).map_err(|e| e.to_string()))
-    {
-        Ok(g) => Some(g),
-        Err(e) => {
-            if std::env::var("CI").is_ok_and(|v| v == "true" || v == "1") {
-                panic!(
-                    "no GPU adapter under CI=true: {e}; run scripts/setup.sh (mesa-vulkan-drivers)"
-                );
-            }
-            eprintln!("SKIPPED GPU Adam test: {e}");
-            None
-        }
-    }
+    common::gpu("GPU Adam test")
 }
 
 fn model(count: usize) -> Gaussians<f32> {

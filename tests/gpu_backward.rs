@@ -20,30 +20,15 @@ use common::{
     Rng, SceneSpec, at_camera, camera, hard_model, push_extreme_scales, random_scene,
     stacked_splats,
 };
-use splat4d::render::gpu::{AdapterPolicy, GpuBackend};
+use splat4d::render::gpu::GpuBackend;
 use splat4d::render::{CpuBackend, RenderBackend, ViewRequest, cpu};
 use splat4d::{Camera, Gaussians, Gradients, ImageGradients, RenderError, RenderOptions};
-use std::sync::OnceLock;
 
 /// Largest accepted relative error of a parameter group.
 const TOLERANCE: f64 = 1e-3;
 
 fn gpu() -> Option<&'static GpuBackend> {
-    static GPU: OnceLock<Result<GpuBackend, String>> = OnceLock::new();
-    match GPU
-        .get_or_init(|| GpuBackend::new(AdapterPolicy::AllowSoftware).map_err(|e| e.to_string()))
-    {
-        Ok(g) => Some(g),
-        Err(e) => {
-            if std::env::var("CI").is_ok_and(|v| v == "true" || v == "1") {
-                panic!(
-                    "no GPU adapter under CI=true: {e}; run scripts/setup.sh (mesa-vulkan-drivers)"
-                );
-            }
-            eprintln!("SKIPPED GPU backward test: {e}");
-            None
-        }
-    }
+    common::gpu("GPU backward test")
 }
 
 /// The parameter groups of a gradient, flattened, by name.

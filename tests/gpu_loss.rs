@@ -23,29 +23,14 @@ mod common;
 
 use common::Rng;
 use splat4d::render::RenderError;
-use splat4d::render::gpu::{AdapterPolicy, GpuBackend};
+use splat4d::render::gpu::GpuBackend;
 use splat4d::train::loss::{LossValue, image_loss};
-use std::sync::OnceLock;
 
 /// Largest accepted gradient error, relative to the gradient's scale.
 const GRADIENT_TOLERANCE: f64 = 1e-5;
 
 fn gpu() -> Option<&'static GpuBackend> {
-    static GPU: OnceLock<Result<GpuBackend, String>> = OnceLock::new();
-    match GPU
-        .get_or_init(|| GpuBackend::new(AdapterPolicy::AllowSoftware).map_err(|e| e.to_string()))
-    {
-        Ok(g) => Some(g),
-        Err(e) => {
-            if std::env::var("CI").is_ok_and(|v| v == "true" || v == "1") {
-                panic!(
-                    "no GPU adapter under CI=true: {e}; run scripts/setup.sh (mesa-vulkan-drivers)"
-                );
-            }
-            eprintln!("SKIPPED GPU loss test: {e}");
-            None
-        }
-    }
+    common::gpu("GPU loss test")
 }
 
 /// The f64 CPU loss of f32 images and its gradient.

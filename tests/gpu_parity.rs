@@ -14,27 +14,12 @@ use common::{
 };
 use glam::DVec3;
 use splat4d::model::ColourDegrees;
-use splat4d::render::gpu::{AdapterPolicy, GpuBackend};
+use splat4d::render::gpu::GpuBackend;
 use splat4d::render::{CpuBackend, RenderBackend, Rendered, ViewRequest};
 use splat4d::{Camera, Distortion, Gaussians, ImageGradients, RenderError, RenderOptions};
-use std::sync::OnceLock;
 
 fn gpu() -> Option<&'static GpuBackend> {
-    static GPU: OnceLock<Result<GpuBackend, String>> = OnceLock::new();
-    match GPU
-        .get_or_init(|| GpuBackend::new(AdapterPolicy::AllowSoftware).map_err(|e| e.to_string()))
-    {
-        Ok(g) => Some(g),
-        Err(e) => {
-            if std::env::var("CI").is_ok_and(|v| v == "true" || v == "1") {
-                panic!(
-                    "no GPU adapter under CI=true: {e}; run scripts/setup.sh (mesa-vulkan-drivers)"
-                );
-            }
-            eprintln!("SKIPPED GPU parity test: {e}");
-            None
-        }
-    }
+    common::gpu("GPU parity test")
 }
 
 fn mean_abs(a: &[f32], b: &[f32]) -> f64 {

@@ -221,3 +221,25 @@ pub fn at_camera(cam: &Camera, x: f64, y: f64, z: f64, t: f64) -> [f64; 4] {
     let p = cam.world_to_camera.inverse_apply(DVec3::new(x, y, z));
     [p.x, p.y, p.z, t]
 }
+
+/// The shared GPU backend of a test binary (a software adapter such as lavapipe is
+/// allowed). Without an adapter: a panic under `CI=true`, else `None` with a line saying
+/// `what` was skipped.
+pub fn gpu(what: &str) -> Option<&'static splat4d::render::gpu::GpuBackend> {
+    use splat4d::render::gpu::{AdapterPolicy, GpuBackend};
+    static GPU: std::sync::OnceLock<Result<GpuBackend, String>> = std::sync::OnceLock::new();
+    match GPU
+        .get_or_init(|| GpuBackend::new(AdapterPolicy::AllowSoftware).map_err(|e| e.to_string()))
+    {
+        Ok(g) => Some(g),
+        Err(e) => {
+            if std::env::var("CI").is_ok_and(|v| v == "true" || v == "1") {
+                panic!(
+                    "no GPU adapter under CI=true: {e}; run scripts/setup.sh (mesa-vulkan-drivers)"
+                );
+            }
+            eprintln!("SKIPPED {what}: {e}");
+            None
+        }
+    }
+}
