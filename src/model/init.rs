@@ -1,10 +1,15 @@
 //! Initial Gaussians from a point cloud (`xyz`, `rgb`, optional time): isotropic spatial
 //! scales from the mean squared distance to the 3 nearest neighbours (a k-d tree), time
 //! uniform over the sequence when the cloud has none, opacity 0.1, DC colour from rgb.
+//! With `flatness > 0`, points on a locally planar patch of the cloud start as disks in
+//! that plane (normal from the principal axes of their 10 nearest neighbours) instead of
+//! balls: dense point-map clouds sample surfaces, and a ball on a wall smears its colour
+//! over the wall in views the training cameras never saw.
 
 use crate::math::numerics::logit;
 use crate::model::{ColourDegrees, Gaussians, TimeMapping};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rayon::prelude::*;
 use std::num::NonZero;
 
 pub use shared_types::PointCloud;
@@ -35,6 +40,8 @@ pub struct InitOptions {
     pub capacity: ColourDegrees,
     /// Seed of the uniform times drawn when the cloud has none.
     pub seed: u64,
+    /// Thickness of the initial disks as a fraction of their radius (0: balls, as 3DGS).
+    pub flatness: f64,
 }
 
 impl Default for InitOptions {
@@ -44,6 +51,7 @@ impl Default for InitOptions {
             time_scale_fraction: 0.2,
             capacity: ColourDegrees::FULL,
             seed: 0,
+            flatness: 0.0,
         }
     }
 }
@@ -94,6 +102,12 @@ pub fn gaussians_from_points(
         }
     }
     let scales = nearest_neighbour_scales(&cloud.xyz);
+    let normals = if options.flatness > 0.0 {
+        surface_normals(&cloud.xyz)
+    } else {
+        vec![None; n]
+    };
+    let thin = (options.flatness.clamp(1e-4, 1.0) as f32).ln();
     let duration = if time.duration.is_finite() && time.duration > 0.0 {
         time.duration
     } else {
@@ -114,7 +128,15 @@ pub fn gaussians_from_points(
         // A point seen over a span of the clip (static) lives at least that long.
         let span = cloud.time_span.as_ref().map_or(0.0, |s| s[i] as f64);
         let log_t = sigma_t.max(span).ln() as f32;
-        model.push([x, y, z, t], [s, s, s, log_t], logit_o, rgb);
+        let i_new = model.push([x, y, z, t], [s, s, s, log_t], logit_o, rgb);
+        if let Some(normal) = normals[i] {
+            // The disk's thin axis (local z) along the normal: ql = qr = q rotates in 3D.
+            let q = glam::Quat::from_rotation_arc(glam::Vec3::Z, glam::Vec3::from(normal));
+            let q = [q.w, q.x, q.y, q.z];
+            model.log_scales[i_new][2] = s + thin;
+            model.rot_left[i_new] = q;
+            model.rot_right[i_new] = q;
+        }
     }
     Ok(model)
 }
@@ -137,6 +159,46 @@ pub fn nearest_neighbour_scales(xyz: &[[f32; 3]]) -> Vec<f32> {
             let others = &dists[1..];
             let mean = others.iter().sum::<f32>() / others.len() as f32;
             mean.max(1e-14).sqrt().max(1e-7)
+        })
+        .collect()
+}
+
+/// Unit normal of each point's neighbourhood (its 10 nearest points, itself included):
+/// the principal axis of least spread, where that spread is under a quarter of the middle
+/// one (a planar patch); `None` elsewhere (edges, corners, lines, sparse points).
+pub fn surface_normals(xyz: &[[f32; 3]]) -> Vec<Option<[f32; 3]>> {
+    const K: usize = 10;
+    if xyz.len() < K {
+        return vec![None; xyz.len()];
+    }
+    let tree: ImmutableKdTree<f32, 3> = ImmutableKdTree::new_from_slice(xyz);
+    let want = NonZero::new(K).unwrap_or(NonZero::<usize>::MIN);
+    xyz.par_iter()
+        .map(|p| {
+            let nn = tree.nearest_n::<SquaredEuclidean>(p, want);
+            let pts: Vec<nalgebra::Vector3<f64>> = nn
+                .iter()
+                .map(|n| {
+                    let q = xyz[n.item as usize];
+                    nalgebra::Vector3::new(q[0] as f64, q[1] as f64, q[2] as f64)
+                })
+                .collect();
+            let mean = pts.iter().sum::<nalgebra::Vector3<f64>>() / pts.len() as f64;
+            let cov = pts
+                .iter()
+                .map(|q| (q - mean) * (q - mean).transpose())
+                .sum::<nalgebra::Matrix3<f64>>();
+            let eig = nalgebra::SymmetricEigen::new(cov);
+            let mut order = [0usize, 1, 2];
+            order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+            let (low, mid) = (eig.eigenvalues[order[0]], eig.eigenvalues[order[1]]);
+            let normal = eig.eigenvectors.column(order[0]);
+            (mid > 0.0 && low.max(0.0) < 0.25 * mid && normal.iter().all(|v| v.is_finite())).then(
+                || {
+                    let n = normal.normalize();
+                    [n[0] as f32, n[1] as f32, n[2] as f32]
+                },
+            )
         })
         .collect()
 }
@@ -187,6 +249,52 @@ mod tests {
         assert!((crate::math::numerics::sigmoid(g.opacity_logits[0]) - 0.1).abs() < 1e-6);
         let dc = g.colour_of(0);
         assert!((0.5 + crate::math::sh::SH_C0 as f32 * dc[0] - 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn points_on_a_tilted_plane_start_as_disks_in_it() {
+        // A jittered 12×12 grid on the plane z = 0.3x − 0.2y + 1, and a line of points.
+        let mut xyz = Vec::new();
+        for i in 0..12 {
+            for j in 0..12 {
+                let (x, y) = (i as f32 * 0.1 + 0.013 * (j % 3) as f32, j as f32 * 0.1);
+                xyz.push([x, y, 0.3 * x - 0.2 * y + 1.0]);
+            }
+        }
+        let line: Vec<[f32; 3]> = (0..12).map(|i| [i as f32, 5.0, 5.0]).collect();
+        let normals = surface_normals(&xyz);
+        let want = glam::Vec3::new(-0.3, 0.2, 1.0).normalize();
+        for n in &normals {
+            let n = glam::Vec3::from(n.expect("a plane is planar"));
+            assert!(n.dot(want).abs() > 1.0 - 1e-5, "{n} vs {want}");
+        }
+        assert!(surface_normals(&line).iter().all(Option::is_none));
+        assert!(surface_normals(&xyz[..5]).iter().all(Option::is_none));
+
+        let cloud = PointCloud {
+            rgb: vec![[128; 3]; xyz.len()],
+            xyz,
+            time: None,
+            time_span: None,
+        };
+        let options = InitOptions {
+            flatness: 0.1,
+            ..InitOptions::default()
+        };
+        let g = gaussians_from_points(&cloud, TimeMapping::default(), &options).unwrap();
+        for i in 0..g.len() {
+            // The covariance's thin axis (its rotated local z) is the plane's normal.
+            let (r, _) = crate::math::rotation4d::rotation(g.rot_left[i], g.rot_right[i]);
+            let axis_z = glam::Vec3::new(r[0][2], r[1][2], r[2][2]);
+            assert!(axis_z.dot(want).abs() > 1.0 - 1e-4, "{axis_z}");
+            assert!((r[3][3] - 1.0).abs() < 1e-6, "time is left alone");
+            let s = g.log_scales[i];
+            assert!((s[2] - s[0] - 0.1f32.ln()).abs() < 1e-5 && s[0] == s[1]);
+        }
+        // Balls by default.
+        let balls = gaussians_from_points(&cloud, TimeMapping::default(), &InitOptions::default());
+        let balls = balls.unwrap();
+        assert!(balls.log_scales.iter().all(|s| s[0] == s[2]));
     }
 
     #[test]

@@ -57,9 +57,16 @@ pub struct TrainConfig {
     pub init_opacity: f64,
     /// Initial temporal σ as a fraction of the sequence duration.
     pub init_time_scale: f64,
+    /// Initial Gaussians on planar patches of the point cloud are disks this thick
+    /// relative to their radius (0: balls, as 3DGS; see `model::init`).
+    pub init_flatness: f64,
     /// Largest allowed ratio of a Gaussian's longest spatial axis to its middle one
     /// (needles are reshaped into ribbons after every step; 0: no limit).
     pub max_anisotropy: f64,
+    /// Weight of the flatness penalty `Σᵢ s_min/s_mid` (0: off): pulls each Gaussian's
+    /// shortest spatial axis down against its middle one, so splats lie flat on the surfaces
+    /// they colour instead of standing off them as blobs (see `regularise`).
+    pub flatten: f64,
     pub lr: LearningRates,
     pub densify: DensifyConfig,
     /// Write a checkpoint every this many iterations (0: only at the end).
@@ -83,7 +90,9 @@ impl Default for TrainConfig {
             degree_every: 1000,
             init_opacity: 0.1,
             init_time_scale: 0.2,
+            init_flatness: 0.0,
             max_anisotropy: 0.0,
+            flatten: 0.0,
             lr: LearningRates::default(),
             densify: DensifyConfig::default(),
             checkpoint_every: 1000,
@@ -231,6 +240,12 @@ fn validate(config: &TrainConfig, dataset: &Dataset) -> Result<(), TrainError> {
     if !(config.max_anisotropy == 0.0 || config.max_anisotropy > 1.0) {
         return bad("max_anisotropy must be 0 (no limit) or greater than 1");
     }
+    if !(0.0..=1.0).contains(&config.init_flatness) {
+        return bad("init_flatness must be in [0, 1] (0: round Gaussians)");
+    }
+    if !(config.flatten.is_finite() && config.flatten >= 0.0) {
+        return bad("flatten must be a finite weight ≥ 0 (0: off)");
+    }
     if dataset.views.is_empty() {
         return Err(TrainError::NoViews);
     }
@@ -372,6 +387,7 @@ pub fn train(
                 time_scale_fraction: config.init_time_scale,
                 capacity: config.colour_degrees,
                 seed: config.seed,
+                flatness: config.init_flatness,
             };
             let model = gaussians_from_points(init, dataset.time_mapping, &opts)?;
             let adam = Adam::new(&model);
@@ -468,6 +484,7 @@ pub fn train(
             psnr_sum += psnr_from_mse(lv.mse);
         }
         let nb = batch.len() as f64;
+        regularise::add_flatten_gradient(&model, &mut grads, config.flatten);
         let rates = config.lr.at(it, config.iterations, extent as f64);
         adam.step(&mut model, &grads, &rates);
         regularise::cap_anisotropy(&mut model, config.max_anisotropy);
