@@ -46,6 +46,9 @@ fn blur<F: Real>(src: &[F], w: usize, h: usize, tmp: &mut Vec<F>, out: &mut Vec<
                 (0, k - RADIUS)
             };
             let len = w.saturating_sub(to + from);
+            if len == 0 {
+                continue;
+            }
             axpy(gk, &row[from..from + len], &mut t[to..to + len]);
         }
     }
@@ -353,6 +356,19 @@ mod tests {
         let full32 = masked_ssim(&a32, &b32, w, h, &vec![true; w * h]).unwrap();
         assert!((full32 - ssim(&a32, &b32, w, h, None) as f64).abs() < 1e-5);
         assert_eq!(masked_ssim(&a, &b, w, h, &vec![false; w * h]), None);
+    }
+
+    #[test]
+    fn images_narrower_than_the_window_match_the_reference() {
+        for (w, h) in [(1, 1), (3, 2), (2, 7), (4, 4), (6, 1)] {
+            let a = noise(8, 3 * w * h);
+            let b = noise(9, 3 * w * h);
+            let map = ssim_map(&a, &b, w, h);
+            for (k, v) in map.iter().enumerate() {
+                let r = reference_pixel(&a, &b, w, h, (k / 3) % w, k / 3 / w, k % 3);
+                assert!((v - r).abs() < 1e-12, "{w}×{h} pixel {k}: {v} vs {r}");
+            }
+        }
     }
 
     #[test]

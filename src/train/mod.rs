@@ -63,10 +63,6 @@ pub struct TrainConfig {
     /// Largest allowed ratio of a Gaussian's longest spatial axis to its middle one
     /// (needles are reshaped into ribbons after every step; 0: no limit).
     pub max_anisotropy: f64,
-    /// Weight of the flatness penalty `Σᵢ s_min/s_mid` (0: off): pulls each Gaussian's
-    /// shortest spatial axis down against its middle one, so splats lie flat on the surfaces
-    /// they colour instead of standing off them as blobs (see `regularise`).
-    pub flatten: f64,
     pub lr: LearningRates,
     pub densify: DensifyConfig,
     /// Write a checkpoint every this many iterations (0: only at the end).
@@ -92,7 +88,6 @@ impl Default for TrainConfig {
             init_time_scale: 0.2,
             init_flatness: 0.0,
             max_anisotropy: 0.0,
-            flatten: 0.0,
             lr: LearningRates::default(),
             densify: DensifyConfig::default(),
             checkpoint_every: 1000,
@@ -242,9 +237,6 @@ fn validate(config: &TrainConfig, dataset: &Dataset) -> Result<(), TrainError> {
     }
     if !(0.0..=1.0).contains(&config.init_flatness) {
         return bad("init_flatness must be in [0, 1] (0: round Gaussians)");
-    }
-    if !(config.flatten.is_finite() && config.flatten >= 0.0) {
-        return bad("flatten must be a finite weight ≥ 0 (0: off)");
     }
     if dataset.views.is_empty() {
         return Err(TrainError::NoViews);
@@ -484,7 +476,6 @@ pub fn train(
             psnr_sum += psnr_from_mse(lv.mse);
         }
         let nb = batch.len() as f64;
-        regularise::add_flatten_gradient(&model, &mut grads, config.flatten);
         let rates = config.lr.at(it, config.iterations, extent as f64);
         adam.step(&mut model, &grads, &rates);
         regularise::cap_anisotropy(&mut model, config.max_anisotropy);
