@@ -76,7 +76,10 @@ fn mean(v: Vec<f64>) -> f64 {
 /// Issue 17 (a) and (c): the analytic scene (32×24, 20 training views) trained on the GPU
 /// and on the CPU from the same points, schedule and seed: held-out PSNR (two unseen
 /// cameras at four unseen times) within 0.3 dB, and both densify (counts grow, within
-/// 25 % of each other).
+/// 25 % of each other). 150 iterations, batch 2 (~50 s on lavapipe on a 2-core VM;
+/// `GPU_TRAIN_ITERATIONS=300` for issue 17's length). The runs differ only by float
+/// rounding, but densification amplifies it: a short run still far from converged (120
+/// iterations) was seen 0.7 dB apart on held-out views, 150 iterations 0.00 dB.
 #[test]
 fn gpu_training_reaches_the_cpu_held_out_psnr_and_densifies() {
     let Some(gpu) = gpu() else { return };
@@ -87,7 +90,7 @@ fn gpu_training_reaches_the_cpu_held_out_psnr_and_densifies() {
     let iterations = std::env::var("GPU_TRAIN_ITERATIONS")
         .ok()
         .and_then(|v| v.parse().ok())
-        .unwrap_or(120);
+        .unwrap_or(150);
     let config = fit_config(iterations, 2);
     let mut out = Vec::new();
     for backend in [gpu as &dyn RenderBackend, &CpuBackend] {
