@@ -57,7 +57,7 @@ pub enum Command {
         /// Where to write the simulated capture and its outputs.
         #[arg(default_value = "4c4d-demo")]
         out_dir: PathBuf,
-        /// Renderer of the `render` and `eval` stages (overrides `[engine] backend`).
+        /// Backend of the `train`, `render` and `eval` stages (overrides `[engine] backend`).
         #[arg(long, value_enum)]
         backend: Option<BackendChoice>,
         /// Training preset (overrides the demo's schedule; README "Presets").
@@ -118,7 +118,7 @@ pub struct RunArgs {
     /// Rerun the selected stages even if they are up to date.
     #[arg(long)]
     pub force: bool,
-    /// Renderer of the `render` and `eval` stages (overrides `[engine] backend`).
+    /// Backend of the `train`, `render` and `eval` stages (overrides `[engine] backend`).
     #[arg(long, value_enum)]
     pub backend: Option<BackendChoice>,
     /// Training preset: preview | balanced | best (overrides `[train] preset` and the

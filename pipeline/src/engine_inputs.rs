@@ -33,9 +33,10 @@ pub enum BackendChoice {
     Gpu,
 }
 
-/// `[engine]`: the compute backend of the stages that render (`render`, `eval`). Not a
-/// stage parameter: both backends draw the same images (within 1e-4), so switching does
-/// not rerun anything; the backend used is recorded in each stage's `stage.json`.
+/// `[engine]`: the compute backend of the stages that render or train (`train`, `render`,
+/// `eval`). Not a stage parameter: both backends draw the same images (within 1e-4) and
+/// train to the same quality, so switching does not rerun anything; the backend used is
+/// recorded in each stage's `stage.json`.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EngineSettings {
@@ -45,8 +46,33 @@ pub struct EngineSettings {
 /// The backend that renders for `render`, `eval` and `pipeline render`, as `choice` asks,
 /// logged. `SPLAT4D_GPU_SOFTWARE=1` lets `gpu` and `auto` use a software adapter (tests).
 pub fn render_backend(choice: BackendChoice) -> anyhow::Result<Box<dyn RenderBackend>> {
+    let backend = backend_for(choice, "rendering")?;
+    tracing::info!("render backend: {}", backend.describe());
+    Ok(backend)
+}
+
+/// The backend that trains the `train` stage, as `choice` (`[engine] backend`,
+/// `--backend`) asks, under the same rules as [`render_backend`]: `auto` takes a hardware
+/// GPU when there is one (never lavapipe unless `SPLAT4D_GPU_SOFTWARE=1`), else the CPU.
+/// On the GPU the trainer runs the whole iteration there (`splat4d::train`).
+pub fn training_backend_for(choice: BackendChoice) -> anyhow::Result<Box<dyn RenderBackend>> {
+    let backend = backend_for(choice, "training")?;
+    tracing::info!("training backend: {}", backend.describe());
+    Ok(backend)
+}
+
+/// The CPU backend, for the benches that train (their timings stay comparable across
+/// machines); the `train` stage uses [`training_backend_for`].
+pub fn training_backend() -> Box<dyn RenderBackend> {
+    let backend = Box::new(splat4d::CpuBackend);
+    tracing::info!("training backend: {}", backend.describe());
+    backend
+}
+
+/// `choice` as a backend; `what` (e.g. `rendering`) names the work in the fallback's log.
+fn backend_for(choice: BackendChoice, what: &str) -> anyhow::Result<Box<dyn RenderBackend>> {
     let policy = AdapterPolicy::from_env();
-    let backend: Box<dyn RenderBackend> = match choice {
+    Ok(match choice {
         BackendChoice::Cpu => Box::new(splat4d::CpuBackend),
         BackendChoice::Gpu => Box::new(
             GpuBackend::new(policy).context("[engine] backend = \"gpu\" (or --backend gpu)")?,
@@ -54,23 +80,11 @@ pub fn render_backend(choice: BackendChoice) -> anyhow::Result<Box<dyn RenderBac
         BackendChoice::Auto => match GpuBackend::new(policy) {
             Ok(gpu) => Box::new(gpu),
             Err(e) => {
-                tracing::info!("no GPU backend ({e}); rendering on the CPU");
+                tracing::info!("no GPU backend ({e}); {what} on the CPU");
                 Box::new(splat4d::CpuBackend)
             }
         },
-    };
-    tracing::info!("render backend: {}", backend.describe());
-    Ok(backend)
-}
-
-/// The backend that trains: the CPU. The trainer takes any `RenderBackend`, and the GPU
-/// backend has its backward (`tests/gpu_train.rs` trains with it), but loss, Adam and the
-/// decay still run on the host per view, so choosing the GPU here (from `[engine]
-/// backend`) waits for them to move to the GPU (issue 17).
-pub fn training_backend() -> Box<dyn RenderBackend> {
-    let backend = Box::new(splat4d::CpuBackend);
-    tracing::info!("training backend: {}", backend.describe());
-    backend
+    })
 }
 
 /// The time mapping of a frames index: model time 0 at the first output frame, one model

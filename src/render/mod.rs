@@ -124,6 +124,12 @@ pub trait RenderBackend: Send + Sync {
         1
     }
 
+    /// This backend as the GPU backend, when it is one (the trainer then keeps the model
+    /// and its optimiser state on the device).
+    fn as_gpu(&self) -> Option<&gpu::GpuBackend> {
+        None
+    }
+
     /// Render one view.
     fn render(
         &self,

@@ -9,21 +9,25 @@
 pub mod checkpoint;
 pub mod dataset;
 pub mod densify;
+mod device_step;
 pub mod log;
 pub mod loss;
 pub mod optim;
 pub mod regularise;
+mod step;
 
 pub use crate::model::init::PointCloud;
 pub use dataset::{Dataset, FrameSource, ImageLoadError, ImageU8, View};
+pub use step::ModelAccess;
 
 use crate::metrics::{mse, psnr_from_mse};
 use crate::model::init::{InitError, InitOptions, gaussians_from_points};
 use crate::model::{ColourDegrees, Gaussians};
-use crate::render::{Gradients, ImageGradients, RenderBackend, RenderError, RenderOptions};
+use crate::render::{RenderBackend, RenderError, RenderOptions};
 use crate::train::densify::{DensifyConfig, DensifyStats, densify_and_prune, reset_opacity};
-use crate::train::loss::image_loss;
+use crate::train::device_step::DeviceStep;
 use crate::train::optim::{Adam, LearningRates, colour_degrees_at};
+use crate::train::step::{HostStep, Stepper};
 use crate::{Progress, save_model};
 use checkpoint::{Checkpoint, CheckpointError};
 use log::{LogRow, TrainLog};
@@ -140,6 +144,8 @@ pub enum TrainError {
     Init(#[from] InitError),
     #[error("rendering view {index} failed: {source}")]
     Render { index: usize, source: RenderError },
+    #[error("moving the training state to or from the GPU failed: {0}")]
+    Device(RenderError),
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
     #[error("cannot write {path}: {source}")]
@@ -191,12 +197,25 @@ pub trait TrainHooks {
     fn stop_requested(&mut self, _iteration: u64) -> bool {
         false
     }
+    /// What `opacity_factor`, `factor_gradient` and `after_step` do with the model. The
+    /// GPU backend keeps the model on the device between host syncs: with
+    /// [`ModelAccess::None`] the hooks see the host copy as of the last sync; with
+    /// `EveryStep` the model comes to the host (and back) every step; with
+    /// `OpacityFactor` (the default, safe for any hooks) the GPU backend takes the host
+    /// path (render and backward on the GPU, loss and Adam on the host).
+    fn model_access(&self) -> ModelAccess {
+        ModelAccess::OpacityFactor
+    }
 }
 
 /// Hooks that do nothing (plain 4DGS).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct NoHooks;
-impl TrainHooks for NoHooks {}
+impl TrainHooks for NoHooks {
+    fn model_access(&self) -> ModelAccess {
+        ModelAccess::None
+    }
+}
 
 /// Outcome of a finished run.
 #[derive(Clone, Debug, PartialEq)]
@@ -210,6 +229,9 @@ pub struct TrainSummary {
     pub gaussians: usize,
     pub seconds: f64,
     pub model_path: PathBuf,
+    /// Where the iterations ran: `host` (render and backward by the backend, loss and
+    /// Adam on the host) or `gpu` (the whole step on the GPU).
+    pub placement: &'static str,
 }
 
 fn validate(config: &TrainConfig, dataset: &Dataset) -> Result<(), TrainError> {
@@ -300,30 +322,11 @@ fn all_finite(model: &Gaussians<f32>) -> bool {
         && model.colours.iter().all(|x| x.is_finite())
 }
 
-fn add_into(sum: &mut Gradients<f32>, g: &Gradients<f32>) {
-    let add4 = |a: &mut Vec<[f32; 4]>, b: &Vec<[f32; 4]>| {
-        a.as_flattened_mut()
-            .iter_mut()
-            .zip(b.as_flattened())
-            .for_each(|(x, y)| *x += y)
-    };
-    add4(&mut sum.means, &g.means);
-    add4(&mut sum.log_scales, &g.log_scales);
-    add4(&mut sum.rot_left, &g.rot_left);
-    add4(&mut sum.rot_right, &g.rot_right);
-    sum.opacity_logits
-        .iter_mut()
-        .zip(&g.opacity_logits)
-        .for_each(|(x, y)| *x += y);
-    sum.colours
-        .iter_mut()
-        .zip(&g.colours)
-        .for_each(|(x, y)| *x += y);
-}
-
 /// Train a model on `dataset` from `init`, writing `out_dir/{ckpt/, model.bin, log.csv}`.
 /// With `resume`, continue from the newest complete checkpoint in `out_dir/ckpt` (a fresh
-/// start when there is none). Every view is rendered and differentiated by `backend`.
+/// start when there is none). Every view is rendered and differentiated by `backend`; with
+/// the GPU backend the whole iteration runs on the GPU (see [`TrainHooks::model_access`]
+/// for hooks, and `docs/training.md`).
 #[allow(clippy::too_many_arguments)]
 pub fn train(
     backend: &dyn RenderBackend,
@@ -395,7 +398,6 @@ pub fn train(
     progress.advance(start.min(config.iterations));
     let started = Instant::now();
     let d = &config.densify;
-    let (mut target, mut d_image) = (Vec::new(), Vec::new());
     let (mut final_loss, mut final_psnr) = (f64::NAN, f64::NAN);
     let save_ckpt = |it: u64,
                      model: &Gaussians<f32>,
@@ -415,75 +417,52 @@ pub fn train(
         Ok::<PathBuf, TrainError>(p)
     };
 
-    // One view's gradients, reused across views and iterations: the backward resizes and
-    // overwrites it, so the large colour array is not faulted in afresh every view.
-    let mut g = Gradients::zeros_like(&model, false);
+    let access = hooks.model_access();
+    let mut stepper: Box<dyn Stepper + '_> = match backend.as_gpu() {
+        Some(gpu) if access != ModelAccess::OpacityFactor => Box::new(DeviceStep::new(
+            gpu, config, dataset, &model, &adam, &stats,
+        )?),
+        _ => Box::new(HostStep::new(backend, config, dataset, &model)),
+    };
+    // The cap and hooks that touch the model run on the host every step.
+    let model_every_step = config.max_anisotropy > 0.0 || access != ModelAccess::None;
+    progress.message(&format!(
+        "training on {} (step on the {})",
+        backend.describe(),
+        stepper.placement()
+    ));
     for it in start..config.iterations {
         // `it` iterations are done; this step is iteration `it + 1`.
         let mut rng = iteration_rng(config.seed, it);
         model.active = colour_degrees_at(it, config.degree_every, model.capacity);
         let batch = sample_batch(&mut rng, dataset.views.len(), config.batch_size);
-        let mut grads = Gradients::zeros_like(&model, false);
-        let (mut loss_sum, mut l1_sum, mut ssim_sum, mut psnr_sum) = (0.0, 0.0, 0.0, 0.0);
-        let scale = 1.0 / batch.len() as f32;
-        for &vi in &batch {
-            let view = &dataset.views[vi];
-            let factor = hooks.opacity_factor(it, &model, view);
-            let options = RenderOptions {
-                background: config.background,
-                opacity_factor: factor.as_deref(),
-                ..Default::default()
-            };
-            let r = backend
-                .render(&model, &view.camera, view.time, &options)
-                .map_err(|source| TrainError::Render { index: vi, source })?;
-            view.image.to_f32_into(&mut target);
-            d_image.clear();
-            d_image.resize(target.len(), 0.0);
-            let (w, h) = (r.width as usize, r.height as usize);
-            let lv = image_loss(
-                &r.rgb,
-                &target,
-                w,
-                h,
-                config.lambda_ssim,
-                Some(&mut d_image),
-            );
-            d_image.iter_mut().for_each(|g| *g *= scale);
-            let up = ImageGradients {
-                rgb: &d_image,
-                alpha: None,
-                depth: None,
-            };
-            backend
-                .backward(&model, &r, &up, &mut g)
-                .map_err(|source| TrainError::Render { index: vi, source })?;
-            if factor.is_some() {
-                hooks.factor_gradient(it, &model, &g.opacity_factor);
-            }
-            // The statistic is the gradient of this view's own loss (undo the 1/batch).
-            stats.record(
-                &g.mean2d_norm,
-                &r.radii,
-                r.width,
-                r.height,
-                batch.len() as f32,
-            );
-            add_into(&mut grads, &g);
-            loss_sum += lv.total;
-            l1_sum += lv.l1;
-            ssim_sum += lv.ssim;
-            psnr_sum += psnr_from_mse(lv.mse);
-        }
-        let nb = batch.len() as f64;
         let rates = config.lr.at(it, config.iterations, extent as f64);
-        adam.step(&mut model, &grads, &rates);
+        let batch_loss =
+            stepper.step(it, &batch, &rates, &mut model, &mut adam, &mut stats, hooks)?;
+        let (loss_sum, l1_sum, ssim_sum, psnr_sum) = batch_loss.sums();
+        let nb = batch.len() as f64;
+        if model_every_step {
+            stepper.model_to_host(&mut model)?;
+        }
         regularise::cap_anisotropy(&mut model, config.max_anisotropy);
         hooks.after_step(it + 1, &mut model);
+        if model_every_step {
+            stepper.model_from_host(&model)?;
+        }
         let done = it + 1;
+        let in_window = d.enabled && done > d.from_iteration && done <= d.until_iteration;
+        let densify_now = in_window && d.every > 0 && done % d.every == 0;
+        let reset_now = in_window && d.opacity_reset_every > 0 && done % d.opacity_reset_every == 0;
+        let checkpoint_now = (config.checkpoint_every > 0 && done % config.checkpoint_every == 0)
+            || done == config.iterations;
+        if densify_now || reset_now || checkpoint_now {
+            stepper.state_to_host(&mut model, &mut adam, &mut stats)?;
+        }
+        // Between syncs the GPU path checks the loss only (a non-finite parameter shows
+        // in the next loss, or at the next sync).
         let what = if !loss_sum.is_finite() {
             Some("the loss")
-        } else if !all_finite(&model) {
+        } else if stepper.host_model_current() && !all_finite(&model) {
             Some("a model parameter")
         } else {
             None
@@ -499,27 +478,28 @@ pub fn train(
         }
 
         // Density control.
-        if d.enabled && done > d.from_iteration && done <= d.until_iteration {
-            if d.every > 0 && done % d.every == 0 {
-                let prune_large = d.opacity_reset_every > 0 && done > d.opacity_reset_every;
-                densify_and_prune(
-                    &mut model,
-                    &mut adam,
-                    &mut stats,
-                    d,
-                    extent,
-                    prune_large,
-                    &mut rng,
-                );
-                if model.is_empty() {
-                    log.flush().map_err(io(&log_path))?;
-                    progress.finish();
-                    return Err(TrainError::EmptyModel { iteration: done });
-                }
+        if densify_now {
+            let prune_large = d.opacity_reset_every > 0 && done > d.opacity_reset_every;
+            densify_and_prune(
+                &mut model,
+                &mut adam,
+                &mut stats,
+                d,
+                extent,
+                prune_large,
+                &mut rng,
+            );
+            if model.is_empty() {
+                log.flush().map_err(io(&log_path))?;
+                progress.finish();
+                return Err(TrainError::EmptyModel { iteration: done });
             }
-            if d.opacity_reset_every > 0 && done % d.opacity_reset_every == 0 {
-                reset_opacity(&mut model, &mut adam, 0.01);
-            }
+        }
+        if reset_now {
+            reset_opacity(&mut model, &mut adam, 0.01);
+        }
+        if densify_now || reset_now {
+            stepper.state_from_host(&model, &adam, &stats)?;
         }
 
         final_loss = loss_sum / nb;
@@ -549,9 +529,7 @@ pub fn train(
                 eta
             ));
         }
-        if (config.checkpoint_every > 0 && done % config.checkpoint_every == 0)
-            || done == config.iterations
-        {
+        if checkpoint_now {
             log.flush().map_err(io(&log_path))?;
             last_checkpoint = Some(save_ckpt(done, &model, &adam, &stats, &*hooks)?);
         }
@@ -559,7 +537,10 @@ pub fn train(
             log.flush().map_err(io(&log_path))?;
             let checkpoint = match &last_checkpoint {
                 Some(p) if p.ends_with(format!("{done:06}.bin")) => p.clone(),
-                _ => save_ckpt(done, &model, &adam, &stats, &*hooks)?,
+                _ => {
+                    stepper.state_to_host(&mut model, &mut adam, &mut stats)?;
+                    save_ckpt(done, &model, &adam, &stats, &*hooks)?
+                }
             };
             progress.finish();
             return Err(TrainError::Interrupted {
@@ -580,6 +561,7 @@ pub fn train(
         gaussians: model.len(),
         seconds: started.elapsed().as_secs_f64(),
         model_path,
+        placement: stepper.placement(),
     })
 }
 

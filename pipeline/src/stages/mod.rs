@@ -101,7 +101,7 @@ pub fn pipeline() -> Pipeline {
                 .params(train_params)
                 .outputs(&["model.bin", "log.csv"])
                 .resumable()
-                .run(|ctx, config| train::run(ctx, &config.train, &config.decay)),
+                .run(|ctx, config| train::run(ctx, &config.train, &config.decay, &config.engine)),
             StageDef::new("render", "render videos along camera paths")
                 .after(&["frames", "poses", "train"])
                 .output_one_of(&render::OUTPUTS)

@@ -6,10 +6,10 @@
 
 use anyhow::{Context, bail};
 use splat4d::Gaussians;
-use splat4d::decay::DecayConfig;
-use splat4d::train::{PointCloud, TrainConfig, TrainError, TrainHooks, View};
+use splat4d::decay::{DecayConfig, DecayVariant};
+use splat4d::train::{ModelAccess, PointCloud, TrainConfig, TrainError, TrainHooks, View};
 
-use crate::engine_inputs::load_dataset;
+use crate::engine_inputs::{EngineSettings, load_dataset};
 use crate::interrupt::{Graceful, stop_requested};
 use crate::stage_context::StageContext;
 
@@ -23,6 +23,18 @@ pub type DecaySettings = DecayConfig;
 /// The stage's hooks: the method's hooks (4C4D decay, or none) plus the Ctrl-C stop.
 struct StageHooks<'a> {
     inner: &'a mut dyn TrainHooks,
+    /// What the decay does with the model (how the GPU backend trains it).
+    access: ModelAccess,
+}
+
+/// What a decay variant does with the model during a step: `none` nothing, the per-step
+/// decays edit opacities every step, the neural decay wants an opacity factor.
+fn decay_access(variant: DecayVariant) -> ModelAccess {
+    match variant {
+        DecayVariant::None => ModelAccess::None,
+        DecayVariant::Constant | DecayVariant::Pow | DecayVariant::Exp => ModelAccess::EveryStep,
+        DecayVariant::Neural => ModelAccess::OpacityFactor,
+    }
 }
 
 impl TrainHooks for StageHooks<'_> {
@@ -49,6 +61,9 @@ impl TrainHooks for StageHooks<'_> {
     fn stop_requested(&mut self, iteration: u64) -> bool {
         stop_requested() || self.inner.stop_requested(iteration)
     }
+    fn model_access(&self) -> ModelAccess {
+        self.access
+    }
 }
 
 /// The initial points: `work/init/points.ply`, else the poses stage's sparse points.
@@ -74,6 +89,7 @@ pub fn run(
     ctx: &StageContext,
     settings: &TrainSettings,
     decay: &DecaySettings,
+    engine: &EngineSettings,
 ) -> anyhow::Result<()> {
     let cameras_file = ctx.stage_dir("poses").join("cameras.json");
     ctx.progress.message("loading frames");
@@ -88,9 +104,13 @@ pub fn run(
     let mut method = splat4d::decay::DecayHooks::new(decay)
         .map_err(|e| anyhow::anyhow!("capture.toml [decay]: {e}"))?;
     tracing::info!("opacity decay: {:?}", decay.variant);
-    let mut hooks = StageHooks { inner: &mut method };
+    let mut hooks = StageHooks {
+        inner: &mut method,
+        access: decay_access(decay.variant),
+    };
     let _graceful = Graceful::enter();
-    let backend = crate::engine_inputs::training_backend();
+    let backend = crate::engine_inputs::training_backend_for(engine.backend)?;
+    ctx.record_tool("training backend", &backend.describe());
     let summary = match splat4d::train::train(
         backend.as_ref(),
         settings,
@@ -108,12 +128,35 @@ pub fn run(
         Err(e) => return Err(e.into()),
     };
     tracing::info!(
-        "trained {} iterations ({} this run) in {:.0} s: {} Gaussians, last batch PSNR {:.2} dB",
+        "trained {} iterations ({} this run) on {} (step on the {}) in {:.0} s: {} Gaussians, last batch PSNR {:.2} dB",
         summary.iterations,
         summary.iterations - summary.started_at,
+        backend.describe(),
+        summary.placement,
         summary.seconds,
         summary.gaussians,
         summary.final_psnr
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::engine_inputs::{BackendChoice, training_backend_for};
+
+    #[test]
+    fn the_decay_decides_how_the_gpu_trains_and_cpu_is_honoured() {
+        assert_eq!(decay_access(DecayVariant::None), ModelAccess::None);
+        for v in [DecayVariant::Constant, DecayVariant::Pow, DecayVariant::Exp] {
+            assert_eq!(decay_access(v), ModelAccess::EveryStep);
+        }
+        assert_eq!(
+            decay_access(DecayVariant::Neural),
+            ModelAccess::OpacityFactor
+        );
+        let cpu = training_backend_for(BackendChoice::Cpu).unwrap();
+        assert!(cpu.describe().starts_with("cpu"));
+        assert!(cpu.as_gpu().is_none());
+    }
 }

@@ -5,11 +5,11 @@
 //! read-back; it computes what `train::optim::Adam::step` does, in the same f32 order.
 
 use super::backward::PARAM_FLOATS;
-use super::kernels::{storage, storage_init, uniform};
+use super::kernels::{storage, uniform};
 use super::{Gpu, GpuBackend, pack_params, read_buffer};
 use crate::model::Gaussians;
 use crate::render::{Gradients, RenderError};
-use crate::train::optim::{BETA1, BETA2, EPSILON, GroupRates, ParamBuffers};
+use crate::train::optim::{Adam, BETA1, BETA2, EPSILON, GroupRates, ParamBuffers};
 use std::sync::Arc;
 
 /// The step constants (`AdamParams` in `shaders/adam.wgsl`).
@@ -76,22 +76,99 @@ impl GpuAdam {
         )?;
         let device = &backend.gpu.device;
         let colour_len = model.colours.len();
-        backend.checked(|| {
+        let adam = backend.checked(|| {
             Ok(Self {
                 gpu: backend.gpu.clone(),
                 count,
                 colour_len,
                 colour_stride: 3 * model.coeffs_per_channel(),
-                params: Packed {
-                    params: storage_init(device, &pack_params(model), "trained parameters"),
-                    colours: storage_init(device, &model.colours, "trained colours"),
-                },
+                params: Packed::zeros(device, count, colour_len, "trained parameters"),
                 grads: Packed::zeros(device, count, colour_len, "Adam gradients"),
                 m: Packed::zeros(device, count, colour_len, "Adam first moments"),
                 v: Packed::zeros(device, count, colour_len, "Adam second moments"),
                 step: 0,
             })
-        })
+        })?;
+        adam.write(&adam.params, &pack_params(model), &model.colours);
+        Ok(adam)
+    }
+
+    /// Upload `model` with the moments and step count of `adam` (its state for this
+    /// model): training continues exactly where the host's `Adam` left off.
+    pub fn from_state(
+        backend: &GpuBackend,
+        model: &Gaussians<f32>,
+        adam: &Adam,
+    ) -> Result<Self, RenderError> {
+        let mut a = Self::new(backend, model)?;
+        for (what, b) in [("first", &adam.m), ("second", &adam.v)] {
+            if b.len() != a.count || b.colours.len() != a.colour_len {
+                return Err(RenderError::InconsistentModel(format!(
+                    "Adam's {what} moments are for {} Gaussians and {} colour values, the model has {} and {}",
+                    b.len(),
+                    b.colours.len(),
+                    a.count,
+                    a.colour_len
+                )));
+            }
+        }
+        a.write(&a.m, &pack_buffers(&adam.m), &adam.m.colours);
+        a.write(&a.v, &pack_buffers(&adam.v), &adam.v.colours);
+        a.step = adam.step;
+        Ok(a)
+    }
+
+    /// Replace the trained values with `model`'s (the same size; moments kept), e.g.
+    /// after the host edited the model between steps.
+    pub fn upload_values(
+        &self,
+        backend: &GpuBackend,
+        model: &Gaussians<f32>,
+    ) -> Result<(), RenderError> {
+        self.same_device(backend)?;
+        self.check_count(model.len())?;
+        self.check_colours(model)?;
+        self.write(&self.params, &pack_params(model), &model.colours);
+        Ok(())
+    }
+
+    /// Copy the trained values, the moments and the step count back into `model` and
+    /// `adam` (the model uploaded, same size).
+    pub fn download_state(
+        &self,
+        backend: &GpuBackend,
+        model: &mut Gaussians<f32>,
+        adam: &mut Adam,
+    ) -> Result<(), RenderError> {
+        self.download(backend, model)?;
+        let (m, v) = self.moments(backend)?;
+        adam.m = m;
+        adam.v = v;
+        adam.step = self.step;
+        Ok(())
+    }
+
+    /// Write packed values and colours into `set`.
+    fn write(&self, set: &Packed, params: &[[f32; 4]], colours: &[f32]) {
+        let queue = &self.gpu.queue;
+        if !params.is_empty() {
+            queue.write_buffer(&set.params, 0, bytemuck::cast_slice(params));
+        }
+        if !colours.is_empty() {
+            queue.write_buffer(&set.colours, 0, bytemuck::cast_slice(colours));
+        }
+    }
+
+    fn check_colours(&self, model: &Gaussians<f32>) -> Result<(), RenderError> {
+        if model.colours.len() == self.colour_len {
+            Ok(())
+        } else {
+            Err(RenderError::InconsistentModel(format!(
+                "{} colour values, {} uploaded",
+                model.colours.len(),
+                self.colour_len
+            )))
+        }
     }
 
     /// Steps taken.
@@ -277,13 +354,7 @@ impl GpuAdam {
     ) -> Result<(), RenderError> {
         self.same_device(backend)?;
         self.check_count(model.len())?;
-        if model.colours.len() != self.colour_len {
-            return Err(RenderError::InconsistentModel(format!(
-                "{} colour values, {} uploaded",
-                model.colours.len(),
-                self.colour_len
-            )));
-        }
+        self.check_colours(model)?;
         let values = backend.checked(|| self.read(backend, &self.params))?;
         let b = self.unpack(&values);
         model.means = b.means;
@@ -331,4 +402,20 @@ impl GpuAdam {
             colours: colours.to_vec(),
         }
     }
+}
+
+/// Adam-shaped buffers packed as the model is uploaded (five vec4 per Gaussian; the
+/// padding after the opacity is zero).
+fn pack_buffers(b: &ParamBuffers) -> Vec<[f32; 4]> {
+    let mut packed: Vec<[f32; 4]> = Vec::with_capacity(5 * b.len());
+    for i in 0..b.len() {
+        packed.extend_from_slice(&[
+            b.means[i],
+            b.log_scales[i],
+            b.rot_left[i],
+            b.rot_right[i],
+            [b.opacity_logits[i], 0.0, 0.0, 0.0],
+        ]);
+    }
+    packed
 }

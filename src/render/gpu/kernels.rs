@@ -47,6 +47,7 @@ pub struct Kernels {
     pub unpack_bytes: Kernel,
     pub adam_step: Kernel,
     pub add_into: Kernel,
+    pub record_stats: Kernel,
 }
 
 impl Kernels {
@@ -76,6 +77,7 @@ impl Kernels {
         let unpack = module("unpack", include_str!("shaders/unpack.wgsl"));
         let adam = module("adam", include_str!("shaders/adam.wgsl"));
         let add = module("add", include_str!("shaders/add.wgsl"));
+        let stats = module("stats", include_str!("shaders/stats.wgsl"));
         let k = |m: &wgpu::ShaderModule, entry: &str, slots: &[Slot]| {
             kernel(device, m, entry, &layout(device, entry, slots))
         };
@@ -130,6 +132,11 @@ impl Kernels {
             reduce_sums: kernel(device, &loss, "reduce_sums", &loss_layout),
             unpack_bytes: k(&unpack, "unpack_bytes", &[Uniform, Read, ReadWrite]),
             add_into: k(&add, "add_into", &[Uniform, Read, ReadWrite]),
+            record_stats: k(
+                &stats,
+                "record_stats",
+                &[Uniform, Read, Read, ReadWrite, ReadWrite, ReadWrite],
+            ),
             adam_step: k(
                 &adam,
                 "adam_step",

@@ -19,8 +19,9 @@
 //! For a training step on the device: [`GpuBackend::image_loss`] (the L1 + D-SSIM loss and
 //! its image gradient, [`loss`]) and [`GpuAdam`] (Adam with the model and its moments
 //! resident, [`adam`]), chained with render and backward into one iteration by
-//! [`GpuAdam::train_step`] ([`step`]). The trainer does not use them yet: it runs loss and
-//! Adam on the host.
+//! [`GpuAdam::train_step`] ([`step`]), which can also gather the densification statistics
+//! on the device ([`GpuStats`]). `train::train` runs its iterations this way when given
+//! this backend (see `train::device_step`).
 
 mod adam;
 mod backward;
@@ -28,10 +29,12 @@ mod device;
 mod kernels;
 mod loss;
 mod sort;
+mod stats;
 mod step;
 
 pub use adam::GpuAdam;
 pub use device::{AdapterPolicy, Gpu, GpuError};
+pub use stats::GpuStats;
 pub use step::{GpuImage, StepResult, TrainView};
 
 use super::{
@@ -98,6 +101,8 @@ struct ViewBuffers {
     ranges: wgpu::Buffer,
     /// Per pixel: final transmittance bits and last contributing entry + 1.
     pixels: wgpu::Buffer,
+    /// Screen radius per Gaussian (0 when culled), for densification statistics.
+    radii: wgpu::Buffer,
 }
 
 /// The per-view constants (`View` in `shaders/common.wgsl`).
@@ -278,6 +283,10 @@ impl RenderBackend for GpuBackend {
         format!("gpu: {}", self.gpu.describe())
     }
 
+    fn as_gpu(&self) -> Option<&GpuBackend> {
+        Some(self)
+    }
+
     fn preferred_batch(&self) -> usize {
         8
     }
@@ -339,15 +348,18 @@ impl GpuBackend {
             count: n,
             colour_len: model.colours.len(),
         });
-        self.render_uploaded(uploaded, views, prepared)
+        self.render_uploaded(uploaded, views, prepared, true)
     }
 
-    /// Render `views` of a model already on the device.
+    /// Render `views` of a model already on the device. Without `read_images` the frames'
+    /// images and radii stay on the device (their host vectors are empty): a training step
+    /// reads only its loss.
     fn render_uploaded(
         &self,
         uploaded: Arc<ModelBuffers>,
         views: &[ViewRequest<'_>],
         prepared: Vec<Prepared>,
+        read_images: bool,
     ) -> Result<Vec<Rendered<f32>>, RenderError> {
         let device = &self.gpu.device;
         let k = &self.kernels;
@@ -435,7 +447,11 @@ impl GpuBackend {
             .map(|p| (p.uniform.width as u64 * p.uniform.height as u64, n as u64))
             .collect();
         let words_per_view: Vec<u64> = layout.iter().map(|(px, g)| 5 * px + g).collect();
-        let total_words: u64 = words_per_view.iter().sum();
+        let total_words: u64 = if read_images {
+            words_per_view.iter().sum()
+        } else {
+            0
+        };
         let staging = read_buffer(device, 4 * total_words);
         let mut enc = device.create_command_encoder(&Default::default());
         let mut at = 0u64;
@@ -458,6 +474,7 @@ impl GpuBackend {
                 values: storage(device, 4 * pairs as u64, "sorted entries"),
                 ranges: storage(device, 8 * tiles as u64, "tile ranges"),
                 pixels: storage(device, 8 * px, "pixel state"),
+                radii: storage(device, 4 * n as u64, "radii of a view"),
             };
             self.encode_counts(&mut enc, group, &buffers.counts, &scratch, n);
             if n > 0 {
@@ -506,16 +523,21 @@ impl GpuBackend {
                 let sorted = if in_b { &keys.b } else { &keys.a };
                 enc.copy_buffer_to_buffer(&sorted[2], 0, &buffers.values, 0, 4 * pairs as u64);
             }
-            for (buf, words) in [
-                (&buffers.rgb, 3 * px),
-                (&out_alpha, px),
-                (&out_depth, px),
-                (&scratch.radii, g),
-            ] {
-                if words > 0 {
-                    enc.copy_buffer_to_buffer(buf, 0, &staging, 4 * at, 4 * words);
+            if n > 0 {
+                enc.copy_buffer_to_buffer(&scratch.radii, 0, &buffers.radii, 0, 4 * n as u64);
+            }
+            if read_images {
+                for (buf, words) in [
+                    (&buffers.rgb, 3 * px),
+                    (&out_alpha, px),
+                    (&out_depth, px),
+                    (&buffers.radii, g),
+                ] {
+                    if words > 0 {
+                        enc.copy_buffer_to_buffer(buf, 0, &staging, 4 * at, 4 * words);
+                    }
+                    at += words;
                 }
-                at += words;
             }
             kept.push(buffers);
         }
@@ -530,7 +552,11 @@ impl GpuBackend {
             .zip(kept.into_iter().zip(view_uniforms))
             .enumerate()
         {
-            let (px, g) = (layout[v].0 as usize, layout[v].1 as usize);
+            let (px, g) = if read_images {
+                (layout[v].0 as usize, layout[v].1 as usize)
+            } else {
+                (0, 0)
+            };
             let mut take = |len: usize| {
                 let s = floats[at..at + len].to_vec();
                 at += len;

@@ -2,13 +2,16 @@
 //! render the batch's views, then in one submission per view the loss against its target
 //! (uploaded once as bytes, converted on the device), the backward from the loss's image
 //! gradient (weighted 1/batch), the views' gradients added in batch order, and the Adam
-//! step; one 16-byte loss total per view is read back. The render still reads its images
-//! back (the caller sees them, as in training); densification statistics, the anisotropy
-//! cap and hooks are not part of the step.
+//! step; one 16-byte loss total per view is read back (and the render's count of
+//! (tile, splat) pairs, to size its sort). The rendered images stay on the device. With
+//! [`GpuStats`] the step also adds each view's densification statistics on the device.
+//! The anisotropy cap and hooks are not part of the step (the trainer runs them on the
+//! host, see `train::device_step`).
 
 use super::adam::GpuAdam;
 use super::kernels::{storage, storage_init, uniform};
 use super::loss::{LossPass, pack_bytes, unpack};
+use super::stats::GpuStats;
 use super::{GpuBackend, GpuFrame, ModelBuffers, read_buffer};
 use crate::Camera;
 use crate::model::Gaussians;
@@ -39,8 +42,6 @@ pub struct TrainView<'a> {
 pub struct StepResult {
     /// The loss of each view (unweighted by the batch).
     pub losses: Vec<LossValue>,
-    /// The rendered views, as the render read them back.
-    pub frames: Vec<Rendered<f32>>,
 }
 
 impl GpuBackend {
@@ -79,8 +80,33 @@ impl GpuAdam {
         lambda_ssim: f64,
         rates: &GroupRates,
     ) -> Result<StepResult, RenderError> {
+        self.train_step_with_stats(backend, model, views, background, lambda_ssim, rates, None)
+    }
+
+    /// [`GpuAdam::train_step`], adding every view's densification statistics into
+    /// `stats` on the device (as `DensifyStats::record` does with the view's own
+    /// gradient: the 1/batch weight undone).
+    #[allow(clippy::too_many_arguments)]
+    pub fn train_step_with_stats(
+        &mut self,
+        backend: &GpuBackend,
+        model: &Gaussians<f32>,
+        views: &[TrainView<'_>],
+        background: [f32; 3],
+        lambda_ssim: f64,
+        rates: &GroupRates,
+        stats: Option<&GpuStats>,
+    ) -> Result<StepResult, RenderError> {
         self.same_device(backend)?;
         self.check_count(model.len())?;
+        if let Some(s) = stats
+            && s.len() != self.count
+        {
+            return Err(RenderError::ModelMismatch {
+                expected: self.count,
+                got: s.len(),
+            });
+        }
         if model.colours.len() != self.colour_len {
             return Err(RenderError::InconsistentModel(format!(
                 "{} colour values, {} uploaded",
@@ -115,10 +141,7 @@ impl GpuAdam {
             backend.too_large("the loss's partials", 60 * w as u64 * h as u64)?;
         }
         if views.is_empty() {
-            return Ok(StepResult {
-                losses: Vec::new(),
-                frames: Vec::new(),
-            });
+            return Ok(StepResult { losses: Vec::new() });
         }
         let n = self.count;
         let frames = backend.checked(|| {
@@ -133,15 +156,12 @@ impl GpuAdam {
                 count: n,
                 colour_len: self.colour_len,
             });
-            backend.render_uploaded(uploaded, &requests, prepared)
+            backend.render_uploaded(uploaded, &requests, prepared, false)
         })?;
-        let totals =
-            backend.checked(|| self.encode_and_run(backend, &frames, views, lambda_ssim, rates))?;
+        let losses = backend
+            .checked(|| self.encode_and_run(backend, &frames, views, lambda_ssim, rates, stats))?;
         self.stepped();
-        Ok(StepResult {
-            losses: totals,
-            frames,
-        })
+        Ok(StepResult { losses })
     }
 
     /// Loss, backward and gradient sums of every view, then Adam: one submission.
@@ -152,6 +172,7 @@ impl GpuAdam {
         views: &[TrainView<'_>],
         lambda_ssim: f64,
         rates: &GroupRates,
+        stats: Option<&GpuStats>,
     ) -> Result<Vec<LossValue>, RenderError> {
         let device = &backend.gpu.device;
         let k = &backend.kernels;
@@ -199,6 +220,11 @@ impl GpuAdam {
             enc.clear_buffer(out_params, 0, None);
             enc.clear_buffer(out_colours, 0, None);
             super::backward::encode(backend, state, &upstream, out_params, out_colours, &mut enc);
+            if let Some(s) = stats {
+                // As `DensifyStats::record` with gain = batch size.
+                let to_ndc = 0.5 * w.max(h) as f32 * views.len() as f32;
+                s.encode_record(backend, &mut enc, out_params, &state.buffers.radii, to_ndc);
+            }
             if v > 0 {
                 let mut pass = enc.begin_compute_pass(&Default::default());
                 for (words, part, sum) in [

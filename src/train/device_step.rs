@@ -1,0 +1,171 @@
+//! The GPU path of the trainer: the training images uploaded once (as bytes), the model,
+//! its Adam moments and the densification statistics resident on the device, and each
+//! iteration one [`GpuAdam::train_step_with_stats`] (render, loss, backward, batch sum,
+//! statistics, Adam) that reads back only the views' loss totals.
+//!
+//! The host copy of the state is brought up to date only when the loop needs it: every
+//! step when the anisotropy cap is on or the hooks touch the model
+//! ([`ModelAccess::EveryStep`]: the model's values make a round trip, the moments stay),
+//! and for densification, opacity resets, checkpoints, a stop and the end (model, moments
+//! and statistics; after a densification or reset the device state is rebuilt from the
+//! host's). Hooks that want an opacity factor are not run here (the trainer takes the
+//! host path, [`super::step::HostStep`], for them).
+
+use crate::model::Gaussians;
+use crate::render::RenderError;
+use crate::render::gpu::{GpuAdam, GpuBackend, GpuImage, GpuStats, TrainView};
+use crate::train::densify::DensifyStats;
+use crate::train::optim::{Adam, GroupRates};
+use crate::train::step::{BatchLoss, Stepper};
+use crate::train::{Dataset, TrainConfig, TrainError, TrainHooks};
+
+/// The whole iteration on the GPU with the training state resident there.
+pub(crate) struct DeviceStep<'a> {
+    gpu: &'a GpuBackend,
+    config: &'a TrainConfig,
+    dataset: &'a Dataset,
+    /// One uploaded image per view of the dataset.
+    targets: Vec<GpuImage>,
+    adam: GpuAdam,
+    stats: GpuStats,
+    /// The host model holds the device's values.
+    model_current: bool,
+    /// The host model, Adam state and statistics hold the device's.
+    state_current: bool,
+}
+
+/// A device error of a step (`index`: the batch's first view) or of an upload.
+fn device_error(index: usize) -> impl Fn(RenderError) -> TrainError {
+    move |source| TrainError::Render { index, source }
+}
+
+impl<'a> DeviceStep<'a> {
+    /// Upload the dataset's images and the training state.
+    pub fn new(
+        gpu: &'a GpuBackend,
+        config: &'a TrainConfig,
+        dataset: &'a Dataset,
+        model: &Gaussians<f32>,
+        adam: &Adam,
+        stats: &DensifyStats,
+    ) -> Result<Self, TrainError> {
+        let targets = dataset
+            .views
+            .iter()
+            .enumerate()
+            .map(|(i, v)| gpu.upload_image(&v.image).map_err(device_error(i)))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Self {
+            gpu,
+            config,
+            dataset,
+            targets,
+            adam: GpuAdam::from_state(gpu, model, adam).map_err(TrainError::Device)?,
+            stats: GpuStats::upload(gpu, stats).map_err(TrainError::Device)?,
+            model_current: true,
+            state_current: true,
+        })
+    }
+}
+
+impl Stepper for DeviceStep<'_> {
+    fn placement(&self) -> &'static str {
+        "gpu"
+    }
+
+    fn step(
+        &mut self,
+        iteration: u64,
+        batch: &[usize],
+        rates: &GroupRates,
+        model: &mut Gaussians<f32>,
+        _adam: &mut Adam,
+        _stats: &mut DensifyStats,
+        hooks: &mut dyn TrainHooks,
+    ) -> Result<BatchLoss, TrainError> {
+        let first = batch.first().copied().unwrap_or(0);
+        let mut views = Vec::with_capacity(batch.len());
+        for &vi in batch {
+            let view = &self.dataset.views[vi];
+            if hooks.opacity_factor(iteration, model, view).is_some() {
+                return Err(TrainError::Config(
+                    "the hooks returned an opacity factor, but declared none (TrainHooks::model_access); the GPU step trains without opacity factors".into(),
+                ));
+            }
+            views.push(TrainView {
+                camera: &view.camera,
+                t: view.time,
+                target: &self.targets[vi],
+            });
+        }
+        let result = self
+            .adam
+            .train_step_with_stats(
+                self.gpu,
+                model,
+                &views,
+                self.config.background,
+                self.config.lambda_ssim,
+                rates,
+                Some(&self.stats),
+            )
+            .map_err(device_error(first))?;
+        self.model_current = false;
+        self.state_current = false;
+        Ok(BatchLoss {
+            losses: result.losses,
+        })
+    }
+
+    fn host_model_current(&self) -> bool {
+        self.model_current
+    }
+
+    fn model_to_host(&mut self, model: &mut Gaussians<f32>) -> Result<(), TrainError> {
+        if !self.model_current {
+            self.adam
+                .download(self.gpu, model)
+                .map_err(TrainError::Device)?;
+            self.model_current = true;
+        }
+        Ok(())
+    }
+
+    fn model_from_host(&mut self, model: &Gaussians<f32>) -> Result<(), TrainError> {
+        self.adam
+            .upload_values(self.gpu, model)
+            .map_err(TrainError::Device)?;
+        self.model_current = true;
+        Ok(())
+    }
+
+    fn state_to_host(
+        &mut self,
+        model: &mut Gaussians<f32>,
+        adam: &mut Adam,
+        stats: &mut DensifyStats,
+    ) -> Result<(), TrainError> {
+        if !self.state_current {
+            self.adam
+                .download_state(self.gpu, model, adam)
+                .map_err(TrainError::Device)?;
+            *stats = self.stats.download(self.gpu).map_err(TrainError::Device)?;
+            self.model_current = true;
+            self.state_current = true;
+        }
+        Ok(())
+    }
+
+    fn state_from_host(
+        &mut self,
+        model: &Gaussians<f32>,
+        adam: &Adam,
+        stats: &DensifyStats,
+    ) -> Result<(), TrainError> {
+        self.adam = GpuAdam::from_state(self.gpu, model, adam).map_err(TrainError::Device)?;
+        self.stats = GpuStats::upload(self.gpu, stats).map_err(TrainError::Device)?;
+        self.model_current = true;
+        self.state_current = true;
+        Ok(())
+    }
+}
