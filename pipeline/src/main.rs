@@ -12,7 +12,19 @@ use pipeline::report::{OutputMode, Reporter};
 use pipeline::runner::{RunSummary, Selection};
 use pipeline::{open_capture, simulate, stages, status};
 
+/// Mesa's Vulkan device-select layer connects to a Wayland display to rank GPUs and, on a
+/// headless machine, prints `error: XDG_RUNTIME_DIR is invalid…` to the terminal whenever
+/// the GPU backend looks for an adapter. The engine picks its adapter itself, so the layer
+/// is switched off (`NODEVICE_SELECT=1`) unless the user set that variable.
+fn quiet_vulkan_device_select() {
+    if std::env::var_os("NODEVICE_SELECT").is_none() {
+        // SAFETY: called first thing in `main`, before any other thread exists.
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
+    }
+}
+
 fn main() -> ExitCode {
+    quiet_vulkan_device_select();
     let cli = Cli::parse();
     let mode = if cli.json {
         OutputMode::Json
