@@ -25,7 +25,7 @@ pub mod visibility;
 
 use crate::math::numerics::sigmoid;
 use crate::model::Gaussians;
-use crate::train::{TrainHooks, View};
+use crate::train::{ModelAccess, TrainHooks, View};
 use mlp::{Mlp, MlpAdam, MlpCache};
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
@@ -354,6 +354,18 @@ impl DecayHooks {
 }
 
 impl TrainHooks for DecayHooks {
+    /// `none` leaves the model alone, the per-step decays edit opacities every step, the
+    /// neural decay wants an opacity factor.
+    fn model_access(&self) -> ModelAccess {
+        match self.config.variant {
+            DecayVariant::None => ModelAccess::None,
+            DecayVariant::Constant | DecayVariant::Pow | DecayVariant::Exp => {
+                ModelAccess::EveryStep
+            }
+            DecayVariant::Neural => ModelAccess::OpacityFactor,
+        }
+    }
+
     fn opacity_factor(
         &mut self,
         iteration: u64,

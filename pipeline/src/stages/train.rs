@@ -6,7 +6,7 @@
 
 use anyhow::{Context, bail};
 use splat4d::Gaussians;
-use splat4d::decay::{DecayConfig, DecayVariant};
+use splat4d::decay::DecayConfig;
 use splat4d::train::{ModelAccess, PointCloud, TrainConfig, TrainError, TrainHooks, View};
 
 use crate::engine_inputs::{EngineSettings, load_dataset};
@@ -23,18 +23,6 @@ pub type DecaySettings = DecayConfig;
 /// The stage's hooks: the method's hooks (4C4D decay, or none) plus the Ctrl-C stop.
 struct StageHooks<'a> {
     inner: &'a mut dyn TrainHooks,
-    /// What the decay does with the model (how the GPU backend trains it).
-    access: ModelAccess,
-}
-
-/// What a decay variant does with the model during a step: `none` nothing, the per-step
-/// decays edit opacities every step, the neural decay wants an opacity factor.
-fn decay_access(variant: DecayVariant) -> ModelAccess {
-    match variant {
-        DecayVariant::None => ModelAccess::None,
-        DecayVariant::Constant | DecayVariant::Pow | DecayVariant::Exp => ModelAccess::EveryStep,
-        DecayVariant::Neural => ModelAccess::OpacityFactor,
-    }
 }
 
 impl TrainHooks for StageHooks<'_> {
@@ -62,7 +50,7 @@ impl TrainHooks for StageHooks<'_> {
         stop_requested() || self.inner.stop_requested(iteration)
     }
     fn model_access(&self) -> ModelAccess {
-        self.access
+        self.inner.model_access()
     }
 }
 
@@ -104,10 +92,7 @@ pub fn run(
     let mut method = splat4d::decay::DecayHooks::new(decay)
         .map_err(|e| anyhow::anyhow!("capture.toml [decay]: {e}"))?;
     tracing::info!("opacity decay: {:?}", decay.variant);
-    let mut hooks = StageHooks {
-        inner: &mut method,
-        access: decay_access(decay.variant),
-    };
+    let mut hooks = StageHooks { inner: &mut method };
     let _graceful = Graceful::enter();
     let backend = crate::engine_inputs::training_backend_for(engine.backend)?;
     ctx.record_tool("training backend", &backend.describe());
@@ -144,17 +129,24 @@ pub fn run(
 mod tests {
     use super::*;
     use crate::engine_inputs::{BackendChoice, training_backend_for};
+    use splat4d::decay::{DecayHooks, DecayVariant};
+
+    fn access(variant: DecayVariant) -> ModelAccess {
+        let mut method = DecayHooks::new(&DecayConfig {
+            variant,
+            ..DecayConfig::default()
+        })
+        .unwrap();
+        StageHooks { inner: &mut method }.model_access()
+    }
 
     #[test]
     fn the_decay_decides_how_the_gpu_trains_and_cpu_is_honoured() {
-        assert_eq!(decay_access(DecayVariant::None), ModelAccess::None);
+        assert_eq!(access(DecayVariant::None), ModelAccess::None);
         for v in [DecayVariant::Constant, DecayVariant::Pow, DecayVariant::Exp] {
-            assert_eq!(decay_access(v), ModelAccess::EveryStep);
+            assert_eq!(access(v), ModelAccess::EveryStep);
         }
-        assert_eq!(
-            decay_access(DecayVariant::Neural),
-            ModelAccess::OpacityFactor
-        );
+        assert_eq!(access(DecayVariant::Neural), ModelAccess::OpacityFactor);
         let cpu = training_backend_for(BackendChoice::Cpu).unwrap();
         assert!(cpu.describe().starts_with("cpu"));
         assert!(cpu.as_gpu().is_none());
