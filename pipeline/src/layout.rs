@@ -55,7 +55,8 @@ pub struct CameraFolder {
     /// Folder name, e.g. `cam0`.
     pub name: String,
     pub dir: PathBuf,
-    /// Video files sorted so that GoPro chapters come in recording order.
+    /// Video files sorted so that GoPro chapters come in recording order, or the images of
+    /// an image-sequence camera.
     pub videos: Vec<PathBuf>,
 }
 
@@ -119,9 +120,11 @@ pub enum LayoutError {
          and folders listed in `heldout = [...]` under [capture] in capture.toml"
     )]
     UnexpectedEntry(PathBuf),
-    #[error("{0} holds no video: copy that camera's recordings (e.g. GX010001.MP4) into it")]
+    #[error(
+        "{0} holds no video: copy that camera's recordings (e.g. GX010001.MP4) into it, or its numbered images (000000.jpg, …)"
+    )]
     EmptyCameraDir(PathBuf),
-    #[error("{path} is not a video{detail}; only {exts} files may be in a camera folder (move it elsewhere)",
+    #[error("{path} is not a video{detail}; only {exts} videos or .jpg/.png/.bmp/.tif images may be in a camera folder (move it elsewhere)",
             exts = VIDEO_EXTENSIONS.join("/"))]
     NotAVideo { path: PathBuf, detail: String },
     #[error("{0} is not a directory: stills/ must be a folder of photos")]
@@ -313,12 +316,18 @@ pub fn validate_rig(
     })
 }
 
-/// A camera folder's videos in recording order (at least one; sidecar files skipped).
+/// A camera folder's videos in recording order (at least one; sidecar files skipped), or
+/// its numbered images when it holds images and no video (an image-sequence camera).
 fn camera_folder(dir: PathBuf) -> Result<CameraFolder, LayoutError> {
     let mut videos = Vec::new();
+    let mut images = Vec::new();
     for file in list_dir(&dir)? {
         let ext = extension(&file);
         if IGNORED_EXTENSIONS.contains(&ext.as_str()) {
+            continue;
+        }
+        if !file.is_dir() && rig::ingest::is_image(&file) {
+            images.push(file);
             continue;
         }
         if file.is_dir() || !VIDEO_EXTENSIONS.contains(&ext.as_str()) {
@@ -330,16 +339,32 @@ fn camera_folder(dir: PathBuf) -> Result<CameraFolder, LayoutError> {
         sniff_video(&file)?;
         videos.push(file);
     }
-    if videos.is_empty() {
+    if let (Some(image), false) = (images.first(), videos.is_empty()) {
+        return Err(LayoutError::NotAVideo {
+            path: image.clone(),
+            detail: " (a camera folder holds videos or an image sequence, not both)".into(),
+        });
+    }
+    if videos.is_empty() && images.is_empty() {
         return Err(LayoutError::EmptyCameraDir(dir));
     }
-    videos.sort_by_key(|p| recording_order_key(p));
+    let files = if videos.is_empty() {
+        // Ingest orders and times them (`rig::ingest::camera_files`).
+        images
+    } else {
+        videos.sort_by_key(|p| recording_order_key(p));
+        videos
+    };
     let name = dir
         .file_name()
         .and_then(|n| n.to_str())
         .unwrap_or("")
         .to_string();
-    Ok(CameraFolder { name, dir, videos })
+    Ok(CameraFolder {
+        name,
+        dir,
+        videos: files,
+    })
 }
 
 #[cfg(test)]

@@ -128,6 +128,26 @@ fn an_empty_camera_folder() {
 }
 
 #[test]
+fn image_sequence_cameras_are_accepted_but_not_mixed_with_videos() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = make_capture(tmp.path(), 4, 8);
+    let cam2 = root.join("raw/cam2");
+    fs::remove_file(cam2.join("GX010001.MP4")).unwrap();
+    for k in 0..3 {
+        fs::write(cam2.join(format!("{k:06}.jpg")), b"\xff\xd8\xff\xe0").unwrap();
+    }
+    let (capture, _) = open_capture(&root).unwrap();
+    assert_eq!(capture.cameras[2].videos.len(), 3);
+    // Images beside a video are refused, naming the image.
+    fs::write(root.join("raw/cam1/000000.png"), b"png").unwrap();
+    let err = cli_error(&root);
+    assert!(
+        err.contains("000000.png") && err.contains("not both"),
+        "{err}"
+    );
+}
+
+#[test]
 fn a_file_that_is_not_a_video() {
     let tmp = tempfile::tempdir().unwrap();
     let root = make_capture(tmp.path(), 4, 8);

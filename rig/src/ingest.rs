@@ -2,7 +2,9 @@
 //! describe what was found ([`Streams`], written as `work/ingest/streams.json`).
 //!
 //! GoPro chapters (`GX01xxxx.MP4`, `GX02xxxx.MP4`, …) are joined in order; any other
-//! FFmpeg-readable files in a camera folder are joined in name order. Timestamps come from
+//! FFmpeg-readable files in a camera folder are joined in name order. A folder with no
+//! video but numbered images (`.jpg`, `.png`, …) is an image sequence: image `k` (in
+//! natural name order) is at `k / image_fps` seconds ([`IngestOptions`]). Timestamps come from
 //! the demuxer (no decoding), so ingest is fast; audio is decoded on demand by
 //! [`decode_audio`]. This module does not synchronise cameras (that is `sync`).
 
@@ -30,7 +32,10 @@ pub enum IngestError {
         path: PathBuf,
     },
     /// A camera folder has no video file.
-    #[error("camera {camera}: no video file in {path} (looked for .mp4/.mov/.mkv/.avi/.m4v/.webm)")]
+    #[error(
+        "camera {camera}: no video file in {path} (looked for .mp4/.mov/.mkv/.avi/.m4v/.webm/.mts/.ts videos, \
+         or numbered .jpg/.jpeg/.png/.bmp/.tif/.tiff images)"
+    )]
     NoVideo {
         /// Camera name.
         camera: String,
@@ -49,6 +54,23 @@ pub enum IngestError {
         /// Their file numbers.
         recordings: String,
     },
+    /// The images of an image-sequence camera differ in size.
+    #[error(
+        "camera {camera}: {path} is {size:?} but the camera's first image is {expected:?}; \
+         every image of a camera must have the same size (re-export or remove it)"
+    )]
+    ImageSize {
+        /// Camera name.
+        camera: String,
+        /// The odd image.
+        path: PathBuf,
+        /// Its size and the first image's (width, height).
+        size: (u32, u32),
+        expected: (u32, u32),
+    },
+    /// `image_fps` is not a positive frame rate.
+    #[error("[ingest] image_fps = {0} must be a positive number of images per second")]
+    ImageFps(f64),
     /// A video file has no frames.
     #[error("camera {camera}: {path} has no video frames; re-export or remove it")]
     NoFrames {
@@ -102,6 +124,22 @@ pub enum SourceKind {
     V4l2,
     /// A simulated camera.
     Simulated,
+    /// Numbered still images, decoded with FFmpeg, timed by [`IngestOptions::image_fps`].
+    Images,
+}
+
+/// How ingest reads camera folders.
+#[derive(Clone, Debug, PartialEq)]
+pub struct IngestOptions {
+    /// Frame rate given to image-sequence cameras, whose files carry no timestamps: image
+    /// `k` of every such camera is at `k / image_fps` seconds on its clock.
+    pub image_fps: f64,
+}
+
+impl Default for IngestOptions {
+    fn default() -> Self {
+        Self { image_fps: 30.0 }
+    }
 }
 
 /// One camera's stream.
@@ -227,6 +265,43 @@ pub(crate) fn write_json_atomic<T: Serialize>(path: &Path, value: &T) -> std::io
 }
 
 const VIDEO_EXTENSIONS: &[&str] = &["mp4", "mov", "mkv", "avi", "m4v", "webm", "mts", "ts"];
+const IMAGE_EXTENSIONS: &[&str] = &["jpg", "jpeg", "png", "bmp", "tif", "tiff"];
+
+/// The lower-case extension of `path` ("" when it has none).
+fn extension(path: &Path) -> String {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase()
+}
+
+/// Whether `path` names a still image (by its extension).
+pub fn is_image(path: &Path) -> bool {
+    IMAGE_EXTENSIONS.contains(&extension(path).as_str())
+}
+
+/// A name split into text and numbers, so `img2` sorts before `img10`.
+fn natural_key(name: &str) -> Vec<(String, u128)> {
+    let mut key = Vec::new();
+    let mut text = String::new();
+    let mut chars = name.chars().peekable();
+    while let Some(c) = chars.next() {
+        if c.is_ascii_digit() {
+            let mut digits = c.to_string();
+            while let Some(d) = chars.next_if(char::is_ascii_digit) {
+                digits.push(d);
+            }
+            key.push((
+                std::mem::take(&mut text),
+                digits.parse().unwrap_or(u128::MAX),
+            ));
+        } else {
+            text.push(c);
+        }
+    }
+    key.push((text, 0));
+    key
+}
 
 /// A GoPro chapter name `G?CCNNNN.MP4` → (recording number, chapter number).
 fn gopro_chapter(name: &str) -> Option<(u32, u32)> {
@@ -242,7 +317,8 @@ fn gopro_chapter(name: &str) -> Option<(u32, u32)> {
     Some((recording, chapter))
 }
 
-/// The video files of one camera in playback order.
+/// The video files of one camera in playback order, or its images in natural name order
+/// when the folder holds images and no video ([`is_image`] tells which).
 pub fn camera_files(camera: &str, path: &Path) -> Result<Vec<PathBuf>, IngestError> {
     if !path.exists() {
         return Err(IngestError::Missing {
@@ -258,28 +334,23 @@ pub fn camera_files(camera: &str, path: &Path) -> Result<Vec<PathBuf>, IngestErr
         source,
     };
     let mut files = Vec::new();
+    let mut images = Vec::new();
     for entry in std::fs::read_dir(path).map_err(io)? {
         let p = entry.map_err(io)?.path();
-        let ext = p
-            .extension()
-            .and_then(|e| e.to_str())
-            .unwrap_or("")
-            .to_ascii_lowercase();
         // Hidden files are never recordings: an interrupted atomic write leaves its
         // temporary sibling (`.NAME.tmp-PID.MP4`, see `shared_types::atomic::temp_sibling`).
         let hidden = p
             .file_name()
             .and_then(|n| n.to_str())
             .is_some_and(|n| n.starts_with('.'));
-        if p.is_file() && !hidden && VIDEO_EXTENSIONS.contains(&ext.as_str()) {
-            files.push(p);
+        if !p.is_file() || hidden {
+            continue;
         }
-    }
-    if files.is_empty() {
-        return Err(IngestError::NoVideo {
-            camera: camera.into(),
-            path: path.into(),
-        });
+        if VIDEO_EXTENSIONS.contains(&extension(&p).as_str()) {
+            files.push(p);
+        } else if is_image(&p) {
+            images.push(p);
+        }
     }
     let name_of = |p: &PathBuf| {
         p.file_name()
@@ -287,6 +358,17 @@ pub fn camera_files(camera: &str, path: &Path) -> Result<Vec<PathBuf>, IngestErr
             .unwrap_or("")
             .to_string()
     };
+    if files.is_empty() && !images.is_empty() {
+        // An image sequence (images next to videos are thumbnails and ignored).
+        images.sort_by_cached_key(|p| natural_key(&name_of(p)));
+        return Ok(images);
+    }
+    if files.is_empty() {
+        return Err(IngestError::NoVideo {
+            camera: camera.into(),
+            path: path.into(),
+        });
+    }
     let gopro: Vec<_> = files
         .iter()
         .filter_map(|p| gopro_chapter(&name_of(p)).map(|k| (k, p.clone())))
@@ -453,8 +535,15 @@ pub(crate) fn frame_rate_regularity(times: &[f64]) -> (usize, bool) {
 }
 
 /// Probes one camera: its files, per-frame timestamps and stream facts.
-pub fn probe_camera(camera: &str, path: &Path) -> Result<CameraStream, IngestError> {
+pub fn probe_camera(
+    camera: &str,
+    path: &Path,
+    options: &IngestOptions,
+) -> Result<CameraStream, IngestError> {
     let files = camera_files(camera, path)?;
+    if files.first().is_some_and(|f| is_image(f)) {
+        return probe_images(camera, files, options.image_fps);
+    }
     let src = |source| IngestError::Source {
         camera: camera.into(),
         source,
@@ -515,10 +604,67 @@ pub fn probe_camera(camera: &str, path: &Path) -> Result<CameraStream, IngestErr
     })
 }
 
+/// An image-sequence camera: every image probed for its size, image `k` at `k / fps`.
+fn probe_images(camera: &str, files: Vec<PathBuf>, fps: f64) -> Result<CameraStream, IngestError> {
+    if !(fps > 0.0 && fps.is_finite()) {
+        return Err(IngestError::ImageFps(fps));
+    }
+    let src = |source| IngestError::Source {
+        camera: camera.into(),
+        source,
+    };
+    let mut first: Option<FileProbe> = None;
+    for file in &files {
+        let probe = probe_file(file).map_err(src)?;
+        match &first {
+            None => first = Some(probe),
+            Some(f) if (f.width, f.height) != (probe.width, probe.height) => {
+                return Err(IngestError::ImageSize {
+                    camera: camera.into(),
+                    path: file.clone(),
+                    size: (probe.width, probe.height),
+                    expected: (f.width, f.height),
+                });
+            }
+            Some(_) => {}
+        }
+    }
+    let Some(first) = first else {
+        return Err(IngestError::NoVideo {
+            camera: camera.into(),
+            path: PathBuf::new(),
+        });
+    };
+    let timestamps: Vec<f64> = (0..files.len()).map(|k| k as f64 / fps).collect();
+    let chapters = files
+        .into_iter()
+        .zip(&timestamps)
+        .map(|(path, &offset_s)| Chapter { path, offset_s })
+        .collect();
+    Ok(CameraStream {
+        name: camera.to_string(),
+        kind: SourceKind::Images,
+        chapters,
+        video: VideoInfo {
+            codec: first.codec,
+            width: first.width,
+            height: first.height,
+            fps,
+            variable_frame_rate: false,
+            frame_count: timestamps.len(),
+            gaps: 0,
+            duration_s: timestamps.len() as f64 / fps,
+        },
+        audio: None,
+        timestamps,
+    })
+}
+
 /// Probes every camera folder (`(name, path)`; a path may also be a single video file)
 /// and reports mismatches between cameras in [`Streams::warnings`].
 pub fn ingest(
     camera_dirs: &[(String, PathBuf)],
+    options: &IngestOptions,
     progress: &dyn Progress,
 ) -> Result<Streams, IngestError> {
     if camera_dirs.is_empty() {
@@ -528,7 +674,7 @@ pub fn ingest(
     let mut cameras = Vec::new();
     for (name, path) in camera_dirs {
         progress.message(name);
-        cameras.push(probe_camera(name, path)?);
+        cameras.push(probe_camera(name, path, options)?);
         progress.advance(1);
     }
     progress.finish();
@@ -565,7 +711,7 @@ pub fn mismatch_warnings(cameras: &[CameraStream]) -> Vec<String> {
         }
     }
     for c in cameras {
-        if c.audio.is_none() {
+        if c.audio.is_none() && c.kind != SourceKind::Images {
             warnings.push(format!(
                 "{} has no audio track: audio sync cannot use it",
                 c.name

@@ -4,7 +4,7 @@
 mod sync_support;
 
 use rig::frames::{FramesConfig, extract, plan, working_size};
-use rig::ingest::ingest;
+use rig::ingest::{IngestOptions, ingest};
 use rig::sync::{SyncConfig, synchronise};
 use shared_types::progress::NoProgress;
 use sync_support::{FLASH_T, TestCamera, ffmpeg_available, write_capture};
@@ -26,7 +26,12 @@ fn aligned_frames_are_written_with_exact_timestamps() {
     let starts = [0.0123, 0.2137, 0.4511, 0.0789];
     let mut cams: Vec<_> = starts.iter().map(|&s| TestCamera::new(s)).collect();
     cams[1].dropped = vec![30, 31, 32];
-    let streams = ingest(&write_capture(&dir.path().join("raw"), &cams), &NoProgress).unwrap();
+    let streams = ingest(
+        &write_capture(&dir.path().join("raw"), &cams),
+        &IngestOptions::default(),
+        &NoProgress,
+    )
+    .unwrap();
     let sync = synchronise(
         &streams,
         &SyncConfig {

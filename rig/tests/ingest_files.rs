@@ -10,7 +10,7 @@ mod sync_support;
 
 use std::path::{Path, PathBuf};
 
-use rig::ingest::{IngestError, Streams, camera_files, decode_audio, ingest};
+use rig::ingest::{IngestError, IngestOptions, Streams, camera_files, decode_audio, ingest};
 use shared_types::atomic::temp_sibling;
 use shared_types::progress::NoProgress;
 use sync_support::{H264_AAC, cut, ffmpeg, ffmpeg_available};
@@ -48,7 +48,12 @@ fn a_plain_file_reports_frames_timestamps_and_audio() {
     let cam = dir.path().join("cam0");
     std::fs::create_dir_all(&cam).unwrap();
     clip(&cam.join("clip.mp4"), 2.0, 30, "320x240", &[]);
-    let streams = ingest(&[("cam0".into(), cam.clone())], &NoProgress).unwrap();
+    let streams = ingest(
+        &[("cam0".into(), cam.clone())],
+        &IngestOptions::default(),
+        &NoProgress,
+    )
+    .unwrap();
     let c = &streams.cameras[0];
     assert_eq!(
         (c.video.width, c.video.height, c.video.frame_count),
@@ -104,7 +109,12 @@ fn gopro_chapters_are_joined_in_order() {
         .map(|p| p.file_name().unwrap().to_string_lossy().to_string())
         .collect();
     assert_eq!(names, ["GX010042.MP4", "GX020042.MP4"]);
-    let streams = ingest(&[("cam0".into(), cam.clone())], &NoProgress).unwrap();
+    let streams = ingest(
+        &[("cam0".into(), cam.clone())],
+        &IngestOptions::default(),
+        &NoProgress,
+    )
+    .unwrap();
     let c = &streams.cameras[0];
     assert_eq!(c.chapters.len(), 2);
     assert_eq!(c.video.frame_count, 90);
@@ -163,6 +173,7 @@ fn variable_frame_rate_and_dropped_frames_keep_exact_timestamps() {
     );
     let streams = ingest(
         &[("cam0".into(), vfr.clone()), ("cam1".into(), drop.clone())],
+        &IngestOptions::default(),
         &NoProgress,
     )
     .unwrap();
@@ -215,7 +226,12 @@ fn mismatched_cameras_are_warned_about() {
     let b = dir.path().join("b.mp4");
     clip(&a, 1.0, 30, "320x240", &[]);
     clip(&b, 1.0, 25, "160x120", &["-an"]);
-    let streams = ingest(&[("cam0".into(), a), ("cam1".into(), b)], &NoProgress).unwrap();
+    let streams = ingest(
+        &[("cam0".into(), a), ("cam1".into(), b)],
+        &IngestOptions::default(),
+        &NoProgress,
+    )
+    .unwrap();
     let w = streams.warnings.join("\n");
     println!("{w}");
     assert!(w.contains("cam1 runs at 25.000 fps but cam0 at 30.000 fps"));
@@ -229,17 +245,32 @@ fn missing_or_empty_inputs_fail_with_advice() {
     let empty = dir.path().join("cam0");
     std::fs::create_dir_all(&empty).unwrap();
     std::fs::write(empty.join("notes.txt"), "not a video").unwrap();
-    let err = ingest(&[("cam0".into(), empty.clone())], &NoProgress).unwrap_err();
+    let err = ingest(
+        &[("cam0".into(), empty.clone())],
+        &IngestOptions::default(),
+        &NoProgress,
+    )
+    .unwrap_err();
     assert!(err.to_string().contains("no video file in"), "{err}");
-    let err = ingest(&[("cam1".into(), dir.path().join("nope"))], &NoProgress).unwrap_err();
+    let err = ingest(
+        &[("cam1".into(), dir.path().join("nope"))],
+        &IngestOptions::default(),
+        &NoProgress,
+    )
+    .unwrap_err();
     assert!(err.to_string().contains("does not exist"), "{err}");
     assert!(matches!(
-        ingest(&[], &NoProgress),
+        ingest(&[], &IngestOptions::default(), &NoProgress),
         Err(IngestError::NoCameras)
     ));
     let bogus = empty.join("broken.mp4");
     std::fs::write(&bogus, b"garbage").unwrap();
-    let err = ingest(&[("cam0".into(), bogus)], &NoProgress).unwrap_err();
+    let err = ingest(
+        &[("cam0".into(), bogus)],
+        &IngestOptions::default(),
+        &NoProgress,
+    )
+    .unwrap_err();
     assert!(err.to_string().contains("broken.mp4"), "{err}");
 }
 
@@ -264,7 +295,7 @@ fn caliscope_recording_matches_its_timestamps_csv() {
     let cams: Vec<(String, PathBuf)> = (0..4)
         .map(|i| (format!("cam{i}"), root.join(format!("cam_{i}.mp4"))))
         .collect();
-    let streams = ingest(&cams, &NoProgress).unwrap();
+    let streams = ingest(&cams, &IngestOptions::default(), &NoProgress).unwrap();
     let csv = std::fs::read_to_string(root.join("timestamps.csv")).unwrap();
     let mut recorded: Vec<Vec<f64>> = vec![vec![]; 4];
     for line in csv.lines().skip(1) {

@@ -9,7 +9,7 @@ mod common;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
-use rig::ingest::ingest;
+use rig::ingest::{IngestOptions, ingest};
 use rig::record::v4l2::yuyv_to_rgb;
 use rig::record::{
     FormatOption, FrameClock, RecordConfig, RecordError, negotiate, record, record_source,
@@ -137,7 +137,12 @@ fn recorded_frames_keep_their_exact_timestamps_through_ingest() {
     );
     let csv = std::fs::read_to_string(cam_dir.join("timestamps.csv")).unwrap();
     assert_eq!(csv.lines().count(), 45);
-    let streams = ingest(&[("cam0".into(), cam_dir.clone())], &NoProgress).unwrap();
+    let streams = ingest(
+        &[("cam0".into(), cam_dir.clone())],
+        &IngestOptions::default(),
+        &NoProgress,
+    )
+    .unwrap();
     let c = &streams.cameras[0];
     assert_eq!(c.video.frame_count, 44);
     assert_eq!(c.video.gaps, 1, "the dropped frame shows as a gap");
@@ -234,7 +239,7 @@ fn four_simulated_cameras_record_concurrently_on_one_clock() {
         .iter()
         .map(|r| (r.name.clone(), r.dir.clone()))
         .collect();
-    let streams = ingest(&dirs, &NoProgress).unwrap();
+    let streams = ingest(&dirs, &IngestOptions::default(), &NoProgress).unwrap();
     let origin = SimSource::origin(&scene);
     assert!(origin < 0.0, "cam3 starts before scene time 0");
     let mut worst = 0.0f64;

@@ -12,7 +12,7 @@ use std::sync::atomic::AtomicBool;
 use std::sync::mpsc;
 use std::time::Duration;
 
-use rig::ingest::ingest;
+use rig::ingest::{IngestOptions, ingest};
 use rig::record::live::{LiveSource, RawFrame};
 use rig::record::{RecordConfig, RecordError, record_nokhwa, record_sources};
 use rig::sim::{Scene, SimSource};
@@ -140,7 +140,7 @@ fn four_simulated_webcams_record_through_the_live_source_at_their_capture_times(
         .iter()
         .map(|r| (r.name.clone(), r.dir.clone()))
         .collect();
-    let streams = ingest(&dirs, &NoProgress).unwrap();
+    let streams = ingest(&dirs, &IngestOptions::default(), &NoProgress).unwrap();
     let origin = SimSource::origin(&scene);
     let mut worst = 0.0f64;
     for (cam, truth) in streams.cameras.iter().zip(scene.video_cameras()) {
@@ -320,7 +320,12 @@ fn a_real_webcam_records_through_nokhwa() {
     )
     .unwrap();
     assert!(recorded[0].frames > 10, "{recorded:?}");
-    let streams = ingest(&[("cam0".into(), recorded[0].dir.clone())], &NoProgress).unwrap();
+    let streams = ingest(
+        &[("cam0".into(), recorded[0].dir.clone())],
+        &IngestOptions::default(),
+        &NoProgress,
+    )
+    .unwrap();
     let t = &streams.cameras[0].timestamps;
     assert!(t.windows(2).all(|w| w[1] > w[0]), "timestamps increase");
     assert!(t[t.len() - 1] - t[0] < 2.2, "{t:?}");

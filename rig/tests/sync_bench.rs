@@ -8,7 +8,7 @@ mod sync_support;
 use std::time::Instant;
 
 use rig::frames::{FramesConfig, extract};
-use rig::ingest::ingest;
+use rig::ingest::{IngestOptions, ingest};
 use rig::sync::{SyncConfig, SyncMethod, synchronise};
 use shared_types::progress::NoProgress;
 use sync_support::{cut, ffmpeg, ffmpeg_available};
@@ -78,7 +78,7 @@ fn one_minute_of_four_1080p_cameras() {
     };
 
     let t = Instant::now();
-    let streams = ingest(&cams, &NoProgress).unwrap();
+    let streams = ingest(&cams, &IngestOptions::default(), &NoProgress).unwrap();
     let ingest_s = t.elapsed().as_secs_f64();
     println!(
         "ingest: {ingest_s:.2} s ({:.2} s per minute of footage)",

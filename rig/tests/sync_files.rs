@@ -3,7 +3,7 @@
 
 mod sync_support;
 
-use rig::ingest::ingest;
+use rig::ingest::{IngestOptions, ingest};
 use rig::sync::{SyncConfig, SyncError, SyncMethod, synchronise};
 use shared_types::progress::NoProgress;
 use sync_support::{Mic, TestCamera, ffmpeg_available, write_capture};
@@ -34,7 +34,12 @@ fn auto_uses_audio_when_every_camera_hears_the_clap() {
     }
     let dir = tempfile::tempdir().unwrap();
     let cams: Vec<_> = STARTS.iter().map(|&s| TestCamera::new(s)).collect();
-    let streams = ingest(&write_capture(dir.path(), &cams), &NoProgress).unwrap();
+    let streams = ingest(
+        &write_capture(dir.path(), &cams),
+        &IngestOptions::default(),
+        &NoProgress,
+    )
+    .unwrap();
     let result = synchronise(&streams, &config(), &NoProgress).unwrap();
     assert_eq!(result.method, SyncMethod::Audio);
     assert!(
@@ -76,7 +81,12 @@ fn a_silent_camera_makes_auto_fall_back_to_flash() {
     cams[2].mic = Mic::Silent;
     cams[3].mic = Mic::None;
     cams[1].dropped = vec![50, 51, 52, 80];
-    let streams = ingest(&write_capture(dir.path(), &cams), &NoProgress).unwrap();
+    let streams = ingest(
+        &write_capture(dir.path(), &cams),
+        &IngestOptions::default(),
+        &NoProgress,
+    )
+    .unwrap();
     assert_eq!(streams.cameras[1].video.gaps, 2);
     let result = synchronise(
         &streams,
@@ -117,7 +127,12 @@ fn rolling_shutter_flash_is_timed_to_milliseconds() {
             ..TestCamera::new(s)
         })
         .collect();
-    let streams = ingest(&write_capture(dir.path(), &cams), &NoProgress).unwrap();
+    let streams = ingest(
+        &write_capture(dir.path(), &cams),
+        &IngestOptions::default(),
+        &NoProgress,
+    )
+    .unwrap();
     let config = SyncConfig {
         method: SyncMethod::Flash,
         readout_s: readout,
@@ -144,7 +159,12 @@ fn no_clap_and_no_flash_fails_with_an_explanation() {
             ..TestCamera::new(s)
         })
         .collect();
-    let streams = ingest(&write_capture(dir.path(), &cams), &NoProgress).unwrap();
+    let streams = ingest(
+        &write_capture(dir.path(), &cams),
+        &IngestOptions::default(),
+        &NoProgress,
+    )
+    .unwrap();
     let err = synchronise(&streams, &config(), &NoProgress).unwrap_err();
     let msg = err.to_string();
     println!("{msg}");

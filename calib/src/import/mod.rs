@@ -27,11 +27,15 @@ use crate::convert;
 
 mod pose2sim;
 
-/// Length units of translations / camera centres in a calibration file.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// Length units of translations / camera centres in a calibration file (`"m"`, `"cm"`,
+/// `"mm"` in settings).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum Units {
+    #[serde(rename = "m")]
     Metres,
+    #[serde(rename = "cm")]
     Centimetres,
+    #[serde(rename = "mm")]
     Millimetres,
 }
 
@@ -592,7 +596,7 @@ fn check_scale(path: &Path, set: &CameraSet) -> Result<(), ImportError> {
             path: path.to_path_buf(),
             message: format!(
                 "the cameras are {widest:.4} apart (widest pair) if translations are metres, which is implausible \
-                 for a capture rig: set `units = \"cm\"` or `\"mm\"` in the file (or ImportOptions::units)"
+                 for a capture rig: set `units = \"cm\"` or `\"mm\"` in the file, or under [poses] in capture.toml"
             ),
         });
     }

@@ -254,6 +254,7 @@ pub struct InitReport {
     pub points_written: usize,
     /// Voxel edge used, in world units.
     pub voxel: f64,
+    /// The written cloud (the pipeline records it relative to `work/init/`).
     pub output: PathBuf,
     pub seconds: f64,
 }

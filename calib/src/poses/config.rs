@@ -26,6 +26,11 @@ pub struct PosesConfig {
     /// intrinsics and distortion fixed. Extrinsics in it are not needed (and ignored).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub intrinsics: Option<PathBuf>,
+    /// Units of an imported calibration's translations (`"m"`, `"cm"`, `"mm"`),
+    /// overriding a `units` key in the file (CMU Panoptic's files are in centimetres and
+    /// do not say so). Unset: the file's own `units`, else metres.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub units: Option<crate::import::Units>,
 }
 
 impl Default for PosesConfig {
@@ -36,6 +41,7 @@ impl Default for PosesConfig {
             radius: 1.0,
             names: BTreeMap::new(),
             intrinsics: None,
+            units: None,
         }
     }
 }

@@ -81,7 +81,11 @@ pub fn run(ctx: &StageContext, settings: &InitSettings) -> anyhow::Result<()> {
         sparse,
         moments,
     };
-    let report = calib::init::run_init(&inputs, &config, &ctx.out_dir, ctx.progress)?;
+    let mut report = calib::init::run_init(&inputs, &config, &ctx.out_dir, ctx.progress)?;
+    // Recorded relative to work/init/: the stage is built in a temporary folder.
+    if let Ok(relative) = report.output.strip_prefix(&ctx.out_dir) {
+        report.output = relative.to_path_buf();
+    }
     write_atomic(
         &ctx.output("init.json"),
         &serde_json::to_vec_pretty(&report)?,

@@ -56,7 +56,7 @@ pub fn pipeline() -> Pipeline {
             )
             .inputs(|c, _| c.all_videos())
             .outputs(&["streams.json"])
-            .run(|ctx, _| ingest::run(ctx)),
+            .run(|ctx, config| ingest::run(ctx, &config.ingest)),
             StageDef::new(
                 "sync",
                 "find each camera's time offset from audio (clap) or a flash",

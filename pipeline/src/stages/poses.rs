@@ -40,7 +40,10 @@ pub fn run(ctx: &StageContext, settings: &PosesSettings, heldout: &[String]) -> 
                 calibration.display()
             );
         }
-        let set = calib::import::import_calibration(calibration)
+        let options = calib::import::ImportOptions {
+            units: settings.units,
+        };
+        let set = calib::import::import_calibration_with(calibration, &options)
             .with_context(|| format!("cannot import {}", calibration.display()))?;
         calib::poses::write_imported(
             &set,

@@ -17,7 +17,9 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::ingest::{CameraStream, IngestError, Streams, decode_audio, write_json_atomic};
+use crate::ingest::{
+    CameraStream, IngestError, SourceKind, Streams, decode_audio, write_json_atomic,
+};
 use crate::source::{CameraSource, PixelLayout, SourceError};
 use audio::{AcousticConfig, AudioSyncConfig, audio_offsets};
 use flash::{FrameBrightness, detect_flash};
@@ -215,6 +217,14 @@ pub fn synchronise(
                 SyncMethod::Flash,
                 accept(&f, &names, reference, "flash", None).map_err(SyncError::NoMethod)?,
             )
+        }
+        SyncMethod::Auto if streams.cameras.iter().all(|c| c.kind == SourceKind::Images) => {
+            notes.push(
+                "auto: every camera is an image sequence (no sound, no clock): image k of every camera is taken \
+                 as the same moment (method timestamps)"
+                    .into(),
+            );
+            (SyncMethod::Timestamps, vec![(0.0, None); names.len()])
         }
         SyncMethod::Auto => {
             let a = audio_attempt(streams, reference, config, &mut notes, progress)?;
