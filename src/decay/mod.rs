@@ -20,6 +20,7 @@
 
 pub mod inputs;
 pub mod mlp;
+pub mod report;
 pub mod variants;
 pub mod visibility;
 

@@ -12,6 +12,7 @@ use splat4d::train::{ModelAccess, PointCloud, TrainConfig, TrainError, TrainHook
 use crate::engine_inputs::{EngineSettings, load_dataset};
 use crate::interrupt::{Graceful, stop_requested};
 use crate::stage_context::StageContext;
+use shared_types::atomic::write_atomic;
 
 /// `[train]` settings: the trainer's own (iterations, learning rates, densification, …).
 pub type TrainSettings = TrainConfig;
@@ -122,6 +123,14 @@ pub fn run(
         summary.gaussians,
         summary.final_psnr
     );
+    // What the decay did, as evidence (docs/decay.md "Is it working?").
+    let model = splat4d::model::file::load_model(&summary.model_path)?;
+    let report = splat4d::decay::report::report(&method, &model);
+    write_atomic(
+        &ctx.output("decay.json"),
+        &serde_json::to_vec_pretty(&report)?,
+    )
+    .context("cannot write decay.json")?;
     Ok(())
 }
 
