@@ -79,11 +79,31 @@ fn without_point_maps_the_sparse_points_are_used_then_a_random_cloud() {
         moments: vec![],
     };
     let out = tmp.path().join("init");
-    let report = run_init(&inputs, &InitConfig::default(), &out, &NoProgress).unwrap();
+    let exact = InitConfig {
+        min_points: 0,
+        ..InitConfig::default()
+    };
+    let report = run_init(&inputs, &exact, &out, &NoProgress).unwrap();
     assert_eq!(report.source, UsedSource::Sparse);
     assert_eq!(report.fallbacks.len(), 1);
     let got = shared_types::points::read_points_ply(&out.join("points.ply")).unwrap();
-    assert_eq!((got.xyz, got.rgb), (cloud.xyz, cloud.rgb));
+    assert_eq!((&got.xyz, &got.rgb), (&cloud.xyz, &cloud.rgb));
+    // Three points are too few to train from (min_points 1000 by default): a random cloud
+    // is added to them, and the report says so.
+    let topped = InitConfig {
+        random_points: 2000,
+        ..InitConfig::default()
+    };
+    let report = run_init(&inputs, &topped, &out, &NoProgress).unwrap();
+    assert_eq!(report.source, UsedSource::Sparse);
+    assert!(
+        report.fallbacks.iter().any(|f| f.contains("min_points")),
+        "{:?}",
+        report.fallbacks
+    );
+    let got = shared_types::points::read_points_ply(&out.join("points.ply")).unwrap();
+    assert_eq!(got.xyz.len(), 2003);
+    assert!(cloud.xyz.iter().all(|p| got.xyz.contains(p)));
 
     inputs.sparse = None;
     let config = InitConfig {

@@ -107,6 +107,9 @@ pub struct InitConfig {
     pub max_points: usize,
     /// Points of the random fallback cloud.
     pub random_points: usize,
+    /// A source that gives fewer points than this (a few dozen triangulated across wide
+    /// baselines) is topped up with the random cloud (0: never).
+    pub min_points: usize,
     pub seed: u64,
     /// A pair is rejected when its ray scale and sparse-point scale differ by more than
     /// this fraction.
@@ -148,6 +151,7 @@ impl Default for InitConfig {
             voxel_size: 0.004,
             max_points: 300_000,
             random_points: 50_000,
+            min_points: 1000,
             seed: 0,
             scale_tolerance: 0.15,
             max_residual: 0.02,
@@ -548,6 +552,21 @@ pub fn run_init(
             fuse::random_cloud(cameras, config.random_points, t_range, config.seed),
         ),
     };
+    let mut downsampled = downsampled;
+    if source != UsedSource::Random && downsampled.len() < config.min_points {
+        fall(format!(
+            "only {} points from {source:?} (fewer than min_points = {}); adding a random cloud of {} points",
+            downsampled.len(),
+            config.min_points,
+            config.random_points
+        ));
+        downsampled.extend(fuse::random_cloud(
+            cameras,
+            config.random_points,
+            t_range,
+            config.seed,
+        ));
+    }
     let points_before = if source == UsedSource::Random {
         downsampled.len()
     } else {
