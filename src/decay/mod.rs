@@ -225,6 +225,19 @@ pub struct StepStats {
     pub max_factor: f64,
 }
 
+/// The neural decay's settings and f_θ's state, lent to a trainer that runs the decay on
+/// its device ([`TrainHooks::device_decay`]) instead of calling `opacity_factor`,
+/// `factor_gradient` and `after_step` for it. The trainer keeps f_θ and its moments on the
+/// device and writes them back here at its host syncs (checkpoints, a stop, the end), and
+/// reports every decayed step in `last` and `skipped_updates`.
+pub struct DeviceDecay<'a> {
+    pub config: &'a DecayConfig,
+    pub mlp: &'a mut Mlp<f32>,
+    pub adam: &'a mut MlpAdam,
+    pub last: &'a mut Option<StepStats>,
+    pub skipped_updates: &'a mut u64,
+}
+
 /// Per-step scratch, valid between the first `opacity_factor` of a step and `after_step`.
 struct StepState {
     /// 0-based iteration index the trainer passes to `opacity_factor`.
@@ -480,6 +493,20 @@ impl TrainHooks for DecayHooks {
                 self.skipped_updates += 1;
             }
         }
+    }
+
+    /// The neural variant lends f_θ to a device trainer (the others edit the host model).
+    fn device_decay(&mut self) -> Option<DeviceDecay<'_>> {
+        if self.config.variant != DecayVariant::Neural {
+            return None;
+        }
+        Some(DeviceDecay {
+            config: &self.config,
+            mlp: &mut self.mlp,
+            adam: &mut self.adam,
+            last: &mut self.last,
+            skipped_updates: &mut self.skipped_updates,
+        })
     }
 
     fn save_state(&self) -> Vec<u8> {
