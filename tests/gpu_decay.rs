@@ -10,6 +10,7 @@ use common::{Rng, SceneSpec, random_scene};
 use splat4d::Gaussians;
 use splat4d::decay::inputs::input_rows;
 use splat4d::decay::mlp::{Mlp, MlpAdam};
+use splat4d::decay::variants::decayed_logit;
 use splat4d::decay::{DecayConfig, DecayInputs};
 use splat4d::render::gpu::{GpuBackend, GpuDecay};
 
@@ -196,4 +197,110 @@ fn device_decay_round_trips_f_theta_and_rejects_unsupported_shapes() {
     let wide_mlp = Mlp::<f32>::new(&wide.mlp_dims(), 0);
     let wide_adam = MlpAdam::new(wide_mlp.params.len(), 1e-5, 1e-4);
     assert!(GpuDecay::new(gpu, &wide, &wide_mlp, &wide_adam).is_err());
+}
+
+/// The write-back on the device against the host's `variants::decayed_logit` (f64): τ for
+/// the Gaussians seen in the batch, β for the rest, over ordinary and extreme logits
+/// (the −30 floor, ±1e30, ±∞, NaN); never raises a logit, leaves non-finite ones alone,
+/// and reports the step's statistics.
+#[test]
+fn device_write_back_matches_the_host_decayed_logit() {
+    let Some(gpu) = gpu() else { return };
+    let config = DecayConfig::default();
+    let mlp = Mlp::<f32>::new(&config.mlp_dims(), 6);
+    let mut dev = device(gpu, &config, &mlp);
+    let mut m = model(41, 700);
+    let extremes = [
+        0.0,
+        5.0,
+        -5.0,
+        20.0,
+        50.0,
+        89.0,
+        100.0,
+        -29.99,
+        -30.0,
+        -31.0,
+        -100.0,
+        1e30,
+        -1e30,
+        1e-8,
+        -1e-8,
+        16.0,
+        -16.0,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::NAN,
+    ];
+    for (k, &x) in extremes.iter().enumerate() {
+        m.opacity_logits[3 * k] = x;
+        m.opacity_logits[3 * k + 1] = x;
+    }
+    let seen: Vec<bool> = (0..700).map(|i| i % 3 != 1).collect();
+    // The host's τ (f32 path of `DecayHooks`), before the write-back.
+    let tau: Vec<f32> = {
+        let cache = mlp.forward(&input_rows(&m, config.inputs));
+        let (lo, hi) = (config.f_min as f32, config.f_max as f32);
+        cache
+            .z
+            .iter()
+            .map(|&z| {
+                if z.is_nan() {
+                    0.5 * (lo + hi)
+                } else {
+                    Mlp::tau(z, lo, hi)
+                }
+            })
+            .collect()
+    };
+    let before = m.opacity_logits.clone();
+    let out = dev.decay_opacities(gpu, &mut m, &seen).unwrap();
+    let mut worst = 0.0f64;
+    for i in 0..700 {
+        let (x, y) = (before[i], m.opacity_logits[i]);
+        let d = if seen[i] { tau[i] as f64 } else { config.beta };
+        let want = decayed_logit(x, d);
+        if !x.is_finite() {
+            assert!(y.to_bits() == x.to_bits(), "{i}: non-finite {x} became {y}");
+            continue;
+        }
+        assert!(y <= x, "{i}: logit {x} rose to {y}");
+        assert!(
+            y >= (-30.0f32).min(x),
+            "{i}: logit {x} fell below the floor: {y}"
+        );
+        let err = (y as f64 - want as f64).abs() / (x.abs() as f64).max(1.0);
+        worst = worst.max(err);
+        assert!(
+            err < 1e-5,
+            "{i}: logit {x}, factor {d}: device {y}, host {want}"
+        );
+    }
+    eprintln!("write-back: worst error {worst:.2e} (relative to max(1, |logit|))");
+    assert_eq!(out.visible, seen.iter().filter(|&&s| s).count());
+    let lo = tau
+        .iter()
+        .zip(&seen)
+        .filter(|(_, s)| **s)
+        .map(|(t, _)| *t)
+        .fold(1.0f32, f32::min);
+    assert_eq!(out.min_factor, lo);
+    assert_eq!(out.max_factor, config.beta as f32);
+    let sum: f64 = (0..700)
+        .map(|i| if seen[i] { tau[i] as f64 } else { config.beta })
+        .sum();
+    assert!(
+        (out.factor_sum as f64 - sum).abs() < 1e-4 * sum,
+        "factor sum"
+    );
+
+    // An empty model: nothing to decay, an empty τ and a zero gradient.
+    let mut empty = model(42, 0);
+    assert!(dev.tau(gpu, &empty).unwrap().is_empty());
+    let g = dev.weight_gradient(gpu, &empty, &[]).unwrap();
+    assert!(g.iter().all(|&v| v == 0.0) && g.len() == mlp.params.len());
+    assert_eq!(
+        dev.decay_opacities(gpu, &mut empty, &[]).unwrap().visible,
+        0
+    );
 }

@@ -12,8 +12,8 @@ use splat4d::decay::{DecayConfig, DecayHooks, DeviceDecay, StepStats};
 use splat4d::render::RenderBackend;
 use splat4d::render::gpu::GpuBackend;
 use splat4d::train::{
-    Dataset, ModelAccess, TrainConfig, TrainError, TrainHooks, TrainSummary, View, evaluate_psnr,
-    train,
+    Dataset, ModelAccess, NoHooks, TrainConfig, TrainError, TrainHooks, TrainSummary, View,
+    evaluate_psnr, train,
 };
 use splat4d::{CpuBackend, Gaussians, NoProgress, load_model};
 use std::path::Path;
@@ -264,4 +264,86 @@ fn gpu_neural_decay_resume_is_bit_identical() {
         "resumed from 8: model differs"
     );
     assert!(want_state == h.save_state(), "resumed from 8: f_θ differs");
+}
+
+/// The decay hooks without the device seam: on the GPU backend the neural decay takes
+/// the host path (render and backward on the GPU, loss, Adam and the decay on the host),
+/// as before the decay ran on the device.
+struct HostDecay(DecayHooks);
+
+impl TrainHooks for HostDecay {
+    fn opacity_factor(&mut self, it: u64, m: &Gaussians<f32>, v: &View) -> Option<Vec<f32>> {
+        self.0.opacity_factor(it, m, v)
+    }
+    fn factor_gradient(&mut self, it: u64, m: &Gaussians<f32>, g: &[f32]) {
+        self.0.factor_gradient(it, m, g)
+    }
+    fn after_step(&mut self, it: u64, m: &mut Gaussians<f32>) {
+        self.0.after_step(it, m)
+    }
+    fn model_access(&self) -> ModelAccess {
+        self.0.model_access()
+    }
+}
+
+/// BENCHMARKS.md, session 11: the neural decay's training speed on the GPU backend, the
+/// device path against the previous host path, on the analytic scene (32×24, 20 views,
+/// batch 2, warm-up 50, `GPU_DECAY_ITERATIONS` steps, default 150). Both must train alike
+/// (PSNR within 0.1 dB); the speeds are printed, not asserted.
+/// `cargo test -p splat4d --test gpu_decay_train bench -- --ignored --nocapture`
+#[test]
+#[ignore = "a benchmark (minutes on lavapipe)"]
+fn bench_neural_decay_device_path_against_the_host_path() {
+    let Some(gpu) = gpu() else { return };
+    let data = train_scene::dataset(32, 24);
+    let iterations = std::env::var("GPU_DECAY_ITERATIONS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(150);
+    let mut config = TrainConfig {
+        iterations,
+        batch_size: 2,
+        checkpoint_every: 0,
+        ..Default::default()
+    };
+    config.degree_every = 2 * iterations / 3;
+    config.densify.from_iteration = iterations / 3 - 1;
+    config.densify.until_iteration = 5 * iterations / 6;
+    config.densify.every = iterations / 3;
+    config.densify.opacity_reset_every = 0;
+    // Plain 4DGS on the device first: what the decay itself costs there.
+    let dir = tempfile::tempdir().unwrap();
+    let s = run(gpu, &config, &data, dir.path(), false, &mut NoHooks).unwrap();
+    eprintln!(
+        "no decay, step on the {}: {iterations} iterations in {:.1} s ({:.2} it/s), {} Gaussians",
+        s.placement,
+        s.seconds,
+        iterations as f64 / s.seconds,
+        s.gaussians
+    );
+    let mut psnr = Vec::new();
+    for device in [true, false] {
+        let dir = tempfile::tempdir().unwrap();
+        let mut decay_hooks = DecayHooks::new(&decay()).unwrap();
+        let mut host = HostDecay(DecayHooks::new(&decay()).unwrap());
+        let hooks: &mut dyn TrainHooks = if device { &mut decay_hooks } else { &mut host };
+        let s = run(gpu, &config, &data, dir.path(), false, hooks).unwrap();
+        assert_eq!(s.placement, if device { "gpu" } else { "host" });
+        let model = load_model(&s.model_path).unwrap();
+        let p = mean(evaluate_psnr(&CpuBackend, &model, &data, config.background).unwrap());
+        eprintln!(
+            "neural decay, step on the {}: {iterations} iterations in {:.1} s ({:.2} it/s), {} Gaussians, training PSNR {p:.3} dB",
+            s.placement,
+            s.seconds,
+            iterations as f64 / s.seconds,
+            s.gaussians
+        );
+        psnr.push(p);
+    }
+    assert!(
+        (psnr[0] - psnr[1]).abs() <= 0.1,
+        "PSNR: device {:.3}, host {:.3}",
+        psnr[0],
+        psnr[1]
+    );
 }

@@ -16,6 +16,8 @@
 //! The other variants only multiply the stored opacity after each step (`constant`: c;
 //! `pow`/`exp`: hand-tuned functions of o, see [`variants`]); with visibility on,
 //! invisible Gaussians get β instead. Nothing here runs at evaluation/render time.
+//! On the GPU backend the neural variant runs on the device (`render::gpu::GpuDecay`,
+//! lent through [`TrainHooks::device_decay`] as a [`DeviceDecay`]).
 //! Full description: docs/decay.md.
 
 pub mod inputs;

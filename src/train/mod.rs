@@ -203,7 +203,8 @@ pub trait TrainHooks {
     /// [`ModelAccess::None`] the hooks see the host copy as of the last sync; with
     /// `EveryStep` the model comes to the host (and back) every step; with
     /// `OpacityFactor` (the default, safe for any hooks) the GPU backend takes the host
-    /// path (render and backward on the GPU, loss and Adam on the host).
+    /// path (render and backward on the GPU, loss and Adam on the host), unless
+    /// [`TrainHooks::device_decay`] lends it the neural decay to run on the device.
     fn model_access(&self) -> ModelAccess {
         ModelAccess::OpacityFactor
     }

@@ -280,6 +280,51 @@ impl GpuDecay {
         })
     }
 
+    /// One write-back on `model` as a decayed step ends: τ of the current f_θ for the
+    /// Gaussians `seen` in the batch, β for the others, multiplied into the stored
+    /// opacities in logit space (as `variants::decayed_logit`). Returns the step's
+    /// statistics (`stepped` is meaningless here: f_θ does not step).
+    pub fn decay_opacities(
+        &mut self,
+        backend: &GpuBackend,
+        model: &mut Gaussians<f32>,
+        seen: &[bool],
+    ) -> Result<DecayOutcome, RenderError> {
+        let n = model.len();
+        if seen.len() != n {
+            return Err(RenderError::OpacityFactorLength {
+                expected: n,
+                got: seen.len(),
+            });
+        }
+        let params = self.upload_model(backend, model)?;
+        let device = &backend.gpu.device;
+        let words = backend.checked(|| {
+            self.scratch(device, n, 0);
+            let s = self.scratch_ref()?;
+            let flags: Vec<u32> = seen.iter().map(|&v| u32::from(v)).collect();
+            if n > 0 {
+                self.gpu
+                    .queue
+                    .write_buffer(&s.seen, 0, bytemuck::cast_slice(&flags));
+            }
+            let param_bytes = 80 * n as u64;
+            let staging = read_buffer(device, RESULT_BYTES + param_bytes);
+            let mut enc = device.create_command_encoder(&Default::default());
+            self.encode_forward(backend, &mut enc, &params);
+            self.encode_apply(backend, &mut enc, &params, &staging, 0);
+            if n > 0 {
+                enc.copy_buffer_to_buffer(&params, 0, &staging, RESULT_BYTES, param_bytes);
+            }
+            backend.read_back(enc, &staging, RESULT_BYTES + param_bytes)
+        })?;
+        let (result, values) = words.split_at(RESULT_BYTES as usize / 4);
+        for (i, logit) in model.opacity_logits.iter_mut().enumerate() {
+            *logit = f32::from_bits(values[20 * i + 16]);
+        }
+        Ok(outcome(result))
+    }
+
     fn upload_model(
         &self,
         backend: &GpuBackend,
@@ -429,13 +474,13 @@ impl GpuDecay {
         let Some(b) = self.mlp_bind(backend, params, &k.mlp_backward, u32::from(step)) else {
             return;
         };
+        if s.count == 0 {
+            // No rows: a zero gradient.
+            enc.clear_buffer(&s.partials, 0, None);
+        }
         let mut pass = enc.begin_compute_pass(&Default::default());
         if s.count > 0 {
             k.mlp_backward.dispatch_groups(&mut pass, &b, s.groups);
-        } else {
-            drop(pass);
-            enc.clear_buffer(&s.partials, 0, None);
-            pass = enc.begin_compute_pass(&Default::default());
         }
         k.mlp_adam.dispatch_groups(&mut pass, &b, 1);
     }
@@ -602,18 +647,23 @@ impl GpuDecay {
 
     /// Read a step's [`RESULT_BYTES`] and count f_θ's step.
     pub(super) fn finish_step(&mut self, words: &[u32]) -> DecayOutcome {
-        let f = |w: u32| f32::from_bits(w);
-        let stepped = words.get(4).is_some_and(|&flag| flag == 0);
-        if stepped {
+        let o = outcome(words);
+        if o.stepped {
             self.step += 1;
         }
-        DecayOutcome {
-            visible: words.first().copied().unwrap_or(0) as usize,
-            min_factor: f(words.get(1).copied().unwrap_or(0)),
-            max_factor: f(words.get(2).copied().unwrap_or(0)),
-            factor_sum: f(words.get(3).copied().unwrap_or(0)),
-            stepped,
-        }
+        o
+    }
+}
+
+/// A step's outcome from its [`RESULT_BYTES`] (statistics, then the skipped flag).
+fn outcome(words: &[u32]) -> DecayOutcome {
+    let word = |k: usize| words.get(k).copied().unwrap_or(0);
+    DecayOutcome {
+        visible: word(0) as usize,
+        min_factor: f32::from_bits(word(1)),
+        max_factor: f32::from_bits(word(2)),
+        factor_sum: f32::from_bits(word(3)),
+        stepped: words.get(4).is_some_and(|&flag| flag == 0),
     }
 }
 
