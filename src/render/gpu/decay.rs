@@ -7,9 +7,10 @@
 //!    the partials in a fixed order), τ_g for every Gaussian of the pre-step model, and
 //!    per view the visibility, the render-opacity factor (τ or 1) and "seen in the batch";
 //! 2. after each view's backward: its dL/dτ added for the Gaussians visible in it;
-//! 3. before the Gaussians' Adam: dL/dθ (256 rows per workgroup, rows added in order, then
-//!    the workgroups in order; no float atomics) and f_θ's Adam, skipped when a gradient is
-//!    not finite;
+//! 3. before the Gaussians' Adam: dL/dθ (each row's forward and backward in its own
+//!    thread, its layer inputs and deltas kept for a chunk of rows; then one thread per
+//!    parameter adds 256 rows in order per workgroup, and the workgroups are added in order:
+//!    no float atomics) and f_θ's Adam, skipped when a gradient is not finite;
 //! 4. after the Gaussians' Adam: `o ← o·τ` (seen) or `o ← o·β` in logit space, and the
 //!    step's statistics.
 //!
@@ -28,9 +29,12 @@ use std::sync::Arc;
 const MAX_WIDTH: usize = 32;
 /// Most linear layers (hidden layers + 1).
 const MAX_LINEAR: usize = 4;
-/// Most parameters (`MAX_ACC × BWG` and `ADAM_SLOTS × WG` in the shader).
+/// Most parameters (`ADAM_SLOTS × WG` in the shader).
 const MAX_PARAMS: usize = 3072;
-/// Bytes of the per-step result: statistics (4 words) and flags (4 words).
+/// Rows of f_θ's backward per chunk (their layer inputs and deltas are kept between the
+/// chunk's two kernels: at most 65536 × (inputs + hidden + deltas) floats, 36 MB by default).
+const CHUNK_ROWS: usize = 65536;
+/// Bytes of the per-step result: statistics (4 words), the skipped flag and padding.
 pub(super) const RESULT_BYTES: u64 = 32;
 
 /// `MlpParams` in `shaders/decay_mlp.wgsl`.
@@ -44,7 +48,7 @@ struct MlpUniform {
     pass_kind: u32,
     n_params: u32,
     groups: u32,
-    pad0: u32,
+    row_offset: u32,
     f_min: f32,
     f_max: f32,
     lr: f32,
@@ -57,6 +61,10 @@ struct MlpUniform {
     bc2: f32,
     epsilon: f32,
     pad1: f32,
+    act_stride: u32,
+    del_stride: u32,
+    chunk_rows: u32,
+    pad2: u32,
     dims: [[u32; 4]; 2],
 }
 
@@ -106,7 +114,8 @@ pub struct DecayOutcome {
 struct Scratch {
     count: usize,
     groups: u32,
-    /// Column means and deviations (16), then the reduced weight gradient.
+    /// Column means and deviations (16), then the reduced weight gradient, then the
+    /// skipped flag.
     stats: wgpu::Buffer,
     partials: wgpu::Buffer,
     tau: wgpu::Buffer,
@@ -114,7 +123,8 @@ struct Scratch {
     seen: wgpu::Buffer,
     apply_partials: wgpu::Buffer,
     summary: wgpu::Buffer,
-    flags: wgpu::Buffer,
+    /// One chunk of rows' layer inputs and output deltas.
+    rows: wgpu::Buffer,
     /// Per view of a batch: render factor and visibility.
     views: Vec<(wgpu::Buffer, wgpu::Buffer)>,
 }
@@ -302,11 +312,11 @@ impl GpuDecay {
         let words = backend.checked(|| {
             self.scratch(device, n, 0);
             let s = self.scratch_ref()?;
-            let flags: Vec<u32> = seen.iter().map(|&v| u32::from(v)).collect();
+            let seen: Vec<u32> = seen.iter().map(|&v| u32::from(v)).collect();
             if n > 0 {
                 self.gpu
                     .queue
-                    .write_buffer(&s.seen, 0, bytemuck::cast_slice(&flags));
+                    .write_buffer(&s.seen, 0, bytemuck::cast_slice(&seen));
             }
             let param_bytes = 80 * n as u64;
             let staging = read_buffer(device, RESULT_BYTES + param_bytes);
@@ -354,7 +364,7 @@ impl GpuDecay {
     fn scratch(&mut self, device: &wgpu::Device, count: usize, views: usize) {
         let s = match self.scratch.take() {
             Some(s) if s.count == count => s,
-            _ => Scratch::new(device, count, self.n_params),
+            _ => Scratch::new(device, count, self.n_params, self.row_floats()),
         };
         let s = self.scratch.insert(s);
         while s.views.len() < views {
@@ -371,7 +381,28 @@ impl GpuDecay {
             .ok_or_else(|| RenderError::Gpu("the decay's buffers were not set up".into()))
     }
 
-    fn mlp_uniform(&self, count: usize, groups: u32, pass_kind: u32) -> MlpUniform {
+    /// Floats per row of the backward's chunk: the layers' inputs, then their outputs.
+    fn strides(&self) -> (usize, usize) {
+        let layers = self.dims.len() - 1;
+        (
+            self.dims[..layers].iter().sum(),
+            self.dims[1..].iter().sum(),
+        )
+    }
+
+    fn row_floats(&self) -> usize {
+        let (a, d) = self.strides();
+        a + d
+    }
+
+    fn mlp_uniform(
+        &self,
+        count: usize,
+        groups: u32,
+        pass_kind: u32,
+        chunk: (usize, usize),
+    ) -> MlpUniform {
+        let (act_stride, del_stride) = self.strides();
         let t = (self.step + 1).min(i32::MAX as u64) as i32;
         let mut dims = [[0u32; 4]; 2];
         for (l, &d) in self.dims.iter().enumerate() {
@@ -388,7 +419,7 @@ impl GpuDecay {
             pass_kind,
             n_params: self.n_params as u32,
             groups,
-            pad0: 0,
+            row_offset: chunk.0 as u32,
             f_min: self.config.f_min as f32,
             f_max: self.config.f_max as f32,
             lr: self.lr,
@@ -401,21 +432,29 @@ impl GpuDecay {
             bc2: 1.0 - MlpAdam::BETA2.powi(t),
             epsilon: MlpAdam::EPSILON,
             pad1: 0.0,
+            act_stride: act_stride as u32,
+            del_stride: del_stride as u32,
+            chunk_rows: chunk.1 as u32,
+            pad2: 0,
             dims,
         }
     }
 
-    /// Bind f_θ's kernels for one pass kind.
+    /// Bind f_θ's kernels for one pass kind and chunk of rows (first row, rows).
     fn mlp_bind(
         &self,
         backend: &GpuBackend,
         params: &wgpu::Buffer,
         kernel: &Kernel,
         pass_kind: u32,
+        chunk: (usize, usize),
     ) -> Option<wgpu::BindGroup> {
         let s = self.scratch.as_ref()?;
         let device = &backend.gpu.device;
-        let u = uniform(device, &self.mlp_uniform(s.count, s.groups, pass_kind));
+        let u = uniform(
+            device,
+            &self.mlp_uniform(s.count, s.groups, pass_kind, chunk),
+        );
         Some(kernel.bind(
             device,
             &[
@@ -427,7 +466,7 @@ impl GpuDecay {
                 &s.partials,
                 &s.tau,
                 &s.d_tau,
-                &s.flags,
+                &s.rows,
             ],
         ))
     }
@@ -447,7 +486,7 @@ impl GpuDecay {
             return;
         }
         let binds: Vec<Option<wgpu::BindGroup>> = (0..2)
-            .map(|p| self.mlp_bind(backend, params, &k.input_moments, p))
+            .map(|p| self.mlp_bind(backend, params, &k.input_moments, p, (0, 0)))
             .collect();
         let mut pass = enc.begin_compute_pass(&Default::default());
         for b in binds.iter().flatten() {
@@ -459,7 +498,9 @@ impl GpuDecay {
         }
     }
 
-    /// Record dL/dθ from the accumulated dL/dτ and (with `step`) f_θ's Adam step.
+    /// Record dL/dθ from the accumulated dL/dτ and (with `step`) f_θ's Adam step: per
+    /// chunk of rows, each row's forward and backward (`mlp_rows`), then per 256 rows the
+    /// weight gradient (`mlp_outer`); then the partials in order and Adam (`mlp_adam`).
     fn encode_weight_step(
         &self,
         backend: &GpuBackend,
@@ -471,7 +512,17 @@ impl GpuDecay {
         let Some(s) = self.scratch.as_ref() else {
             return;
         };
-        let Some(b) = self.mlp_bind(backend, params, &k.mlp_backward, u32::from(step)) else {
+        let kind = u32::from(step);
+        // (bind group, rows) per chunk.
+        let chunks: Vec<(wgpu::BindGroup, u32)> = (0..s.count)
+            .step_by(CHUNK_ROWS)
+            .filter_map(|start| {
+                let rows = CHUNK_ROWS.min(s.count - start);
+                self.mlp_bind(backend, params, &k.mlp_rows, kind, (start, rows))
+                    .map(|b| (b, rows as u32))
+            })
+            .collect();
+        let Some(last) = self.mlp_bind(backend, params, &k.mlp_adam, kind, (0, 0)) else {
             return;
         };
         if s.count == 0 {
@@ -479,10 +530,11 @@ impl GpuDecay {
             enc.clear_buffer(&s.partials, 0, None);
         }
         let mut pass = enc.begin_compute_pass(&Default::default());
-        if s.count > 0 {
-            k.mlp_backward.dispatch_groups(&mut pass, &b, s.groups);
+        for (b, rows) in &chunks {
+            k.mlp_rows.dispatch_items(&mut pass, b, *rows);
+            k.mlp_outer.dispatch_groups(&mut pass, b, rows.div_ceil(WG));
         }
-        k.mlp_adam.dispatch_groups(&mut pass, &b, 1);
+        k.mlp_adam.dispatch_groups(&mut pass, &last, 1);
     }
 
     /// Before a decayed step's render: the inputs' statistics, τ, and per view (`views`,
@@ -605,7 +657,7 @@ impl GpuDecay {
     }
 
     /// After the Gaussians' Adam: the write-back into `params` and the step's statistics,
-    /// copied with the flags into `staging` at `offset` ([`RESULT_BYTES`]).
+    /// copied with the skipped flag into `staging` at `offset` ([`RESULT_BYTES`]).
     pub(super) fn encode_apply(
         &self,
         backend: &GpuBackend,
@@ -642,7 +694,8 @@ impl GpuDecay {
             k.decay_summary.dispatch_groups(&mut pass, &b, 1);
         }
         enc.copy_buffer_to_buffer(&s.summary, 0, staging, offset, 16);
-        enc.copy_buffer_to_buffer(&s.flags, 0, staging, offset + 16, 16);
+        let flag = 4 * (16 + self.n_params) as u64;
+        enc.copy_buffer_to_buffer(&s.stats, flag, staging, offset + 16, 4);
     }
 
     /// Read a step's [`RESULT_BYTES`] and count f_θ's step.
@@ -680,20 +733,20 @@ fn writable(backend: &GpuBackend, data: &[f32], label: &str) -> wgpu::Buffer {
 }
 
 impl Scratch {
-    fn new(device: &wgpu::Device, count: usize, n_params: usize) -> Self {
+    fn new(device: &wgpu::Device, count: usize, n_params: usize, row_floats: usize) -> Self {
         let groups = count.div_ceil(WG as usize).max(1);
         let f = |words: usize, label: &str| storage(device, 4 * words as u64, label);
         Self {
             count,
             groups: groups as u32,
-            stats: f(16 + n_params, "decay input statistics"),
+            stats: f(16 + n_params + 1, "decay input statistics"),
             partials: f(groups * n_params.max(8), "decay partials"),
             tau: f(count, "decay τ"),
             d_tau: f(count, "decay dL/dτ"),
             seen: f(count, "decay seen"),
             apply_partials: f(4 * groups, "decay step partials"),
             summary: f(4, "decay step statistics"),
-            flags: f(4, "decay flags"),
+            rows: f(count.min(CHUNK_ROWS) * row_floats, "decay rows"),
             views: Vec::new(),
         }
     }

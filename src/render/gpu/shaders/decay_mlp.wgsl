@@ -3,17 +3,12 @@
 // τ = f_min + (f_max − f_min)·sigmoid(f_θ(x)) per Gaussian, the weight gradient dL/dθ
 // from dL/dτ (inputs detached) and f_θ's Adam with L2 weight decay.
 //
-// Every reduction has a fixed order (workgroup trees, then the workgroups' partials in
-// index order), and no float atomics: the results are the same on every run.
+// Every reduction has a fixed order (workgroup trees or rows in order, then the
+// workgroups' partials in index order), and no float atomics: the results are the same on
+// every run.
 
 const MAX_W: u32 = 32u;        // widest layer (inputs included)
-const ACT_STRIDE: u32 = 108u;  // inputs of every layer of one row: ≤ 12 + 3·32
-const DEL_STRIDE: u32 = 100u;  // output deltas of every layer of one row: ≤ 3·32 + 1
-const SUB: u32 = 16u;          // rows per sub-batch of mlp_backward
-const BWG: u32 = 64u;          // threads of mlp_backward
-const ROWS: u32 = 256u;        // rows per mlp_backward workgroup (= WG: one partial per group)
-const MAX_ACC: u32 = 48u;      // parameters per mlp_backward thread (≤ 3072 in all)
-const ADAM_SLOTS: u32 = 12u;   // parameters per mlp_adam thread (≤ 3072 in all)
+const ADAM_SLOTS: u32 = 12u;   // parameters per thread of mlp_outer and mlp_adam (≤ 3072)
 const COLS: u32 = 8u;          // z-scored columns: mean (x, y, z, t), log-scales
 const MIN_STD: f32 = 1e-6;
 const BIAS: u32 = 0xffffffffu;
@@ -31,7 +26,8 @@ struct MlpParams {
     n_params: u32,
     // Workgroups of one pass over the Gaussians (256 rows each).
     groups: u32,
-    pad0: u32,
+    // mlp_rows / mlp_outer: the first Gaussian of this chunk of rows.
+    row_offset: u32,
     f_min: f32,
     f_max: f32,
     lr: f32,
@@ -44,6 +40,12 @@ struct MlpParams {
     bc2: f32,
     epsilon: f32,
     pad1: f32,
+    // Per row of `rows`: the layers' inputs (act_stride floats), then the deltas of their
+    // outputs (del_stride floats); rows in this chunk.
+    act_stride: u32,
+    del_stride: u32,
+    chunk_rows: u32,
+    pad2: u32,
     // Layer widths, inputs first, 1 last.
     dims: array<vec4<u32>, 2>,
 }
@@ -55,18 +57,17 @@ struct MlpParams {
 @group(0) @binding(2) var<storage, read_write> weights: array<f32>;
 // Adam's first moments, then its second moments.
 @group(0) @binding(3) var<storage, read_write> moments: array<f32>;
-// Column means [0, 8), standard deviations [8, 16), then the reduced gradient.
+// Column means [0, 8), standard deviations [8, 16), then the reduced gradient, then
+// (as bits) 1 when the last Adam step was skipped (a non-finite gradient).
 @group(0) @binding(4) var<storage, read_write> stats: array<f32>;
 // Per workgroup: column sums (8) or parameter gradients (n_params).
 @group(0) @binding(5) var<storage, read_write> partials: array<f32>;
 @group(0) @binding(6) var<storage, read_write> tau: array<f32>;
 @group(0) @binding(7) var<storage, read_write> d_tau: array<f32>;
-// [0]: 1 when the last Adam step was skipped (non-finite gradient).
-@group(0) @binding(8) var<storage, read_write> flags: array<u32>;
+// One chunk of rows' layer inputs and output deltas (mlp_rows → mlp_outer).
+@group(0) @binding(8) var<storage, read_write> rows: array<f32>;
 
 var<workgroup> red: array<f32, 256>;
-var<workgroup> acts: array<f32, 1728>;   // SUB × ACT_STRIDE
-var<workgroup> deltas: array<f32, 1600>; // SUB × DEL_STRIDE
 var<workgroup> bad: atomic<u32>;
 
 fn dim(l: u32) -> u32 {
@@ -221,20 +222,29 @@ fn mlp_forward(
     tau[i] = tau_of(z);
 }
 
-// Forward and backward of one row: its layers' inputs into acts[r], the deltas of its
-// layers' outputs into deltas[r] (all zero past the last Gaussian or when dL/dτ = 0).
-fn row_backward(row: u32, r: u32) {
-    let valid = row < M.count;
-    let ab = r * ACT_STRIDE;
-    let db = r * DEL_STRIDE;
-    var x: array<f32, 12>;
-    if valid {
-        x = input_row(row);
+// Forward and backward of one row of the chunk (one thread each): the layers' inputs
+// and the deltas of their outputs into `rows` (the deltas all zero when dL/dτ = 0).
+@compute @workgroup_size(256)
+fn mlp_rows(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let lr = flat_index(wid, nwg, lid);
+    if lr >= M.chunk_rows {
+        return;
     }
+    let row = M.row_offset + lr;
+    let ab = lr * (M.act_stride + M.del_stride);
+    let db = ab + M.act_stride;
+    let x = input_row(row);
+    var a: array<f32, MAX_W>;
+    var b: array<f32, MAX_W>;
     for (var k = 0u; k < M.in_width; k++) {
-        acts[ab + k] = x[k];
+        a[k] = x[k];
+        rows[ab + k] = x[k];
     }
-    // Forward: layer l reads its input at acts[ab + aoff] and writes the next one after it.
+    // Forward: layer l's input sits at rows[ab + aoff].
     var off = 0u;
     var aoff = 0u;
     var z = 0.0;
@@ -245,30 +255,26 @@ fn row_backward(row: u32, r: u32) {
         for (var j = 0u; j < n_out; j++) {
             var s = weights[bo + j];
             for (var k = 0u; k < n_in; k++) {
-                s += weights[off + j * n_in + k] * acts[ab + aoff + k];
+                s += weights[off + j * n_in + k] * a[k];
             }
             if l + 1u == M.layers {
                 z = s;
             } else {
-                acts[ab + aoff + n_in + j] = relu(s);
+                b[j] = relu(s);
+                rows[ab + aoff + n_in + j] = b[j];
             }
         }
+        a = b;
         off = bo + n_out;
         aoff += n_in;
     }
-    var dz = 0.0;
-    if valid {
-        let s = sigmoid(z);
-        dz = d_tau[row] * ((M.f_max - M.f_min) * s * (1.0 - s));
-    }
+    let sg = sigmoid(z);
+    let dz = d_tau[row] * ((M.f_max - M.f_min) * sg * (1.0 - sg));
     // Backward, last layer first: `off`, `aoff` and `doff` walk back.
     var delta: array<f32, MAX_W>;
     var next: array<f32, MAX_W>;
     delta[0] = dz;
-    var doff = 0u;
-    for (var l = 0u; l < M.layers; l++) {
-        doff += dim(l + 1u);
-    }
+    var doff = M.del_stride;
     for (var li = 0u; li < M.layers; li++) {
         let l = M.layers - 1u - li;
         let n_in = dim(l);
@@ -277,7 +283,7 @@ fn row_backward(row: u32, r: u32) {
         aoff -= n_in;
         doff -= n_out;
         for (var j = 0u; j < n_out; j++) {
-            deltas[db + doff + j] = delta[j];
+            rows[db + doff + j] = delta[j];
         }
         if l == 0u {
             break;
@@ -295,12 +301,13 @@ fn row_backward(row: u32, r: u32) {
             }
         }
         for (var k = 0u; k < n_in; k++) {
-            delta[k] = select(0.0, next[k], acts[ab + aoff + k] > 0.0);
+            delta[k] = select(0.0, next[k], rows[ab + aoff + k] > 0.0);
         }
     }
 }
 
-// Where parameter p reads its row values: (offset in acts or BIAS, offset in deltas).
+// Where parameter p reads its row values: (offset among the inputs or BIAS, offset among
+// the deltas).
 fn locate(p: u32) -> vec2<u32> {
     var off = 0u;
     var aoff = 0u;
@@ -323,48 +330,40 @@ fn locate(p: u32) -> vec2<u32> {
     return vec2<u32>(BIAS, 0u);
 }
 
-// dL/dθ of one workgroup's 256 rows, rows added in order, into partials[g].
-@compute @workgroup_size(64)
-fn mlp_backward(
+// dL/dθ of 256 rows of the chunk (one workgroup, one thread per parameter), rows added
+// in order, into partials[g] (g: the rows' global workgroup index).
+@compute @workgroup_size(256)
+fn mlp_outer(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(num_workgroups) nwg: vec3<u32>,
     @builtin(local_invocation_index) lid: u32,
 ) {
-    let g = wid.x + wid.y * nwg.x;
-    var acc: array<f32, MAX_ACC>;
-    for (var sb = 0u; sb < ROWS / SUB; sb++) {
-        if lid < SUB {
-            row_backward(g * ROWS + sb * SUB + lid, lid);
+    let lg = wid.x + wid.y * nwg.x;
+    let g = M.row_offset / WG + lg;
+    if lg * WG >= M.chunk_rows || g >= M.groups {
+        return;
+    }
+    let end = min(WG, M.chunk_rows - lg * WG);
+    let stride = M.act_stride + M.del_stride;
+    for (var s = 0u; s < ADAM_SLOTS; s++) {
+        let p = lid + s * WG;
+        if p >= M.n_params {
+            break;
         }
-        workgroupBarrier();
-        for (var s = 0u; s < MAX_ACC; s++) {
-            let p = lid + s * BWG;
-            if p >= M.n_params {
-                break;
-            }
-            let at = locate(p);
-            var sum = acc[s];
-            for (var r = 0u; r < SUB; r++) {
-                let d = deltas[r * DEL_STRIDE + at.y];
-                if d != 0.0 {
-                    if at.x == BIAS {
-                        sum += d;
-                    } else {
-                        sum += d * acts[r * ACT_STRIDE + at.x];
-                    }
+        let at = locate(p);
+        var sum = 0.0;
+        for (var r = 0u; r < end; r++) {
+            let base = (lg * WG + r) * stride;
+            let d = rows[base + M.act_stride + at.y];
+            if d != 0.0 {
+                if at.x == BIAS {
+                    sum += d;
+                } else {
+                    sum += d * rows[base + at.x];
                 }
             }
-            acc[s] = sum;
         }
-        workgroupBarrier();
-    }
-    if g < M.groups {
-        for (var s = 0u; s < MAX_ACC; s++) {
-            let p = lid + s * BWG;
-            if p < M.n_params {
-                partials[g * M.n_params + p] = acc[s];
-            }
-        }
+        partials[g * M.n_params + p] = sum;
     }
 }
 
@@ -394,7 +393,7 @@ fn mlp_adam(@builtin(local_invocation_index) lid: u32) {
     workgroupBarrier();
     let skip = atomicLoad(&bad) != 0u;
     if lid == 0u {
-        flags[0] = select(0u, 1u, skip);
+        stats[2u * COLS + M.n_params] = bitcast<f32>(select(0u, 1u, skip));
     }
     if skip || M.pass_kind == 0u {
         return;
