@@ -16,6 +16,8 @@
 //! The other variants only multiply the stored opacity after each step (`constant`: c;
 //! `pow`/`exp`: hand-tuned functions of o, see [`variants`]); with visibility on,
 //! invisible Gaussians get β instead. Nothing here runs at evaluation/render time.
+//! On the GPU backend the neural variant runs on the device (`render::gpu::GpuDecay`,
+//! lent through [`TrainHooks::device_decay`] as a [`DeviceDecay`]).
 //! Full description: docs/decay.md.
 
 pub mod inputs;
@@ -224,6 +226,19 @@ pub struct StepStats {
     pub min_factor: f64,
     pub mean_factor: f64,
     pub max_factor: f64,
+}
+
+/// The neural decay's settings and f_θ's state, lent to a trainer that runs the decay on
+/// its device ([`TrainHooks::device_decay`]) instead of calling `opacity_factor`,
+/// `factor_gradient` and `after_step` for it. The trainer keeps f_θ and its moments on the
+/// device and writes them back here at its host syncs (checkpoints, a stop, the end), and
+/// reports every decayed step in `last` and `skipped_updates`.
+pub struct DeviceDecay<'a> {
+    pub config: &'a DecayConfig,
+    pub mlp: &'a mut Mlp<f32>,
+    pub adam: &'a mut MlpAdam,
+    pub last: &'a mut Option<StepStats>,
+    pub skipped_updates: &'a mut u64,
 }
 
 /// Per-step scratch, valid between the first `opacity_factor` of a step and `after_step`.
@@ -481,6 +496,20 @@ impl TrainHooks for DecayHooks {
                 self.skipped_updates += 1;
             }
         }
+    }
+
+    /// The neural variant lends f_θ to a device trainer (the others edit the host model).
+    fn device_decay(&mut self) -> Option<DeviceDecay<'_>> {
+        if self.config.variant != DecayVariant::Neural {
+            return None;
+        }
+        Some(DeviceDecay {
+            config: &self.config,
+            mlp: &mut self.mlp,
+            adam: &mut self.adam,
+            last: &mut self.last,
+            skipped_updates: &mut self.skipped_updates,
+        })
     }
 
     fn save_state(&self) -> Vec<u8> {

@@ -9,11 +9,16 @@
 //! and for densification, opacity resets, checkpoints, a stop and the end (model, moments
 //! and statistics; after a densification or reset the device state is rebuilt from the
 //! host's). Hooks that want an opacity factor are not run here (the trainer takes the
-//! host path, [`super::step::HostStep`], for them).
+//! host path, [`super::step::HostStep`], for them), except the 4C4D neural decay
+//! ([`TrainHooks::device_decay`]): f_θ and its Adam moments are resident too
+//! ([`GpuDecay`]), each step after the warm-up runs the decay inside the device step
+//! (32 more bytes read back: the step's statistics, reported to the hooks), and f_θ's
+//! state returns to the hooks at the host syncs.
 
+use crate::decay::StepStats;
 use crate::model::Gaussians;
 use crate::render::RenderError;
-use crate::render::gpu::{GpuAdam, GpuBackend, GpuImage, GpuStats, TrainView};
+use crate::render::gpu::{GpuAdam, GpuBackend, GpuDecay, GpuImage, GpuStats, TrainView};
 use crate::train::densify::DensifyStats;
 use crate::train::optim::{Adam, GroupRates};
 use crate::train::step::{BatchLoss, Stepper};
@@ -28,6 +33,8 @@ pub(crate) struct DeviceStep<'a> {
     targets: Vec<GpuImage>,
     adam: GpuAdam,
     stats: GpuStats,
+    /// The neural decay on the device, and the step it starts after.
+    decay: Option<(GpuDecay, u64)>,
     /// The host model holds the device's values.
     model_current: bool,
     /// The host model, Adam state and statistics hold the device's.
@@ -40,7 +47,8 @@ fn device_error(index: usize) -> impl Fn(RenderError) -> TrainError {
 }
 
 impl<'a> DeviceStep<'a> {
-    /// Upload the dataset's images and the training state.
+    /// Upload the dataset's images and the training state (with f_θ's, when `hooks` lend
+    /// a neural decay the device kernels cover).
     pub fn new(
         gpu: &'a GpuBackend,
         config: &'a TrainConfig,
@@ -48,7 +56,15 @@ impl<'a> DeviceStep<'a> {
         model: &Gaussians<f32>,
         adam: &Adam,
         stats: &DensifyStats,
+        hooks: &mut dyn TrainHooks,
     ) -> Result<Self, TrainError> {
+        let decay = match hooks.device_decay() {
+            Some(d) if GpuDecay::supports(d.config) => Some((
+                GpuDecay::new(gpu, d.config, d.mlp, d.adam).map_err(TrainError::Device)?,
+                d.config.warmup,
+            )),
+            _ => None,
+        };
         let targets = dataset
             .views
             .iter()
@@ -62,6 +78,7 @@ impl<'a> DeviceStep<'a> {
             targets,
             adam: GpuAdam::from_state(gpu, model, adam).map_err(TrainError::Device)?,
             stats: GpuStats::upload(gpu, stats).map_err(TrainError::Device)?,
+            decay,
             model_current: true,
             state_current: true,
         })
@@ -87,7 +104,7 @@ impl Stepper for DeviceStep<'_> {
         let mut views = Vec::with_capacity(batch.len());
         for &vi in batch {
             let view = &self.dataset.views[vi];
-            if hooks.opacity_factor(iteration, model, view).is_some() {
+            if self.decay.is_none() && hooks.opacity_factor(iteration, model, view).is_some() {
                 return Err(TrainError::Config(
                     "the hooks returned an opacity factor, but declared none (TrainHooks::model_access); the GPU step trains without opacity factors".into(),
                 ));
@@ -98,9 +115,14 @@ impl Stepper for DeviceStep<'_> {
                 target: &self.targets[vi],
             });
         }
+        // The decay is active from 0-based iteration `warmup` on (`DecayHooks::active`).
+        let decay = match &mut self.decay {
+            Some((d, warmup)) if iteration >= *warmup => Some(d),
+            _ => None,
+        };
         let result = self
             .adam
-            .train_step_with_stats(
+            .train_step_decayed(
                 self.gpu,
                 model,
                 &views,
@@ -108,10 +130,27 @@ impl Stepper for DeviceStep<'_> {
                 self.config.lambda_ssim,
                 rates,
                 Some(&self.stats),
+                decay,
             )
             .map_err(device_error(first))?;
         self.model_current = false;
         self.state_current = false;
+        if let Some(o) = result.decay
+            && let Some(h) = hooks.device_decay()
+        {
+            let n = model.len();
+            *h.last = Some(StepStats {
+                iteration: iteration + 1,
+                visible: o.visible,
+                invisible: n.saturating_sub(o.visible),
+                min_factor: o.min_factor as f64,
+                mean_factor: o.factor_sum as f64 / n.max(1) as f64,
+                max_factor: o.max_factor as f64,
+            });
+            if !o.stepped {
+                *h.skipped_updates += 1;
+            }
+        }
         Ok(BatchLoss {
             losses: result.losses,
         })
@@ -144,12 +183,19 @@ impl Stepper for DeviceStep<'_> {
         model: &mut Gaussians<f32>,
         adam: &mut Adam,
         stats: &mut DensifyStats,
+        hooks: &mut dyn TrainHooks,
     ) -> Result<(), TrainError> {
         if !self.state_current {
             self.adam
                 .download_state(self.gpu, model, adam)
                 .map_err(TrainError::Device)?;
             *stats = self.stats.download(self.gpu).map_err(TrainError::Device)?;
+            if let Some((d, _)) = &self.decay
+                && let Some(h) = hooks.device_decay()
+            {
+                d.download(self.gpu, h.mlp, h.adam)
+                    .map_err(TrainError::Device)?;
+            }
             self.model_current = true;
             self.state_current = true;
         }

@@ -23,6 +23,7 @@ pub use step::ModelAccess;
 use crate::metrics::{mse, psnr_from_mse};
 use crate::model::init::{InitError, InitOptions, gaussians_from_points};
 use crate::model::{ColourDegrees, Gaussians};
+use crate::render::gpu::GpuDecay;
 use crate::render::{RenderBackend, RenderError, RenderOptions};
 use crate::train::densify::{DensifyConfig, DensifyStats, densify_and_prune, reset_opacity};
 use crate::train::device_step::DeviceStep;
@@ -202,9 +203,20 @@ pub trait TrainHooks {
     /// [`ModelAccess::None`] the hooks see the host copy as of the last sync; with
     /// `EveryStep` the model comes to the host (and back) every step; with
     /// `OpacityFactor` (the default, safe for any hooks) the GPU backend takes the host
-    /// path (render and backward on the GPU, loss and Adam on the host).
+    /// path (render and backward on the GPU, loss and Adam on the host), unless
+    /// [`TrainHooks::device_decay`] lends it the neural decay to run on the device.
     fn model_access(&self) -> ModelAccess {
         ModelAccess::OpacityFactor
+    }
+    /// The 4C4D neural decay's settings and f_θ's state, when these hooks are that decay
+    /// and a trainer may run it on its device. The GPU trainer then runs the decay's
+    /// whole step on the device (τ, visibility, factor gradient, f_θ's Adam, the
+    /// write-back; see `render::gpu::GpuDecay`) and calls neither `opacity_factor` nor
+    /// `factor_gradient`; `after_step` still comes, with the host model as of the last sync
+    /// (the decay then has nothing to do in it). f_θ's state comes back at host syncs, so
+    /// `save_state` sees it current. Other trainers ignore this and use the methods above.
+    fn device_decay(&mut self) -> Option<crate::decay::DeviceDecay<'_>> {
+        None
     }
 }
 
@@ -418,14 +430,25 @@ pub fn train(
     };
 
     let access = hooks.model_access();
+    // The neural decay runs on the device when the kernels cover its f_θ.
+    let decay_on_device = backend.as_gpu().is_some()
+        && hooks
+            .device_decay()
+            .is_some_and(|d| GpuDecay::supports(d.config));
     let mut stepper: Box<dyn Stepper + '_> = match backend.as_gpu() {
-        Some(gpu) if access != ModelAccess::OpacityFactor => Box::new(DeviceStep::new(
-            gpu, config, dataset, &model, &adam, &stats,
-        )?),
+        Some(gpu) if access != ModelAccess::OpacityFactor || decay_on_device => Box::new(
+            DeviceStep::new(gpu, config, dataset, &model, &adam, &stats, hooks)?,
+        ),
         _ => Box::new(HostStep::new(backend, config, dataset, &model)),
     };
-    // The cap and hooks that touch the model run on the host every step.
-    let model_every_step = config.max_anisotropy > 0.0 || access != ModelAccess::None;
+    // The cap and hooks that touch the model run on the host every step (a decay on the
+    // device touches the device's model only).
+    let hooks_touch_model = match access {
+        ModelAccess::None => false,
+        ModelAccess::EveryStep => true,
+        ModelAccess::OpacityFactor => !decay_on_device,
+    };
+    let model_every_step = config.max_anisotropy > 0.0 || hooks_touch_model;
     progress.message(&format!(
         "training on {} (step on the {})",
         backend.describe(),
@@ -456,7 +479,7 @@ pub fn train(
         let checkpoint_now = (config.checkpoint_every > 0 && done % config.checkpoint_every == 0)
             || done == config.iterations;
         if densify_now || reset_now || checkpoint_now {
-            stepper.state_to_host(&mut model, &mut adam, &mut stats)?;
+            stepper.state_to_host(&mut model, &mut adam, &mut stats, hooks)?;
         }
         // Between syncs the GPU path checks the loss only (a non-finite parameter shows
         // in the next loss, or at the next sync).
@@ -538,7 +561,7 @@ pub fn train(
             let checkpoint = match &last_checkpoint {
                 Some(p) if p.ends_with(format!("{done:06}.bin")) => p.clone(),
                 _ => {
-                    stepper.state_to_host(&mut model, &mut adam, &mut stats)?;
+                    stepper.state_to_host(&mut model, &mut adam, &mut stats, hooks)?;
                     save_ckpt(done, &model, &adam, &stats, &*hooks)?
                 }
             };

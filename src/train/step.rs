@@ -6,7 +6,7 @@
 //!
 //! [`HostStep`]: every view rendered and differentiated by the backend, the loss and Adam
 //! on the host (the CPU path; also the GPU backend's path when hooks want an opacity
-//! factor). The host state is always current. [`crate::train::device_step::DeviceStep`]:
+//! factor and are not a neural decay the device runs itself). The host state is always current. [`crate::train::device_step::DeviceStep`]:
 //! the whole iteration on the GPU with the state resident there.
 
 use crate::metrics::psnr_from_mse;
@@ -79,12 +79,14 @@ pub(crate) trait Stepper {
     /// The host edited the model's values (same Gaussians): use them from now on.
     fn model_from_host(&mut self, model: &Gaussians<f32>) -> Result<(), TrainError>;
 
-    /// Bring the model, the Adam state and the densification statistics to the host.
+    /// Bring the model, the Adam state and the densification statistics to the host, and
+    /// any hook state the step keeps (f_θ of a decay on the device) back into `hooks`.
     fn state_to_host(
         &mut self,
         model: &mut Gaussians<f32>,
         adam: &mut Adam,
         stats: &mut DensifyStats,
+        hooks: &mut dyn TrainHooks,
     ) -> Result<(), TrainError>;
 
     /// The host changed the state (densified, reset opacities): use it from now on.
@@ -208,6 +210,7 @@ impl Stepper for HostStep<'_> {
         _model: &mut Gaussians<f32>,
         _adam: &mut Adam,
         _stats: &mut DensifyStats,
+        _hooks: &mut dyn TrainHooks,
     ) -> Result<(), TrainError> {
         Ok(())
     }

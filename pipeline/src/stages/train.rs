@@ -53,6 +53,9 @@ impl TrainHooks for StageHooks<'_> {
     fn model_access(&self) -> ModelAccess {
         self.inner.model_access()
     }
+    fn device_decay(&mut self) -> Option<splat4d::decay::DeviceDecay<'_>> {
+        self.inner.device_decay()
+    }
 }
 
 /// The initial points: `work/init/points.ply`, else the poses stage's sparse points.

@@ -48,6 +48,18 @@ pub struct Kernels {
     pub adam_step: Kernel,
     pub add_into: Kernel,
     pub record_stats: Kernel,
+    /// The neural decay (`shaders/decay_*.wgsl`, see `decay.rs`); each file's kernels
+    /// share one bind group layout.
+    pub input_moments: Kernel,
+    pub input_stats: Kernel,
+    pub mlp_forward: Kernel,
+    pub mlp_rows: Kernel,
+    pub mlp_outer: Kernel,
+    pub mlp_adam: Kernel,
+    pub decay_visibility: Kernel,
+    pub decay_gather: Kernel,
+    pub decay_apply: Kernel,
+    pub decay_summary: Kernel,
 }
 
 impl Kernels {
@@ -78,6 +90,9 @@ impl Kernels {
         let adam = module("adam", include_str!("shaders/adam.wgsl"));
         let add = module("add", include_str!("shaders/add.wgsl"));
         let stats = module("stats", include_str!("shaders/stats.wgsl"));
+        let decay_mlp = with_gaussian("decay_mlp", include_str!("shaders/decay_mlp.wgsl"));
+        let decay_view = with_gaussian("decay_view", include_str!("shaders/decay_view.wgsl"));
+        let decay_apply = with_gaussian("decay_apply", include_str!("shaders/decay_apply.wgsl"));
         let k = |m: &wgpu::ShaderModule, entry: &str, slots: &[Slot]| {
             kernel(device, m, entry, &layout(device, entry, slots))
         };
@@ -91,7 +106,37 @@ impl Kernels {
                 Uniform, Read, Read, ReadWrite, ReadWrite, ReadWrite, ReadWrite,
             ],
         );
+        let mlp_layout = layout(
+            device,
+            "decay_mlp",
+            &[
+                Uniform, Read, ReadWrite, ReadWrite, ReadWrite, ReadWrite, ReadWrite, ReadWrite,
+                ReadWrite,
+            ],
+        );
+        let view_layout = layout(
+            device,
+            "decay_view",
+            &[
+                Uniform, Read, Read, ReadWrite, ReadWrite, ReadWrite, ReadWrite, Read,
+            ],
+        );
+        let apply_layout = layout(
+            device,
+            "decay_apply",
+            &[Uniform, ReadWrite, Read, Read, ReadWrite, ReadWrite],
+        );
         Self {
+            input_moments: kernel(device, &decay_mlp, "input_moments", &mlp_layout),
+            input_stats: kernel(device, &decay_mlp, "input_stats", &mlp_layout),
+            mlp_forward: kernel(device, &decay_mlp, "mlp_forward", &mlp_layout),
+            mlp_rows: kernel(device, &decay_mlp, "mlp_rows", &mlp_layout),
+            mlp_outer: kernel(device, &decay_mlp, "mlp_outer", &mlp_layout),
+            mlp_adam: kernel(device, &decay_mlp, "mlp_adam", &mlp_layout),
+            decay_visibility: kernel(device, &decay_view, "decay_visibility", &view_layout),
+            decay_gather: kernel(device, &decay_view, "decay_gather", &view_layout),
+            decay_apply: kernel(device, &decay_apply, "decay_apply", &apply_layout),
+            decay_summary: kernel(device, &decay_apply, "decay_summary", &apply_layout),
             preprocess: k(
                 &preprocess,
                 "preprocess",

@@ -20,11 +20,14 @@
 //! its image gradient, [`loss`]) and [`GpuAdam`] (Adam with the model and its moments
 //! resident, [`adam`]), chained with render and backward into one iteration by
 //! [`GpuAdam::train_step`] ([`step`]), which can also gather the densification statistics
-//! on the device ([`GpuStats`]). `train::train` runs its iterations this way when given
+//! on the device ([`GpuStats`]) and run the 4C4D neural decay there ([`GpuDecay`]: f_θ
+//! forward, visibility, factor gradient, f_θ's Adam and the opacity write-back;
+//! [`GpuAdam::train_step_decayed`]). `train::train` runs its iterations this way when given
 //! this backend (see `train::device_step`).
 
 mod adam;
 mod backward;
+mod decay;
 mod device;
 mod kernels;
 mod loss;
@@ -33,6 +36,7 @@ mod stats;
 mod step;
 
 pub use adam::GpuAdam;
+pub use decay::{DecayOutcome, GpuDecay};
 pub use device::{AdapterPolicy, Gpu, GpuError};
 pub use stats::GpuStats;
 pub use step::{GpuImage, StepResult, TrainView};

@@ -9,6 +9,7 @@
 //! host, see `train::device_step`).
 
 use super::adam::GpuAdam;
+use super::decay::{DecayOutcome, GpuDecay, RESULT_BYTES};
 use super::kernels::{storage, storage_init, uniform};
 use super::loss::{LossPass, pack_bytes, unpack};
 use super::stats::GpuStats;
@@ -42,6 +43,8 @@ pub struct TrainView<'a> {
 pub struct StepResult {
     /// The loss of each view (unweighted by the batch).
     pub losses: Vec<LossValue>,
+    /// What the neural decay did, when the step ran it.
+    pub decay: Option<DecayOutcome>,
 }
 
 impl GpuBackend {
@@ -97,6 +100,35 @@ impl GpuAdam {
         rates: &GroupRates,
         stats: Option<&GpuStats>,
     ) -> Result<StepResult, RenderError> {
+        self.train_step_decayed(
+            backend,
+            model,
+            views,
+            background,
+            lambda_ssim,
+            rates,
+            stats,
+            None,
+        )
+    }
+
+    /// [`GpuAdam::train_step_with_stats`] with the 4C4D neural decay (`decay`, f_θ
+    /// resident on the device): every view renders its visible Gaussians with opacity
+    /// factor τ, f_θ is trained on the summed dL/dτ, and after the Adam step the stored
+    /// opacities are decayed (τ where seen in the batch, β elsewhere); see
+    /// [`GpuDecay`]. 32 more bytes come back.
+    #[allow(clippy::too_many_arguments)]
+    pub fn train_step_decayed(
+        &mut self,
+        backend: &GpuBackend,
+        model: &Gaussians<f32>,
+        views: &[TrainView<'_>],
+        background: [f32; 3],
+        lambda_ssim: f64,
+        rates: &GroupRates,
+        stats: Option<&GpuStats>,
+        mut decay: Option<&mut GpuDecay>,
+    ) -> Result<StepResult, RenderError> {
         self.same_device(backend)?;
         self.check_count(model.len())?;
         if let Some(s) = stats
@@ -125,7 +157,7 @@ impl GpuAdam {
                 },
             })
             .collect();
-        let prepared = requests
+        let mut prepared = requests
             .iter()
             .map(|r| backend.prepare(model, r))
             .collect::<Result<Vec<_>, _>>()?;
@@ -141,9 +173,19 @@ impl GpuAdam {
             backend.too_large("the loss's partials", 60 * w as u64 * h as u64)?;
         }
         if views.is_empty() {
-            return Ok(StepResult { losses: Vec::new() });
+            return Ok(StepResult {
+                losses: Vec::new(),
+                decay: None,
+            });
         }
         let n = self.count;
+        if let Some(d) = decay.as_deref_mut() {
+            let uniforms: Vec<_> = prepared.iter().map(|p| p.uniform).collect();
+            let factors = d.begin_step(backend, &self.params.params, n, &uniforms)?;
+            for (p, f) in prepared.iter_mut().zip(factors) {
+                p.factor = Some(f);
+            }
+        }
         let frames = backend.checked(|| {
             let uploaded = Arc::new(ModelBuffers {
                 params: self.params.params.clone(),
@@ -158,13 +200,25 @@ impl GpuAdam {
             });
             backend.render_uploaded(uploaded, &requests, prepared, false)
         })?;
-        let losses = backend
-            .checked(|| self.encode_and_run(backend, &frames, views, lambda_ssim, rates, stats))?;
+        let (losses, words) = backend.checked(|| {
+            self.encode_and_run(
+                backend,
+                &frames,
+                views,
+                lambda_ssim,
+                rates,
+                stats,
+                decay.as_deref(),
+            )
+        })?;
         self.stepped();
-        Ok(StepResult { losses })
+        let decay = decay.map(|d| d.finish_step(&words));
+        Ok(StepResult { losses, decay })
     }
 
-    /// Loss, backward and gradient sums of every view, then Adam: one submission.
+    /// Loss, backward and gradient sums of every view, then Adam (and the decay's parts):
+    /// one submission. Returns the losses and the decay's result words.
+    #[allow(clippy::too_many_arguments)]
     fn encode_and_run(
         &self,
         backend: &GpuBackend,
@@ -173,11 +227,14 @@ impl GpuAdam {
         lambda_ssim: f64,
         rates: &GroupRates,
         stats: Option<&GpuStats>,
-    ) -> Result<Vec<LossValue>, RenderError> {
+        decay: Option<&GpuDecay>,
+    ) -> Result<(Vec<LossValue>, Vec<u32>), RenderError> {
         let device = &backend.gpu.device;
         let k = &backend.kernels;
         let scale = 1.0 / views.len() as f32;
-        let staging = read_buffer(device, 16 * views.len() as u64);
+        let loss_bytes = 16 * views.len() as u64;
+        let decay_bytes = if decay.is_some() { RESULT_BYTES } else { 0 };
+        let staging = read_buffer(device, loss_bytes + decay_bytes);
         let mut enc = device.create_command_encoder(&Default::default());
         let param_words = (super::backward::PARAM_FLOATS * self.count) as u32;
         let colour_words = self.colour_len as u32;
@@ -220,6 +277,9 @@ impl GpuAdam {
             enc.clear_buffer(out_params, 0, None);
             enc.clear_buffer(out_colours, 0, None);
             super::backward::encode(backend, state, &upstream, out_params, out_colours, &mut enc);
+            if let Some(d) = decay {
+                d.encode_gather(backend, &mut enc, v, &self.params.params, out_params);
+            }
             if let Some(s) = stats {
                 // As `DensifyStats::record` with gain = batch size.
                 let to_ndc = 0.5 * w.max(h) as f32 * views.len() as f32;
@@ -238,13 +298,22 @@ impl GpuAdam {
             }
             passes.push(loss);
         }
+        if let Some(d) = decay {
+            // f_θ's step reads the pre-step model: before the Gaussians' Adam.
+            d.encode_mlp_step(backend, &mut enc, &self.params.params);
+        }
         self.encode_step(backend, rates, &mut enc);
-        let words = backend.read_back(enc, &staging, 16 * views.len() as u64)?;
-        let floats: &[f32] = bytemuck::cast_slice(&words);
-        Ok(passes
+        if let Some(d) = decay {
+            d.encode_apply(backend, &mut enc, &self.params.params, &staging, loss_bytes);
+        }
+        let words = backend.read_back(enc, &staging, loss_bytes + decay_bytes)?;
+        let (loss_words, decay_words) = words.split_at(4 * views.len());
+        let floats: &[f32] = bytemuck::cast_slice(loss_words);
+        let losses = passes
             .iter()
             .zip(floats.chunks_exact(4))
             .map(|(p, t)| p.value([t[0], t[1], t[2], t[3]], lambda_ssim))
-            .collect())
+            .collect();
+        Ok((losses, decay_words.to_vec()))
     }
 }
