@@ -15,7 +15,7 @@
 //! (32 more bytes read back: the step's statistics, reported to the hooks), and f_θ's
 //! state returns to the hooks at the host syncs.
 
-use crate::decay::StepStats;
+use crate::decay::config::StepStats;
 use crate::model::Gaussians;
 use crate::render::RenderError;
 use crate::render::gpu::{GpuAdam, GpuBackend, GpuDecay, GpuImage, GpuStats, TrainView};

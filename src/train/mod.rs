@@ -215,7 +215,7 @@ pub trait TrainHooks {
     /// `factor_gradient`; `after_step` still comes, with the host model as of the last sync
     /// (the decay then has nothing to do in it). f_θ's state comes back at host syncs, so
     /// `save_state` sees it current. Other trainers ignore this and use the methods above.
-    fn device_decay(&mut self) -> Option<crate::decay::DeviceDecay<'_>> {
+    fn device_decay(&mut self) -> Option<crate::decay::config::DeviceDecay<'_>> {
         None
     }
 }

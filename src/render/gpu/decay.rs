@@ -19,8 +19,8 @@
 
 use super::kernels::{Kernel, WG, storage, storage_init, uniform};
 use super::{Gpu, GpuBackend, ViewUniform, pack_params, read_buffer};
+use crate::decay::config::{DecayConfig, DecayInputs, DecayVariant, VisibilityMode};
 use crate::decay::mlp::{Mlp, MlpAdam};
-use crate::decay::{DecayConfig, DecayInputs, DecayVariant, VisibilityMode};
 use crate::model::Gaussians;
 use crate::render::RenderError;
 use std::sync::Arc;
