@@ -101,3 +101,53 @@ fn half_resolution_training_renders_the_full_size_views() {
         assert!(e.to_string().contains("resolution"), "{e}");
     }
 }
+
+/// A run as long as the opacity reset period (3000 steps by default, so `iterations =
+/// 3000` with the default schedule) must not end on a reset: the last half period has none.
+#[test]
+fn no_opacity_reset_in_the_last_half_period() {
+    let data = train_scene::dataset(32, 24);
+    let init = train_scene::points(12, 9, &[0.0, 1.0]);
+    let run = |iterations: u64, reset_every: u64| {
+        let dir = tempfile::tempdir().unwrap();
+        let mut config = TrainConfig {
+            iterations,
+            checkpoint_every: 0,
+            ..Default::default()
+        };
+        // Resets in the densification window, no densification (every 1000).
+        config.densify.from_iteration = 10;
+        config.densify.until_iteration = 100;
+        config.densify.every = 1000;
+        config.densify.opacity_reset_every = reset_every;
+        let summary = train(
+            &CpuBackend,
+            &config,
+            &data,
+            &init,
+            dir.path(),
+            false,
+            &mut NoHooks,
+            &NoProgress,
+        )
+        .unwrap();
+        let model = load_model(&summary.model_path).unwrap();
+        let max_opacity = model
+            .opacity_logits
+            .iter()
+            .map(|&o| 1.0 / (1.0 + (-o as f64).exp()))
+            .fold(0.0, f64::max);
+        let psnr = evaluate_psnr(&CpuBackend, &model, &data, config.background).unwrap();
+        (max_opacity, psnr.iter().sum::<f64>() / psnr.len() as f64)
+    };
+    // The reset due at the last step (80 of 80) does not come: the run ends as one
+    // without resets, with its learned opacities (a reset caps them at 0.01).
+    let (opacity, psnr) = run(80, 80);
+    let (_, no_reset_psnr) = run(80, 0);
+    eprintln!("max opacity {opacity}, PSNR {psnr:.2} dB (no resets: {no_reset_psnr:.2} dB)");
+    assert!(opacity > 0.05, "max opacity {opacity}");
+    assert_eq!(psnr, no_reset_psnr);
+    // One due with half the run left (40 of 80) still comes.
+    let (_, early_reset_psnr) = run(80, 40);
+    assert_ne!(early_reset_psnr, no_reset_psnr);
+}

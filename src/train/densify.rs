@@ -34,7 +34,7 @@ pub struct DensifyConfig {
     pub max_screen_radius: f64,
     /// …or whose largest spatial scale exceeds this fraction of the scene extent.
     pub max_world_size: f64,
-    /// Opacity reset period (0: never).
+    /// Opacity reset period (0: never). No reset comes in the run's last half period.
     pub opacity_reset_every: u64,
     /// Never grow beyond this many Gaussians.
     pub max_gaussians: usize,

@@ -475,7 +475,12 @@ pub fn train(
         let done = it + 1;
         let in_window = d.enabled && done > d.from_iteration && done <= d.until_iteration;
         let densify_now = in_window && d.every > 0 && done % d.every == 0;
-        let reset_now = in_window && d.opacity_reset_every > 0 && done % d.opacity_reset_every == 0;
+        // A reset needs steps to recover: none in the last half period (a reset on the last
+        // step would leave a transparent model).
+        let reset_now = in_window
+            && d.opacity_reset_every > 0
+            && done % d.opacity_reset_every == 0
+            && 2 * (config.iterations - done) >= d.opacity_reset_every;
         let checkpoint_now = (config.checkpoint_every > 0 && done % config.checkpoint_every == 0)
             || done == config.iterations;
         if densify_now || reset_now || checkpoint_now {
