@@ -67,40 +67,19 @@ fn preprocess(
     let qr = unit_quat(params[5u * i + 3u]);
     let extra = params[5u * i + 4u];
 
-    // 4D rotation R = Ml(ql)·Mr(qr), reindexed from (1, i, j, k) to (x, y, z, t).
-    let mr0 = vec4<f32>(qr.x, qr.y, qr.z, qr.w);
-    let mr1 = vec4<f32>(-qr.y, qr.x, -qr.w, qr.z);
-    let mr2 = vec4<f32>(-qr.z, qr.w, qr.x, -qr.y);
-    let mr3 = vec4<f32>(-qr.w, -qr.z, qr.y, qr.x);
-    let m0 = ql.x * mr0 - ql.y * mr1 - ql.z * mr2 - ql.w * mr3;
-    let m1 = ql.y * mr0 + ql.x * mr1 - ql.w * mr2 + ql.z * mr3;
-    let m2 = ql.z * mr0 + ql.w * mr1 + ql.x * mr2 - ql.y * mr3;
-    let m3 = ql.w * mr0 - ql.z * mr1 + ql.y * mr2 + ql.x * mr3;
-    let scale = vec4<f32>(
-        scale_from_log(log_scales.x),
-        scale_from_log(log_scales.y),
-        scale_from_log(log_scales.z),
-        scale_from_log(log_scales.w),
-    );
-    // L = R·S, rows x, y, z, t.
-    let l0 = m1.yzwx * scale;
-    let l1 = m2.yzwx * scale;
-    let l2 = m3.yzwx * scale;
-    let lt = m0.yzwx * scale;
-
-    // Condition on time.
-    let raw44 = dot(lt, lt);
-    var s44 = MIN_TIME_VARIANCE;
-    if raw44 > MIN_TIME_VARIANCE {
-        s44 = raw44;
-    }
-    let dt = view.t - mean.w;
-    let omega = exp(-0.5 * dt * dt / s44);
+    let sl = slice_at(mean, log_scales, ql, qr, view.t);
+    let l0 = sl.l0;
+    let l1 = sl.l1;
+    let l2 = sl.l2;
+    let lt = sl.lt;
+    let s44 = sl.s44;
+    let dt = sl.dt;
+    let omega = sl.omega;
     if !(omega > TEMPORAL_CUTOFF) {
         culled(i);
         return;
     }
-    let v = vec3<f32>(dot(l0, lt), dot(l1, lt), dot(l2, lt));
+    let v = sl.v;
     let shift = dt / s44;
     let inv44 = 1.0 / s44;
     let mean3 = mean.xyz + v * shift;
