@@ -56,8 +56,9 @@ pub enum IngestError {
     },
     /// The images of an image-sequence camera differ in size.
     #[error(
-        "camera {camera}: {path} is {size:?} but the camera's first image is {expected:?}; \
-         every image of a camera must have the same size (re-export or remove it)"
+        "camera {camera}: {path} is {}×{} but the camera's first image is {}×{}; \
+         every image of a camera must have the same size (re-export or remove it)",
+        .size.0, .size.1, .expected.0, .expected.1
     )]
     ImageSize {
         /// Camera name.
@@ -542,7 +543,7 @@ pub fn probe_camera(
 ) -> Result<CameraStream, IngestError> {
     let files = camera_files(camera, path)?;
     if files.first().is_some_and(|f| is_image(f)) {
-        return probe_images(camera, files, options.image_fps);
+        return probe_images(camera, path, files, options.image_fps);
     }
     let src = |source| IngestError::Source {
         camera: camera.into(),
@@ -605,7 +606,12 @@ pub fn probe_camera(
 }
 
 /// An image-sequence camera: every image probed for its size, image `k` at `k / fps`.
-fn probe_images(camera: &str, files: Vec<PathBuf>, fps: f64) -> Result<CameraStream, IngestError> {
+fn probe_images(
+    camera: &str,
+    folder: &Path,
+    files: Vec<PathBuf>,
+    fps: f64,
+) -> Result<CameraStream, IngestError> {
     if !(fps > 0.0 && fps.is_finite()) {
         return Err(IngestError::ImageFps(fps));
     }
@@ -632,7 +638,7 @@ fn probe_images(camera: &str, files: Vec<PathBuf>, fps: f64) -> Result<CameraStr
     let Some(first) = first else {
         return Err(IngestError::NoVideo {
             camera: camera.into(),
-            path: PathBuf::new(),
+            path: folder.into(),
         });
     };
     let timestamps: Vec<f64> = (0..files.len()).map(|k| k as f64 / fps).collect();

@@ -122,7 +122,10 @@ fn bad_sequences_get_errors_naming_the_file() {
     let e = ingest(&cams, &IngestOptions::default(), &NoProgress).unwrap_err();
     assert!(matches!(e, IngestError::ImageSize { .. }), "{e}");
     let msg = e.to_string();
-    assert!(msg.contains("2.png") && msg.contains("same size"), "{msg}");
+    assert!(
+        msg.contains("2.png") && msg.contains("30×40") && msg.contains("40×30"),
+        "{msg}"
+    );
     std::fs::remove_file(&odd).unwrap();
 
     let e = ingest(&cams, &IngestOptions { image_fps: 0.0 }, &NoProgress).unwrap_err();
