@@ -1,6 +1,6 @@
 //! The GPU path of the trainer: the training images uploaded once (as bytes), the model,
 //! its Adam moments and the densification statistics resident on the device, and each
-//! iteration one [`GpuAdam::train_step_with_stats`] (render, loss, backward, batch sum,
+//! iteration one [`GpuAdam::train_step_decayed`] (render, loss, backward, batch sum,
 //! statistics, Adam) that reads back only the views' loss totals.
 //!
 //! The host copy of the state is brought up to date only when the loop needs it: every

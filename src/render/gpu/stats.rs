@@ -1,6 +1,6 @@
 //! Densification statistics on the device (`shaders/stats.wgsl`): per Gaussian the sum of
 //! its view-space gradient norms, how many views drew it, and its largest screen radius,
-//! added view by view inside [`GpuAdam::train_step_with_stats`](super::GpuAdam) so a
+//! added view by view inside [`GpuAdam::train_step_decayed`](super::GpuAdam) so a
 //! training step reads nothing back for them; the host reads them when it densifies.
 
 use super::kernels::{storage, uniform};

@@ -83,23 +83,6 @@ impl GpuAdam {
         lambda_ssim: f64,
         rates: &GroupRates,
     ) -> Result<StepResult, RenderError> {
-        self.train_step_with_stats(backend, model, views, background, lambda_ssim, rates, None)
-    }
-
-    /// [`GpuAdam::train_step`], adding every view's densification statistics into
-    /// `stats` on the device (as `DensifyStats::record` does with the view's own
-    /// gradient: the 1/batch weight undone).
-    #[allow(clippy::too_many_arguments)]
-    pub fn train_step_with_stats(
-        &mut self,
-        backend: &GpuBackend,
-        model: &Gaussians<f32>,
-        views: &[TrainView<'_>],
-        background: [f32; 3],
-        lambda_ssim: f64,
-        rates: &GroupRates,
-        stats: Option<&GpuStats>,
-    ) -> Result<StepResult, RenderError> {
         self.train_step_decayed(
             backend,
             model,
@@ -107,13 +90,15 @@ impl GpuAdam {
             background,
             lambda_ssim,
             rates,
-            stats,
+            None,
             None,
         )
     }
 
-    /// [`GpuAdam::train_step_with_stats`] with the 4C4D neural decay (`decay`, f_θ
-    /// resident on the device): every view renders its visible Gaussians with opacity
+    /// [`GpuAdam::train_step`], adding every view's densification statistics into
+    /// `stats` on the device (as `DensifyStats::record` does with the view's own
+    /// gradient: the 1/batch weight undone), and, with `decay`, the 4C4D neural decay
+    /// (f_θ resident on the device): every view renders its visible Gaussians with opacity
     /// factor τ, f_θ is trained on the summed dL/dτ, and after the Adam step the stored
     /// opacities are decayed (τ where seen in the batch, β elsewhere); see
     /// [`GpuDecay`]. 32 more bytes come back.
