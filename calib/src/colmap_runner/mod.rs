@@ -90,7 +90,7 @@ impl Default for ColmapConfig {
             video_focal_px: None,
             random_seed: 0,
             deterministic: true,
-            max_attempts: 3,
+            max_attempts: 5,
             max_image_size: 3200,
             max_num_features: 8192,
             num_threads: -1,

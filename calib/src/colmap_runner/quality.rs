@@ -1,12 +1,15 @@
 //! Is a COLMAP solve believable? Checks a model for the signs of a degenerate
 //! reconstruction seen on repetitive scenes: lenses no real camera has (fx far from fy,
 //! a focal length far from the image size or from the given prior, huge distortion),
-//! a large reprojection error, or too few triangulated points. It judges; deciding to
-//! retry is [`crate::poses`]'s job.
+//! a large reprojection error, or too few triangulated points; and, where the lenses are
+//! known, video cameras their known lens does not fit once it is held fixed. It judges;
+//! deciding to retry is [`crate::poses`]'s job.
 
 use std::fmt;
 
-use crate::colmap::ColmapModel;
+use glam::{DVec2, DVec3};
+
+use crate::colmap::{ColmapModel, INVALID_POINT3D_ID};
 
 /// Limits a sound solve stays within.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -24,6 +27,10 @@ pub struct QualityLimits {
     pub max_reprojection_px: f64,
     /// Fewest 3D points.
     pub min_points: usize,
+    /// A video camera whose known lens is held fixed may reproject at most this many times
+    /// the free solve's mean error, plus [`Self::known_lens_slack_px`].
+    pub known_lens_ratio: f64,
+    pub known_lens_slack_px: f64,
 }
 
 impl Default for QualityLimits {
@@ -35,6 +42,10 @@ impl Default for QualityLimits {
             max_distortion: 1.0,
             max_reprojection_px: 2.0,
             min_points: 50,
+            // Measured on the synthetic known-lens rig: sound solves 0.20–0.27 px against
+            // a free solve's 0.20 px; wrong ones (poses off by 1.2–54°) 0.9–15 px.
+            known_lens_ratio: 2.0,
+            known_lens_slack_px: 0.1,
         }
     }
 }
@@ -62,6 +73,13 @@ pub enum Degeneracy {
     Reprojection { mean_px: f64 },
     /// Hardly any points were triangulated.
     FewPoints { count: usize },
+    /// With its known lens held fixed, a video camera reprojects far worse than the free
+    /// solve did: the mapper's solve leaned on a lens the camera does not have.
+    KnownLens {
+        image: String,
+        mean_px: f64,
+        free_px: f64,
+    },
 }
 
 impl fmt::Display for Degeneracy {
@@ -93,6 +111,16 @@ impl fmt::Display for Degeneracy {
                 write!(f, "mean reprojection error {mean_px:.2} px")
             }
             Self::FewPoints { count } => write!(f, "only {count} 3D points"),
+            Self::KnownLens {
+                image,
+                mean_px,
+                free_px,
+            } => write!(
+                f,
+                "{image}: with its known lens held fixed it reprojects {mean_px:.2} px on \
+                 average against the free solve's {free_px:.2} px (a wrong solve, or a lens \
+                 calibrated at another resolution, zoom or stabilisation setting)"
+            ),
         }
     }
 }
@@ -167,12 +195,65 @@ pub fn assess(
     if count < limits.min_points {
         out.push(Degeneracy::FewPoints { count });
     } else {
-        let mean_px = model.points3d.values().map(|p| p.error).sum::<f64>() / count as f64;
+        let mean_px = mean_point_error(model);
         if mean_px > limits.max_reprojection_px {
             out.push(Degeneracy::Reprojection { mean_px });
         }
     }
     out
+}
+
+/// The mean reprojection error (pixels) of the points `model` triangulated, as COLMAP's
+/// mapper recorded it.
+pub fn mean_point_error(model: &ColmapModel) -> f64 {
+    let n = model.points3d.len().max(1) as f64;
+    model.points3d.values().map(|p| p.error).sum::<f64>() / n
+}
+
+/// The mean reprojection error (pixels) of the image named `name`: each of its features
+/// with a 3D point against that point projected through the image's camera, lens and
+/// distortion included (infinite when a point is behind it). `None` when the image is not
+/// in `model`, sees no point, or its camera model cannot be converted.
+pub fn image_reprojection_px(model: &ColmapModel, name: &str) -> Option<f64> {
+    let image = model.image_by_name(name)?;
+    let camera = crate::convert::camera_from_image(model, image, name).ok()?;
+    let errors: Vec<f64> = image
+        .points2d
+        .iter()
+        .filter(|p| p.point3d_id != INVALID_POINT3D_ID)
+        .filter_map(|p| {
+            let point = model.points3d.get(&p.point3d_id)?;
+            Some(match camera.project(DVec3::from(point.xyz)) {
+                Some((uv, _)) => (uv - DVec2::from(p.xy)).length(),
+                None => f64::INFINITY,
+            })
+        })
+        .collect();
+    (!errors.is_empty()).then(|| errors.iter().sum::<f64>() / errors.len() as f64)
+}
+
+/// The video images of `check` (COLMAP names) that `adjusted`, the model bundle-adjusted
+/// with their known lenses held fixed, fits much worse than the free solve (`free_px`, its
+/// mean point error): a pose COLMAP found for a lens the camera does not have.
+pub fn known_lens_misfits(
+    adjusted: &ColmapModel,
+    check: &[&str],
+    free_px: f64,
+    limits: &QualityLimits,
+) -> Vec<Degeneracy> {
+    let limit = limits.known_lens_ratio * free_px + limits.known_lens_slack_px;
+    check
+        .iter()
+        .filter_map(|name| {
+            let mean_px = image_reprojection_px(adjusted, name)?;
+            let fits = mean_px <= limit;
+            (!fits).then(|| Degeneracy::KnownLens {
+                image: name.to_string(),
+                mean_px,
+                free_px,
+            })
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -283,6 +364,107 @@ mod tests {
         assert_eq!(
             assess(&m, &NAMES, None, &QualityLimits::default()),
             [Degeneracy::Reprojection { mean_px: 3.5 }]
+        );
+    }
+
+    /// One OPENCV camera at the origin looking down +z seeing a grid of points, observed
+    /// where COLMAP's OPENCV model puts them (written out here, not through the engine),
+    /// shifted by `shift` pixels in x; `behind` puts the last point behind the camera.
+    fn seen_grid(shift: f64, behind: bool) -> ColmapModel {
+        let (f, cx, cy, k1, k2, p1, p2) = (342.76, 240.0, 180.0, -0.12, 0.03, 0.001, -0.002);
+        let mut m = ColmapModel::default();
+        m.cameras.insert(
+            7,
+            ColmapCamera {
+                id: 7,
+                model: CameraModel::Opencv,
+                width: 480,
+                height: 360,
+                params: vec![f, f, cx, cy, k1, k2, p1, p2],
+            },
+        );
+        let mut points2d = Vec::new();
+        for (id, (i, j)) in (0..5).flat_map(|i| (0..4).map(move |j| (i, j))).enumerate() {
+            let xyz = [
+                0.3 * i as f64 - 0.6,
+                0.25 * j as f64 - 0.4,
+                3.0 + 0.1 * i as f64,
+            ];
+            let (x, y) = (xyz[0] / xyz[2], xyz[1] / xyz[2]);
+            let r2 = x * x + y * y;
+            let radial = 1.0 + k1 * r2 + k2 * r2 * r2;
+            let dx = 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x);
+            let dy = p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y;
+            let uv = [
+                f * (x * radial + dx) + cx + shift,
+                f * (y * radial + dy) + cy,
+            ];
+            let xyz = if behind && id == 19 {
+                [0.0, 0.0, -2.0]
+            } else {
+                xyz
+            };
+            m.points3d.insert(
+                id as u64,
+                ColmapPoint3D {
+                    id: id as u64,
+                    xyz,
+                    rgb: [0; 3],
+                    error: 0.2,
+                    track: Vec::new(),
+                },
+            );
+            points2d.push(crate::colmap::Point2D {
+                xy: uv,
+                point3d_id: id as u64,
+            });
+        }
+        points2d.push(crate::colmap::Point2D {
+            xy: [1.0, 1.0],
+            point3d_id: INVALID_POINT3D_ID,
+        });
+        m.images.insert(
+            3,
+            ColmapImage {
+                id: 3,
+                qvec: [1.0, 0.0, 0.0, 0.0],
+                tvec: [0.0; 3],
+                camera_id: 7,
+                name: "video/cam0/cam0.png".into(),
+                points2d,
+            },
+        );
+        m
+    }
+
+    #[test]
+    fn reprojection_goes_through_the_lens_and_misfits_are_named() {
+        let name = "video/cam0/cam0.png";
+        let exact = image_reprojection_px(&seen_grid(0.0, false), name).unwrap();
+        assert!(exact < 1e-9, "{exact}");
+        let off = image_reprojection_px(&seen_grid(1.5, false), name).unwrap();
+        assert!((off - 1.5).abs() < 1e-9, "{off}");
+        assert_eq!(
+            image_reprojection_px(&seen_grid(0.0, false), "nope.png"),
+            None
+        );
+        let limits = QualityLimits::default();
+        // Free solve 0.2 px: the limit is 2 × 0.2 + 0.1 = 0.5 px.
+        assert!(known_lens_misfits(&seen_grid(0.4, false), &[name], 0.2, &limits).is_empty());
+        let misfit = known_lens_misfits(&seen_grid(1.5, false), &[name], 0.2, &limits);
+        assert_eq!(
+            misfit,
+            vec![Degeneracy::KnownLens {
+                image: name.into(),
+                mean_px: off,
+                free_px: 0.2,
+            }]
+        );
+        assert!(misfit[0].to_string().contains("1.50 px"), "{}", misfit[0]);
+        // A point behind the camera is no fit at all.
+        let behind = known_lens_misfits(&seen_grid(0.0, true), &[name], 0.2, &limits);
+        assert!(
+            matches!(&behind[..], [Degeneracy::KnownLens { mean_px, .. }] if mean_px.is_infinite())
         );
     }
 }

@@ -73,7 +73,18 @@ pub fn solve(
         })
         .collect();
     let video_names: Vec<&str> = video.iter().map(|v| v.1).collect();
-    let all_names: Vec<&str> = ws.images.iter().map(|i| i.colmap_name.as_str()).collect();
+    // The lenses the mapper's model is judged on: a known lens is put back (held fixed) after
+    // mapping, and judged then by how well the camera fits it (`known_lens_misfits`).
+    let judged_lenses: Vec<&str> = ws
+        .images
+        .iter()
+        .filter(|i| {
+            i.video_camera
+                .as_ref()
+                .is_none_or(|c| !ws.known_lenses.contains_key(c))
+        })
+        .map(|i| i.colmap_name.as_str())
+        .collect();
     let prior = config
         .colmap
         .video_focal_px
@@ -122,7 +133,7 @@ pub fn solve(
             }
         };
         let (model_dir, model) = &models[model_index];
-        let found = quality::assess(model, &all_names, prior, &QualityLimits::default());
+        let found = quality::assess(model, &judged_lenses, prior, &QualityLimits::default());
         if !found.is_empty() {
             problems.push(
                 found
@@ -142,6 +153,26 @@ pub fn solve(
             (model_dir, model)
         } else {
             adjusted = ws.fix_known_lenses(&binary, model, &video, progress)?;
+            let misfits = quality::known_lens_misfits(
+                &adjusted.1,
+                &video_names,
+                quality::mean_point_error(model),
+                &QualityLimits::default(),
+            );
+            if !misfits.is_empty() {
+                problems.push(
+                    misfits
+                        .iter()
+                        .map(Degeneracy::to_string)
+                        .collect::<Vec<_>>()
+                        .join("; "),
+                );
+                last_error = Some(PosesError::Degenerate {
+                    attempts: problems.clone(),
+                    diagnosis,
+                });
+                continue;
+            }
             (&adjusted.0, &adjusted.1)
         };
         progress.finish();
