@@ -338,3 +338,17 @@ fn refuses_what_it_cannot_do_with_typed_errors() {
     assert!(matches!(err, RenderError::DistortedCamera { .. }), "{err}");
     assert!(gpu.describe().starts_with("gpu: "), "{}", gpu.describe());
 }
+
+/// Mesa's lavapipe (the CI adapter) counts as software: `pipeline demo` must not take the
+/// GPU schedule on it, and `auto` must not pick it.
+#[test]
+fn lavapipe_is_a_software_adapter() {
+    let Some(gpu) = gpu() else { return };
+    let name = gpu.adapter().name.to_lowercase();
+    if name.contains("llvmpipe") || name.contains("lavapipe") || name.contains("swiftshader") {
+        assert!(gpu.is_software(), "{}", gpu.describe());
+    } else {
+        eprintln!("{} is a hardware adapter", gpu.describe());
+        assert!(!gpu.is_software());
+    }
+}

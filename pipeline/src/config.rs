@@ -41,6 +41,10 @@ pub struct CaptureConfig {
     pub export: export::ExportSettings,
     /// The compute backend of the stages that render (not a stage parameter).
     pub engine: crate::engine_inputs::EngineSettings,
+    /// The training preset applied (`[train] preset` or [`Self::with_preset`]); its values
+    /// are in `train` already.
+    #[serde(skip)]
+    pub preset: Option<Preset>,
 }
 
 /// `[capture]`: the rig itself.
@@ -128,7 +132,7 @@ impl CaptureConfig {
             Some(value) => {
                 let preset = Preset::deserialize(value.clone()).map_err(|_| {
                     invalid(format!(
-                        "[train] preset = {value} is not a preset: use \"preview\", \"balanced\" or \"best\""
+                        "[train] preset = {value} is not a preset: use \"preview\", \"balanced\", \"best\" or \"full\""
                     ))
                 })?;
                 let mut table = table.clone();
@@ -165,6 +169,7 @@ impl CaptureConfig {
     /// These settings with a training preset applied over them.
     pub fn with_preset(mut self, preset: Preset) -> Self {
         (self.train, self.decay) = preset.apply(&self.train, &self.decay);
+        self.preset = Some(preset);
         self
     }
 
@@ -244,6 +249,7 @@ mod tests {
         // The warm-up scales with the iterations (30 000 → the preset's).
         assert_eq!(c.decay.warmup, (3000 * v.iterations).div_ceil(30_000));
         assert_eq!(c.section("train")["iterations"], v.iterations);
+        assert_eq!(c.preset, Some(Preset::Preview), "the preset is remembered");
         for (text, needle) in [
             (
                 "[train]\npreset = \"best\"\niterations = 5\n",
@@ -255,7 +261,7 @@ mod tests {
             ),
             (
                 "[train]\npreset = \"fast\"\n",
-                "\"preview\", \"balanced\" or \"best\"",
+                "\"preview\", \"balanced\", \"best\" or \"full\"",
             ),
             ("[train]\npreset = \"best\"\nitertions = 5\n", "itertions"),
         ] {

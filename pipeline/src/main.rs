@@ -344,8 +344,6 @@ fn capture_summary(capture: &pipeline::layout::Capture) -> String {
     format!("{} ({})", capture.root.display(), parts.join(", "))
 }
 
-/// Simulate the built-in scene (once) and run every stage on it. Stages that are not
-/// implemented yet are reported but do not make the demo fail; a failing stage does.
 /// `--preset` over the capture's settings, said to the user.
 fn apply_preset(
     config: pipeline::config::CaptureConfig,
@@ -361,6 +359,10 @@ fn apply_preset(
     }
 }
 
+/// Simulate the built-in scene (once) and run every stage on it. Stages that are not
+/// implemented yet are reported but do not make the demo fail; a failing stage does.
+/// On a hardware GPU the demo trains at the paper's schedule (preset `full`) unless a
+/// preset was chosen; it says which backend and schedule it uses.
 fn demo(
     out_dir: &std::path::Path,
     backend: Option<pipeline::engine_inputs::BackendChoice>,
@@ -387,7 +389,28 @@ fn demo(
     if let Some(b) = backend {
         config.engine.backend = b;
     }
-    config = apply_preset(config, preset, reporter);
+    let trainer = pipeline::engine_inputs::training_backend_for(config.engine.backend)?;
+    let hardware_gpu = trainer.as_gpu().is_some_and(|g| !g.is_software());
+    let schedule = pipeline::presets::demo_preset(preset.or(config.preset), hardware_gpu);
+    if schedule != config.preset {
+        config = apply_preset(config, schedule, reporter);
+    }
+    reporter.say(&format!(
+        "training on {}: {}",
+        trainer.describe(),
+        match config.preset {
+            Some(p) => format!(
+                "preset {}, {} iterations",
+                p.name(),
+                config.train.iterations
+            ),
+            None => format!(
+                "the demo's CPU schedule, {} iterations (on a hardware GPU it takes preset full)",
+                config.train.iterations
+            ),
+        }
+    ));
+    drop(trainer);
     if !out_dir.join("pointmaps").exists() {
         // No MASt3R weights ship with the tool: the demo stands in for the point-map model
         // with the simulator's true depth at the init moments (docs/init.md), which are

@@ -151,6 +151,12 @@ impl GpuBackend {
         &self.gpu.info
     }
 
+    /// Whether the adapter is a software one (lavapipe, SwiftShader): correct, but slower
+    /// than the CPU engine.
+    pub fn is_software(&self) -> bool {
+        self.gpu.info.device_type == wgpu::DeviceType::Cpu
+    }
+
     /// Wait until the device has finished all submitted work (e.g. [`GpuAdam::step`],
     /// which returns once its work is submitted).
     pub fn wait(&self) -> Result<(), RenderError> {

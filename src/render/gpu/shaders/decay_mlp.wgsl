@@ -182,24 +182,24 @@ fn tau_of(z: f32) -> f32 {
     return M.f_min + (M.f_max - M.f_min) * sigmoid(z);
 }
 
-// τ of every Gaussian.
-@compute @workgroup_size(256)
-fn mlp_forward(
-    @builtin(workgroup_id) wid: vec3<u32>,
-    @builtin(num_workgroups) nwg: vec3<u32>,
-    @builtin(local_invocation_index) lid: u32,
-) {
-    let i = flat_index(wid, nwg, lid);
-    if i >= M.count {
-        return;
-    }
+// No row of `rows` to store activations in (`forward_z`).
+const NO_STORE: u32 = 0xffffffffu;
+
+// f_θ's output before the sigmoid for Gaussian i. Unless `ab` is NO_STORE, each layer's
+// input is kept at rows[ab + (sum of the earlier layers' widths)] for the backward.
+fn forward_z(i: u32, ab: u32) -> f32 {
+    let store = ab != NO_STORE;
     let x = input_row(i);
     var a: array<f32, MAX_W>;
     var b: array<f32, MAX_W>;
     for (var k = 0u; k < M.in_width; k++) {
         a[k] = x[k];
+        if store {
+            rows[ab + k] = x[k];
+        }
     }
     var off = 0u;
+    var aoff = 0u;
     var z = 0.0;
     for (var l = 0u; l < M.layers; l++) {
         let n_in = dim(l);
@@ -214,12 +214,30 @@ fn mlp_forward(
                 z = s;
             } else {
                 b[j] = relu(s);
+                if store {
+                    rows[ab + aoff + n_in + j] = b[j];
+                }
             }
         }
         a = b;
         off = bo + n_out;
+        aoff += n_in;
     }
-    tau[i] = tau_of(z);
+    return z;
+}
+
+// τ of every Gaussian.
+@compute @workgroup_size(256)
+fn mlp_forward(
+    @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(num_workgroups) nwg: vec3<u32>,
+    @builtin(local_invocation_index) lid: u32,
+) {
+    let i = flat_index(wid, nwg, lid);
+    if i >= M.count {
+        return;
+    }
+    tau[i] = tau_of(forward_z(i, NO_STORE));
 }
 
 // Forward and backward of one row of the chunk (one thread each): the layers' inputs
@@ -237,36 +255,13 @@ fn mlp_rows(
     let row = M.row_offset + lr;
     let ab = lr * (M.act_stride + M.del_stride);
     let db = ab + M.act_stride;
-    let x = input_row(row);
-    var a: array<f32, MAX_W>;
-    var b: array<f32, MAX_W>;
-    for (var k = 0u; k < M.in_width; k++) {
-        a[k] = x[k];
-        rows[ab + k] = x[k];
-    }
-    // Forward: layer l's input sits at rows[ab + aoff].
+    let z = forward_z(row, ab);
+    // The ends of the weights (`off`) and of the stored inputs (`aoff`).
     var off = 0u;
     var aoff = 0u;
-    var z = 0.0;
     for (var l = 0u; l < M.layers; l++) {
-        let n_in = dim(l);
-        let n_out = dim(l + 1u);
-        let bo = off + n_out * n_in;
-        for (var j = 0u; j < n_out; j++) {
-            var s = weights[bo + j];
-            for (var k = 0u; k < n_in; k++) {
-                s += weights[off + j * n_in + k] * a[k];
-            }
-            if l + 1u == M.layers {
-                z = s;
-            } else {
-                b[j] = relu(s);
-                rows[ab + aoff + n_in + j] = b[j];
-            }
-        }
-        a = b;
-        off = bo + n_out;
-        aoff += n_in;
+        off += dim(l + 1u) * dim(l) + dim(l + 1u);
+        aoff += dim(l);
     }
     let sg = sigmoid(z);
     let dz = d_tau[row] * ((M.f_max - M.f_min) * sg * (1.0 - sg));
