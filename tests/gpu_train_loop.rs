@@ -8,6 +8,7 @@
 mod common;
 mod train_scene;
 
+use splat4d::model::ColourDegrees;
 use splat4d::render::RenderBackend;
 use splat4d::render::gpu::GpuBackend;
 use splat4d::train::{
@@ -251,4 +252,96 @@ fn per_step_host_edits_on_the_gpu_path_match_the_cpu() {
     config.iterations = 2;
     let s = run(gpu, &config, &data, dir.path(), false, &mut Default).unwrap();
     assert_eq!(s.placement, "host");
+}
+
+/// Records the device's allocated bytes after every step.
+struct PeakMemory {
+    gpu: &'static GpuBackend,
+    peak: u64,
+}
+
+impl TrainHooks for PeakMemory {
+    fn model_access(&self) -> ModelAccess {
+        ModelAccess::None
+    }
+    fn after_step(&mut self, _iteration: u64, _model: &mut Gaussians<f32>) {
+        let now = self
+            .gpu
+            .allocated_bytes()
+            .expect("a Vulkan allocator report");
+        self.peak = self.peak.max(now);
+    }
+}
+
+/// Device memory of GPU training (issue 17: peak GPU memory per million Gaussians): the
+/// allocator's bytes after each step of 3-step runs from two cloud sizes (no densification)
+/// give the cost per Gaussian (parameters, colours, Adam moments, gradients, statistics,
+/// per-view buffers) and the fixed cost, for the full colour model and the demo's. Printed
+/// for BENCHMARKS.md; bounded below by what the parameters, their gradient and Adam's two
+/// moments must take (16 bytes per f32 parameter) and above by twice that plus 1 KiB, so
+/// that a leak or a per-Gaussian blow-up fails.
+#[test]
+fn device_memory_grows_linearly_with_the_gaussians() {
+    let Some(gpu) = gpu() else { return };
+    if gpu.allocated_bytes().is_none() {
+        eprintln!("SKIPPED: {} gives no allocator report", gpu.describe());
+        return;
+    }
+    let data = train_scene::dataset(64, 48);
+    for degrees in [
+        ColourDegrees::FULL,
+        ColourDegrees {
+            spatial: 1,
+            temporal: 1,
+        },
+    ] {
+        let mut config = fit_config(3, 1);
+        config.densify.from_iteration = 10;
+        config.degree_every = 100;
+        config.colour_degrees = degrees;
+        let mut peaks = Vec::new();
+        for grid in [(100usize, 50usize), (200, 100)] {
+            let init = train_scene::points(grid.0, grid.1, &[0.0, 0.5, 1.0]);
+            let dir = tempfile::tempdir().unwrap();
+            let mut hooks = PeakMemory { gpu, peak: 0 };
+            let summary = train(
+                gpu,
+                &config,
+                &data,
+                &init,
+                dir.path(),
+                false,
+                &mut hooks,
+                &NoProgress,
+            )
+            .unwrap();
+            assert_eq!(summary.placement, "gpu");
+            peaks.push((init.xyz.len() as f64, hooks.peak as f64));
+        }
+        let (n0, b0) = peaks[0];
+        let (n1, b1) = peaks[1];
+        let per_gaussian = (b1 - b0) / (n1 - n0);
+        let fixed = b0 - per_gaussian * n0;
+        let k = Gaussians::<f32>::new(degrees, Default::default()).coeffs_per_channel();
+        let floats = (4 + 4 + 4 + 4 + 1 + 3 * k) as f64;
+        eprintln!(
+            "GPU training, colours {degrees:?}, on {}: {per_gaussian:.0} bytes per Gaussian \
+             ({:.0} MiB per million; parameters, gradient and moments alone: {:.0} bytes), \
+             {:.1} MiB fixed; peaks {:.1} MiB at {n0} and {:.1} MiB at {n1} Gaussians",
+            gpu.describe(),
+            per_gaussian * 1e6 / 1048576.0,
+            16.0 * floats,
+            fixed / 1048576.0,
+            b0 / 1048576.0,
+            b1 / 1048576.0,
+        );
+        assert!(
+            per_gaussian >= 16.0 * floats,
+            "{per_gaussian} bytes per Gaussian"
+        );
+        assert!(
+            per_gaussian <= 2.0 * 16.0 * floats + 1024.0,
+            "{per_gaussian} bytes per Gaussian"
+        );
+    }
 }

@@ -16,11 +16,12 @@ use splat4d::train::TrainConfig;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Preset {
-    /// A quick look: 300 steps (the demo: 1–2 min on 2 cores).
+    /// A quick look: 300 steps (the demo: under a minute of training on 2 cores).
     Preview,
-    /// The demo's schedule: 1000 steps (4–6 min).
+    /// 1000 steps (the demo: 1–2.5 min).
     Balanced,
-    /// The most accurate point measured on 2 CPU cores: 2000 steps (8–12 min).
+    /// The demo's schedule, the most accurate point measured on 2 CPU cores: 2000 steps
+    /// (the demo: 2–5 min).
     Best,
     /// The paper's schedule, for a GPU: 30 000 steps and room for more Gaussians (`pipeline
     /// demo` takes it when it trains on a hardware GPU; hours on a CPU).

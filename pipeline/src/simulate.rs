@@ -289,8 +289,8 @@ mod tests {
         );
         assert!(config.init.moments >= 2, "the demo's maps are per moment");
         let t = &config.train;
-        assert_eq!((t.iterations, t.batch_size), (1000, 1));
-        assert!(t.init_time_scale <= 0.5 / (config.init.moments - 1) as f64);
+        assert_eq!((t.iterations, t.batch_size), (2000, 1));
+        assert!(t.init_time_scale <= 0.25 / (config.init.moments - 1) as f64);
         assert!(t.densify.until_iteration < t.iterations);
         assert!(t.densify.max_gaussians <= 80_000);
     }

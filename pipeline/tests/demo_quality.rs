@@ -1,11 +1,10 @@
 //! `pipeline demo` end to end (simulate, every stage, the demo's training) held to the
-//! quality measured for it (BENCHMARKS.md, "Session 10"): held-out PSNR and SSIM on the four
-//! filmed held-out cameras, and PSNR inside the walking figure's masks, each within 0.5 dB /
-//! 0.02 of the measurement. (Issue 18 wants the figure within 3 dB of the whole image; since
-//! the room's disks lifted the whole image to 24.1 dB the gap is 3.8 dB, so the floor holds
-//! the figure where it is rather than the gap.)
+//! quality measured for it (BENCHMARKS.md, "Session 12"): held-out PSNR and SSIM on the four
+//! filmed held-out cameras, and PSNR inside the masks of what moves (the walking figure and
+//! the waving flag), each within 0.5 dB / 0.02 of the measurement, and that region within
+//! 3 dB of the whole image (issue 18).
 //!
-//! Long (about 15 minutes in a release build on 2 cores): ignored by default. Run with the
+//! Long (6–12 minutes in a release build on 2 cores): ignored by default. Run with the
 //! release binary:
 //! `cargo build --release -p pipeline && PIPELINE_BIN=target/release/pipeline cargo test -p pipeline --test demo_quality -- --ignored --nocapture`
 
@@ -13,10 +12,14 @@ use std::path::PathBuf;
 use std::process::Command;
 
 /// Held-out PSNR (dB) and SSIM measured for the demo, minus the run-to-run margin.
-const PSNR_FLOOR: f64 = 24.10 - 0.5;
-const SSIM_FLOOR: f64 = 0.818 - 0.02;
-/// PSNR inside the moving figure's masks, dB.
-const MOVING_FLOOR: f64 = 20.31 - 0.5;
+/// (BENCHMARKS.md "Session 12": 2000 steps; one capture to the next varies ±0.3 dB with
+/// COLMAP's solve.)
+const PSNR_FLOOR: f64 = 23.95 - 0.5;
+const SSIM_FLOOR: f64 = 0.814 - 0.02;
+/// PSNR inside the masks of what moves (the figure and the flag), dB.
+const MOVING_FLOOR: f64 = 21.45 - 0.5;
+/// Issue 18: the moving region within 3 dB of the whole image.
+const MOVING_GAP: f64 = 3.0;
 
 fn binary() -> PathBuf {
     std::env::var_os("PIPELINE_BIN")
@@ -25,7 +28,7 @@ fn binary() -> PathBuf {
 }
 
 #[test]
-#[ignore = "runs the whole demo (about 15 minutes in release); run for BENCHMARKS.md"]
+#[ignore = "runs the whole demo (6–12 minutes in release); run for BENCHMARKS.md"]
 fn the_demo_reaches_its_measured_held_out_quality() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("demo");
@@ -58,5 +61,9 @@ fn the_demo_reaches_its_measured_held_out_quality() {
     assert!(
         moving >= MOVING_FLOOR,
         "moving region {moving:.2} dB < {MOVING_FLOOR:.2}"
+    );
+    assert!(
+        psnr - moving <= MOVING_GAP,
+        "moving region {moving:.2} dB is more than {MOVING_GAP} dB below the whole image"
     );
 }

@@ -151,6 +151,15 @@ impl GpuBackend {
         &self.gpu.info
     }
 
+    /// Bytes of device memory the backend's allocations hold now (buffers still alive),
+    /// from wgpu's allocator report; `None` where the backend gives no report (Metal, GL).
+    pub fn allocated_bytes(&self) -> Option<u64> {
+        self.gpu
+            .device
+            .generate_allocator_report()
+            .map(|r| r.total_allocated_bytes)
+    }
+
     /// Whether the adapter is a software one (lavapipe, SwiftShader): correct, but slower
     /// than the CPU engine.
     pub fn is_software(&self) -> bool {
