@@ -133,7 +133,20 @@ pub fn solve(
             }
         };
         let (model_dir, model) = &models[model_index];
-        let found = quality::assess(model, &judged_lenses, prior, &QualityLimits::default());
+        let mut found = quality::assess(model, &judged_lenses, prior, &QualityLimits::default());
+        let adjusted;
+        let (model_dir, model) = if ws.known_lenses.is_empty() || !found.is_empty() {
+            (model_dir, model)
+        } else {
+            adjusted = ws.fix_known_lenses(&binary, model, &video, progress)?;
+            found = quality::known_lens_misfits(
+                &adjusted.1,
+                &video_names,
+                quality::mean_point_error(model),
+                &QualityLimits::default(),
+            );
+            (&adjusted.0, &adjusted.1)
+        };
         if !found.is_empty() {
             problems.push(
                 found
@@ -148,33 +161,6 @@ pub fn solve(
             });
             continue;
         }
-        let adjusted;
-        let (model_dir, model) = if ws.known_lenses.is_empty() {
-            (model_dir, model)
-        } else {
-            adjusted = ws.fix_known_lenses(&binary, model, &video, progress)?;
-            let misfits = quality::known_lens_misfits(
-                &adjusted.1,
-                &video_names,
-                quality::mean_point_error(model),
-                &QualityLimits::default(),
-            );
-            if !misfits.is_empty() {
-                problems.push(
-                    misfits
-                        .iter()
-                        .map(Degeneracy::to_string)
-                        .collect::<Vec<_>>()
-                        .join("; "),
-                );
-                last_error = Some(PosesError::Degenerate {
-                    attempts: problems.clone(),
-                    diagnosis,
-                });
-                continue;
-            }
-            (&adjusted.0, &adjusted.1)
-        };
         progress.finish();
         let (cameras, points) = cameras_from_model(model, &video, inputs.working_size)?;
         let rel_model = model_dir
