@@ -11,7 +11,7 @@ fn solves_the_rendered_rig_within_half_a_degree() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
-    // The video cameras have a real lens (barrel distortion); COLMAP solves it (OPENCV).
+    // The video cameras have a real lens (barrel distortion); COLMAP solves it (RADIAL).
     let lens = Distortion::radial_tangential(-0.12, 0.03, 0.0, 0.0, 0.0);
     let rig = common::render_rig_with_lens(&tmp.path().join("capture"), 8, (480, 360), lens);
     let inputs = PosesInputs {
@@ -262,7 +262,7 @@ fn fisheye_video_cameras_solve_with_opencv_fisheye() {
         // (k = 0) would be ~16 px off at the corners, so these bounds still catch a lost lens.
         assert!(rms < 3.0 && worst < 5.0, "rms {rms}, worst {worst}");
     }
-    // All four share one lens; the stills were solved with their own (OPENCV) camera.
+    // All four share one lens; the stills were solved with their own (RADIAL) camera.
     assert!(cams.iter().all(|c| c.distortion == cams[0].distortion));
     assert!(
         tmp.path()

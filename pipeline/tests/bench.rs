@@ -118,7 +118,7 @@ fn sync_bench_finds_offsets_below_a_frame_and_resumes_by_settings() {
 }
 
 #[test]
-fn poses_bench_solves_within_half_a_degree_and_resumes() {
+fn poses_bench_solves_within_a_quarter_degree_and_resumes() {
     if !common::colmap_available() {
         return;
     }
@@ -131,7 +131,8 @@ fn poses_bench_solves_within_half_a_degree_and_resumes() {
     let rotation = number(&table, &key, "max_rotation_deg");
     let centre = number(&table, &key, "max_centre_pct");
     eprintln!("poses: rotation {rotation}°, centre {centre}% of the rig radius");
-    assert!(rotation < 0.5, "{rotation}°");
+    // RADIAL lenses: 0.04–0.09° in 10 runs (OPENCV's free aspect gave 0.11–0.55°).
+    assert!(rotation < 0.25, "{rotation}°");
     assert!(centre < 1.0, "{centre}%");
     assert!(number(&table, &key, "mean_rotation_deg") <= rotation);
     assert_eq!(number(&table, &key, "registered_images"), 12.0);

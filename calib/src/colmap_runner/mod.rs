@@ -42,10 +42,13 @@ pub const COLMAP_ENV: &str = "COLMAP_BIN";
 pub struct ColmapConfig {
     /// Path to the `colmap` binary; `None` → `$COLMAP_BIN`, then `colmap` on `PATH`.
     pub binary: Option<PathBuf>,
-    /// Camera model of the video cameras (`OPENCV`; `OPENCV_FISHEYE` for GoPro wide modes).
+    /// Camera model of the video cameras. The default `RADIAL` (one focal length, two radial
+    /// terms) suits webcams and phones; `OPENCV_FISHEYE` for GoPro wide modes, `OPENCV`
+    /// only for lenses with real tangential distortion. A few views cannot pin `OPENCV`'s
+    /// separate fx, fy and tangential terms: on the synthetic rigs its aspect drifted 1–2 %
+    /// and the cameras 0.11–0.47° (max), against 0.04–0.09° with `RADIAL` (docs/poses.md).
     pub camera_model: CameraModel,
-    /// Camera model of the stills. With known video lenses the default `OPENCV` is fitted
-    /// as `RADIAL` (see [`Workspace::stills_model`]).
+    /// Camera model of the stills (`RADIAL` by default, for the same reason).
     pub stills_camera_model: CameraModel,
     /// Whether all stills share one camera (same phone/lens and size) or get one each.
     pub stills_cameras: StillsCameras,
@@ -84,8 +87,8 @@ impl Default for ColmapConfig {
     fn default() -> Self {
         Self {
             binary: None,
-            camera_model: CameraModel::Opencv,
-            stills_camera_model: CameraModel::Opencv,
+            camera_model: CameraModel::Radial,
+            stills_camera_model: CameraModel::Radial,
             stills_cameras: StillsCameras::Shared,
             video_cameras: VideoCameras::Auto,
             video_focal_px: None,
@@ -251,20 +254,6 @@ pub fn find_colmap(configured: Option<&Path>) -> Result<PathBuf, ColmapError> {
 }
 
 impl Workspace {
-    /// The stills' camera model: `config`'s, except that with known video lenses the
-    /// default `OPENCV` becomes `RADIAL` (one focal length, two radial terms). The mapper
-    /// refines every camera's lens, and a stills lens with fx, fy and tangential terms free
-    /// co-adapts with the known lenses it drifts: on the synthetic rig the known-lens solve
-    /// failed in 3 of 55 runs with `OPENCV` stills and in none of 25 with `RADIAL`, every
-    /// camera then within 0.42° (docs/poses.md).
-    pub fn stills_model(&self, config: &ColmapConfig) -> CameraModel {
-        if !self.known_lenses.is_empty() && config.stills_camera_model == CameraModel::Opencv {
-            CameraModel::Radial
-        } else {
-            config.stills_camera_model
-        }
-    }
-
     /// Lay out a fresh workspace at `root` (anything there before is removed, so a rerun
     /// never mixes old features or matches in): one folder per video camera, stills in
     /// `stills/` (shared camera) or one folder each; with [`VideoCameras::Shared`] all video
@@ -383,7 +372,7 @@ impl Workspace {
         let t0 = Instant::now();
         let groups = [
             (true, config.camera_model),
-            (false, self.stills_model(config)),
+            (false, config.stills_camera_model),
         ];
         let same_model = config.camera_model == config.stills_camera_model
             && config.video_focal_px.is_none()

@@ -249,8 +249,8 @@ pub fn run(out_dir: &Path, quick: bool, reporter: &Reporter) -> anyhow::Result<B
 fn header(table: &Table) -> String {
     let machines = table.distinct("machine");
     format!(
-        "COLMAP (`calib::poses::solve`: one thread per step, RANSAC seed 0, up to 3 mapper \
-         attempts) on the first frame of the 4 video cameras and the 8 stills of \
+        "COLMAP (`calib::poses::solve`: `RADIAL` lenses, one thread per step, RANSAC seed 0, \
+         up to 5 mapper attempts) on the first frame of the 4 video cameras and the 8 stills of \
          fixtures/poses.toml (static, 640×480, scene seed 5), for each `[poses.colmap] \
          max_num_features` and `max_image_size`. Errors of the 4 video cameras against the \
          simulator's true cameras after a similarity alignment: rotation in degrees, centre \
