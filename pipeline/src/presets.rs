@@ -169,4 +169,53 @@ mod tests {
                 && it(Preset::Best) < it(Preset::Full)
         );
     }
+
+    /// Densification steps of a schedule, by the trainer's rule (multiples of `every` in
+    /// `(from, until]`).
+    fn densifications(t: &TrainConfig) -> u64 {
+        let d = &t.densify;
+        (d.from_iteration + 1..=d.until_iteration)
+            .filter(|i| i % d.every == 0)
+            .count() as u64
+    }
+
+    #[test]
+    fn every_preset_densifies_at_least_five_times_and_long_ones_keep_the_interval() {
+        // The demo's own schedule (fixtures/demo-capture.toml).
+        let mut demo = TrainConfig {
+            iterations: 2000,
+            ..TrainConfig::default()
+        };
+        demo.densify.from_iteration = 80;
+        demo.densify.until_iteration = 1000;
+        demo.densify.every = 200;
+        let decay = DecayConfig::default();
+        for train in [&demo, &TrainConfig::default()] {
+            for preset in [
+                Preset::Preview,
+                Preset::Balanced,
+                Preset::Best,
+                Preset::Full,
+            ] {
+                let (t, _) = preset.apply(train, &decay);
+                let n = densifications(&t);
+                assert!(n >= splat4d::train::MIN_DENSIFICATIONS, "{preset:?}: {n}");
+                assert!(t.densify.every <= train.densify.every);
+                if t.iterations >= train.iterations {
+                    assert_eq!(t.densify.every, train.densify.every, "{preset:?}");
+                }
+            }
+        }
+        // 300 steps of the demo: every 27 steps in (12, 150], five times (none before).
+        let (t, _) = Preset::Preview.apply(&demo, &decay);
+        assert_eq!(
+            (
+                t.densify.from_iteration,
+                t.densify.until_iteration,
+                t.densify.every
+            ),
+            (12, 150, 27)
+        );
+        assert_eq!(densifications(&t), 5);
+    }
 }

@@ -40,6 +40,17 @@ pub struct DensifyConfig {
     pub max_gaussians: usize,
 }
 
+impl DensifyConfig {
+    /// How many times training densifies: at the multiples of `every` in
+    /// `(from_iteration, until_iteration]`.
+    pub fn count(&self) -> u64 {
+        if self.every == 0 || self.until_iteration <= self.from_iteration {
+            return 0;
+        }
+        self.until_iteration / self.every - self.from_iteration / self.every
+    }
+}
+
 impl Default for DensifyConfig {
     fn default() -> Self {
         Self {

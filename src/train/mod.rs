@@ -102,10 +102,17 @@ impl Default for TrainConfig {
     }
 }
 
+/// Densifications a shortened schedule keeps in its window ([`TrainConfig::with_iterations`]).
+pub const MIN_DENSIFICATIONS: u64 = 5;
+
 impl TrainConfig {
     /// This configuration shortened (or lengthened) to `iterations`, with every schedule
     /// that counts iterations (colour degree, densification window, opacity reset,
-    /// position decay) scaled by the same factor; checkpoints only at the end.
+    /// position decay) scaled by the same factor; checkpoints only at the end. The
+    /// densification interval is how many views the statistics gather, so it is kept, but
+    /// a shortened schedule whose window would hold fewer than [`MIN_DENSIFICATIONS`]
+    /// densifications gets a shorter one (a 300-step run of the demo's 2000-step schedule
+    /// densified not at all).
     pub fn with_iterations(&self, iterations: u64) -> Self {
         let s = iterations as f64 / self.iterations.max(1) as f64;
         let scale = |n: u64| (n as f64 * s).round() as u64;
@@ -114,6 +121,13 @@ impl TrainConfig {
         c.degree_every = scale(self.degree_every).max(1);
         c.densify.from_iteration = scale(self.densify.from_iteration);
         c.densify.until_iteration = scale(self.densify.until_iteration);
+        if iterations < self.iterations && c.densify.count() < MIN_DENSIFICATIONS {
+            let window = c
+                .densify
+                .until_iteration
+                .saturating_sub(c.densify.from_iteration);
+            c.densify.every = (window / MIN_DENSIFICATIONS).max(1);
+        }
         c.densify.opacity_reset_every = scale(self.densify.opacity_reset_every);
         c.lr.position_decay_steps = scale(self.lr.position_decay_steps);
         c.checkpoint_every = 0;
