@@ -170,13 +170,14 @@ mod tests {
         );
     }
 
-    /// Densification steps of a schedule, by the trainer's rule (multiples of `every` in
-    /// `(from, until]`).
+    /// Densification steps of a run, step by step as the trainer decides them (checked
+    /// against the closed form `DensifyConfig::count`).
     fn densifications(t: &TrainConfig) -> u64 {
-        let d = &t.densify;
-        (d.from_iteration + 1..=d.until_iteration)
-            .filter(|i| i % d.every == 0)
-            .count() as u64
+        let n = (1..=t.iterations)
+            .filter(|&done| t.densify.densifies_at(done))
+            .count() as u64;
+        assert_eq!(n, t.densify.count(), "{:?}", t.densify);
+        n
     }
 
     #[test]

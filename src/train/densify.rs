@@ -41,10 +41,22 @@ pub struct DensifyConfig {
 }
 
 impl DensifyConfig {
-    /// How many times training densifies: at the multiples of `every` in
-    /// `(from_iteration, until_iteration]`.
+    /// Whether `done` (steps completed) is in the window `(from_iteration,
+    /// until_iteration]` where densification and opacity resets may happen.
+    pub fn in_window(&self, done: u64) -> bool {
+        self.enabled && done > self.from_iteration && done <= self.until_iteration
+    }
+
+    /// Whether training densifies after `done` steps: at the multiples of `every` in the
+    /// window.
+    pub fn densifies_at(&self, done: u64) -> bool {
+        self.in_window(done) && self.every > 0 && done % self.every == 0
+    }
+
+    /// How many times training densifies ([`Self::densifies_at`]) in a run long enough to
+    /// cover the window (0 when disabled).
     pub fn count(&self) -> u64 {
-        if self.every == 0 || self.until_iteration <= self.from_iteration {
+        if !self.enabled || self.every == 0 || self.until_iteration <= self.from_iteration {
             return 0;
         }
         self.until_iteration / self.every - self.from_iteration / self.every

@@ -487,8 +487,8 @@ pub fn train(
             stepper.model_from_host(&model)?;
         }
         let done = it + 1;
-        let in_window = d.enabled && done > d.from_iteration && done <= d.until_iteration;
-        let densify_now = in_window && d.every > 0 && done % d.every == 0;
+        let in_window = d.in_window(done);
+        let densify_now = d.densifies_at(done);
         // A reset needs steps to recover: none in the last half period (a reset on the last
         // step would leave a transparent model).
         let reset_now = in_window
