@@ -6,6 +6,7 @@
 //! balls: dense point-map clouds sample surfaces, and a ball on a wall smears its colour
 //! over the wall in views the training cameras never saw.
 
+use super::motion::{moment_velocities, moving_gaussian};
 use crate::math::numerics::logit;
 use crate::model::{ColourDegrees, Gaussians, TimeMapping};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -42,6 +43,9 @@ pub struct InitOptions {
     pub seed: u64,
     /// Thickness of the initial disks as a fraction of their radius (0: balls, as 3DGS).
     pub flatness: f64,
+    /// Moving points (time span 0) start with the velocity of their nearest moving points
+    /// at the neighbouring moments ([`super::motion`]).
+    pub velocity: bool,
 }
 
 impl Default for InitOptions {
@@ -52,6 +56,7 @@ impl Default for InitOptions {
             capacity: ColourDegrees::FULL,
             seed: 0,
             flatness: 0.0,
+            velocity: false,
         }
     }
 }
@@ -107,6 +112,7 @@ pub fn gaussians_from_points(
     } else {
         vec![None; n]
     };
+
     let thin = (options.flatness.clamp(1e-4, 1.0) as f32).ln();
     let duration = if time.duration.is_finite() && time.duration > 0.0 {
         time.duration
@@ -114,6 +120,13 @@ pub fn gaussians_from_points(
         1.0
     };
     let sigma_t = (duration * options.time_scale_fraction).max(1e-6);
+    // Moments closer than 2 % of the clip are one moment.
+    let velocities = match (&cloud.time, &cloud.time_span) {
+        (Some(t), Some(span)) if options.velocity => {
+            moment_velocities(&cloud.xyz, t, span, 0.02 * duration as f32)
+        }
+        _ => vec![None; n],
+    };
     let logit_o = logit(options.opacity) as f32;
     let mut model = Gaussians::new(options.capacity, time);
     let mut rng = SplitMix(options.seed ^ 0x5EED_1417);
@@ -136,6 +149,14 @@ pub fn gaussians_from_points(
             model.log_scales[i_new][2] = s + thin;
             model.rot_left[i_new] = q;
             model.rot_right[i_new] = q;
+        }
+        if let Some(v) = velocities[i] {
+            let ls = model.log_scales[i_new];
+            let (log_scales, ql, qr) =
+                moving_gaussian([ls[0], ls[1], ls[2]], model.rot_left[i_new], log_t, v);
+            model.log_scales[i_new] = log_scales;
+            model.rot_left[i_new] = ql;
+            model.rot_right[i_new] = qr;
         }
     }
     Ok(model)
@@ -295,6 +316,75 @@ mod tests {
         let balls = gaussians_from_points(&cloud, TimeMapping::default(), &InitOptions::default());
         let balls = balls.unwrap();
         assert!(balls.log_scales.iter().all(|s| s[0] == s[2]));
+    }
+
+    #[test]
+    fn with_velocity_moving_points_follow_their_motion_and_static_ones_stay() {
+        // A patch of points moving along z at 0.5 per unit time, seen at moments 0.2 and
+        // 0.4, and a static row seen over the whole clip.
+        let (mut xyz, mut time, mut span) = (Vec::new(), Vec::new(), Vec::new());
+        for t in [0.2f32, 0.4] {
+            for i in 0..15 {
+                for j in 0..15 {
+                    xyz.push([i as f32 * 0.02, j as f32 * 0.02, 1.0 + 0.5 * t]);
+                    time.push(t);
+                    span.push(0.0);
+                }
+            }
+        }
+        for i in 0..50 {
+            xyz.push([i as f32 * 0.02, -1.0, 0.0]);
+            time.push(0.5);
+            span.push(1.0);
+        }
+        let cloud = PointCloud {
+            rgb: vec![[128; 3]; xyz.len()],
+            xyz,
+            time: Some(time),
+            time_span: Some(span),
+        };
+        let tm = TimeMapping {
+            start_seconds: 0.0,
+            units_per_second: 1.0,
+            duration: 1.0,
+        };
+        let sliced_z = |g: &Gaussians<f32>, i: usize, t: f64| {
+            let (s, _) = crate::math::slice::slice(
+                g.means[i].map(f64::from),
+                g.log_scales[i].map(f64::from),
+                g.rot_left[i].map(f64::from),
+                g.rot_right[i].map(f64::from),
+                t,
+            )
+            .expect("alive");
+            s.mean[2]
+        };
+        let options = InitOptions {
+            time_scale_fraction: 0.05,
+            velocity: true,
+            ..InitOptions::default()
+        };
+        let moving = gaussians_from_points(&cloud, tm, &options).unwrap();
+        let still = gaussians_from_points(
+            &cloud,
+            tm,
+            &InitOptions {
+                velocity: false,
+                ..options
+            },
+        );
+        let still = still.unwrap();
+        for i in [0, 100, 300] {
+            let z0 = moving.means[i][2] as f64;
+            assert!(
+                (sliced_z(&moving, i, moving.means[i][3] as f64 + 0.05) - (z0 + 0.025)).abs()
+                    < 1e-4
+            );
+            assert!((sliced_z(&still, i, still.means[i][3] as f64 + 0.05) - z0).abs() < 1e-6);
+        }
+        // The static row keeps its axis-aligned, time-only rotation.
+        assert_eq!(moving.rot_left[460], [1.0, 0.0, 0.0, 0.0]);
+        assert_eq!(moving.log_scales[460], still.log_scales[460]);
     }
 
     #[test]

@@ -4,6 +4,7 @@
 
 pub mod file;
 pub mod init;
+pub mod motion;
 
 use crate::math::numerics::Real;
 use crate::math::sh::SH_C0;

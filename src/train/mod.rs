@@ -65,6 +65,10 @@ pub struct TrainConfig {
     /// Initial Gaussians on planar patches of the point cloud are disks this thick
     /// relative to their radius (0: balls, as 3DGS; see `model::init`).
     pub init_flatness: f64,
+    /// Moving points of the init (time span 0, from point maps at several moments) start
+    /// moving with the velocity of their nearest moving points at the neighbouring moments
+    /// (`model::motion`; on by default, a no-op for clouds without such moments).
+    pub init_velocity: bool,
     /// Largest allowed ratio of a Gaussian's longest spatial axis to its middle one
     /// (needles are reshaped into ribbons after every step; 0: no limit).
     pub max_anisotropy: f64,
@@ -92,6 +96,7 @@ impl Default for TrainConfig {
             init_opacity: 0.1,
             init_time_scale: 0.2,
             init_flatness: 0.0,
+            init_velocity: true,
             max_anisotropy: 0.0,
             lr: LearningRates::default(),
             densify: DensifyConfig::default(),
@@ -409,6 +414,7 @@ pub fn train(
                 capacity: config.colour_degrees,
                 seed: config.seed,
                 flatness: config.init_flatness,
+                velocity: config.init_velocity,
             };
             let model = gaussians_from_points(init, dataset.time_mapping, &opts)?;
             let adam = Adam::new(&model);
