@@ -4,7 +4,8 @@
 //! With `flatness > 0`, points on a locally planar patch of the cloud start as disks in
 //! that plane (normal from the principal axes of their 10 nearest neighbours) instead of
 //! balls: dense point-map clouds sample surfaces, and a ball on a wall smears its colour
-//! over the wall in views the training cameras never saw.
+//! over the wall in views the training cameras never saw. With `velocity`, points of
+//! moving objects start moving as the neighbouring moments show ([`super::motion`]).
 
 use super::motion::{moment_velocities, moving_gaussian};
 use crate::math::numerics::logit;
@@ -112,7 +113,6 @@ pub fn gaussians_from_points(
     } else {
         vec![None; n]
     };
-
     let thin = (options.flatness.clamp(1e-4, 1.0) as f32).ln();
     let duration = if time.duration.is_finite() && time.duration > 0.0 {
         time.duration
