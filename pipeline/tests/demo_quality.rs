@@ -6,7 +6,7 @@
 //!
 //! Long (6–12 minutes in a release build on 2 cores): ignored by default. Run with the
 //! release binary:
-//! `cargo build --release -p pipeline && PIPELINE_BIN=target/release/pipeline cargo test -p pipeline --test demo_quality -- --ignored --nocapture`
+//! `cargo build --release -p pipeline && PIPELINE_BIN=$PWD/target/release/pipeline cargo test -p pipeline --test demo_quality -- --ignored --nocapture`
 
 use std::path::PathBuf;
 use std::process::Command;
