@@ -18,6 +18,7 @@ pub mod npy;
 pub mod onnx;
 pub mod pair_scale;
 pub mod statics;
+pub mod sweep;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -42,7 +43,8 @@ use statics::StaticCounts;
 #[serde(rename_all = "snake_case")]
 pub enum Source {
     /// `model` if set, else `pointmaps` if set, else triangulated moments (when `moments`
-    /// > 0 and COLMAP is found), else sparse points, else random.
+    /// > 0), with the plane sweep's points added when they are fewer than `min_points`
+    /// (COLMAP missing, wide baselines), else sparse points, else random.
     #[default]
     Auto,
     /// Run the ONNX model `model` (falls back when every pair is rejected).
@@ -52,6 +54,10 @@ pub enum Source {
     /// Triangulate the known cameras' frames at `moments` moments with COLMAP (falls back
     /// to the sparse points when COLMAP is missing or no moment gives points).
     Triangulate,
+    /// Dense plane-sweep stereo of the known cameras' frames at `moments` moments
+    /// ([`sweep`]; falls back to triangulation, then the sparse points, when no depth is
+    /// confirmed).
+    Sweep,
     /// The sparse COLMAP points (falls back to random when there are none).
     Sparse,
     /// A random cloud in the cameras' common view volume.
@@ -134,6 +140,14 @@ pub struct InitConfig {
     pub merge_sparse: bool,
     /// The `colmap` binary for triangulation; `None`: `$COLMAP_BIN`, then `PATH`.
     pub colmap: Option<PathBuf>,
+    /// Plane sweep: long side (pixels) the frames are shrunk to.
+    pub sweep_size: u32,
+    /// Plane sweep: most depth planes per camera (they are one pixel of motion apart).
+    pub sweep_max_planes: usize,
+    /// Plane sweep: least NCC of a pixel's best match for it to take a depth.
+    pub sweep_min_score: f32,
+    /// Plane sweep: cameras whose depth maps must agree on a point (≥ 2).
+    pub sweep_min_views: usize,
 }
 
 impl Default for InitConfig {
@@ -163,6 +177,10 @@ impl Default for InitConfig {
             static_radius: 0.008,
             merge_sparse: true,
             colmap: None,
+            sweep_size: 320,
+            sweep_max_planes: 512,
+            sweep_min_score: 0.7,
+            sweep_min_views: 2,
         }
     }
 }
@@ -174,6 +192,16 @@ impl InitConfig {
             input_names: self.input_names.clone(),
             output_names: self.output_names.clone(),
             input_size: self.input_size,
+        }
+    }
+
+    /// The plane-sweep part of the settings.
+    pub fn sweep_options(&self) -> sweep::SweepOptions {
+        sweep::SweepOptions {
+            size: self.sweep_size,
+            max_planes: self.sweep_max_planes,
+            min_score: self.sweep_min_score,
+            min_views: self.sweep_min_views,
         }
     }
 }
@@ -208,6 +236,7 @@ pub enum UsedSource {
     Onnx,
     Npy,
     Triangulated,
+    Swept,
     Sparse,
     Random,
 }
@@ -249,6 +278,9 @@ pub struct InitReport {
     /// Each triangulated moment (empty when triangulation did not run).
     #[serde(default)]
     pub moments: Vec<MomentReport>,
+    /// Each swept moment (empty when the sweep did not run).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub sweeps: Vec<sweep::SweepReport>,
     /// Static/moving split of the triangulated points (zero unless triangulated).
     #[serde(default)]
     pub statics: StaticCounts,
@@ -295,11 +327,12 @@ pub enum InitError {
     },
 }
 
-/// A training camera ready for point maps: pinhole twin, undistorted first frame, time.
-struct View {
-    camera: Camera,
-    image: RgbImage,
-    time: f64,
+/// A training camera ready for point maps or the sweep: pinhole twin, its undistorted
+/// frame, that frame's time.
+pub struct View {
+    pub camera: Camera,
+    pub image: RgbImage,
+    pub time: f64,
 }
 
 /// Run the init stage: write `<out_dir>/points.ply` and report what was done.
@@ -354,7 +387,7 @@ pub fn run_init(
 
     // Auto triangulates only when the caller gave moments (library callers may not).
     let triangulate = match config.source {
-        Source::Triangulate => true,
+        Source::Triangulate | Source::Sweep => true,
         Source::Auto => config.moments > 0 && !inputs.moments.is_empty(),
         _ => false,
     };
@@ -391,13 +424,14 @@ pub fn run_init(
                 None
             }
         },
-        Source::Triangulate | Source::Sparse | Source::Random => None,
+        Source::Triangulate | Source::Sweep | Source::Sparse | Source::Random => None,
     };
 
     let mut pairs = Vec::new();
     let mut fused: Vec<FusedPoint> = Vec::new();
     let mut used = None;
     let mut moment_reports = Vec::new();
+    let mut sweeps = Vec::new();
     let mut statics = StaticCounts::default();
     let mut raw_points = None;
     // Point maps of several moments are split into static and moving points (and already
@@ -460,17 +494,30 @@ pub fn run_init(
             used = Some(kind);
         }
     }
-    if used.is_none() && triangulate {
-        let chosen = &inputs.moments[..inputs.moments.len().min(config.moments)];
+    // Points of several moments (swept and/or triangulated), told static or moving below.
+    let chosen = &inputs.moments[..inputs.moments.len().min(config.moments)];
+    let mut timed = Vec::new();
+    let mut timed_source = None;
+    if used.is_none() && config.source == Source::Sweep {
+        let points;
+        (sweeps, points) = sweep_moments(chosen, &inputs.cameras, config, progress)?;
+        if points.is_empty() {
+            fall(format!(
+                "the plane sweep confirmed no depth at {} moments; triangulating moments",
+                chosen.len()
+            ));
+        } else {
+            timed = points;
+            timed_source = Some(UsedSource::Swept);
+        }
+    }
+    if used.is_none() && timed.is_empty() && triangulate {
         let binary = find_colmap(config.colmap.as_deref());
         match (chosen.is_empty(), binary) {
-            (true, _) => fall(
-                "no moments to triangulate (`[init] moments` = 0 or no frames); using the sparse COLMAP points"
-                    .into(),
-            ),
-            (false, Err(e)) => fall(format!(
-                "cannot triangulate moments: {e}; using the sparse COLMAP points"
-            )),
+            (true, _) => {
+                fall("no moments to triangulate (`[init] moments` = 0 or no frames)".into())
+            }
+            (false, Err(e)) => fall(format!("cannot triangulate moments: {e}")),
             (false, Ok(binary)) => {
                 let work = out_dir.join("triangulate");
                 std::fs::create_dir_all(&work).map_err(|source| InitError::Io {
@@ -488,36 +535,47 @@ pub fn run_init(
                 moment_reports = reports;
                 if points.is_empty() {
                     fall(format!(
-                        "no moment gave triangulated points ({} tried; COLMAP logs in triangulate/mNN/logs/ of the init output); using the sparse COLMAP points",
+                        "no moment gave triangulated points ({} tried; COLMAP logs in triangulate/mNN/logs/ of the init output)",
                         chosen.len()
                     ));
                 } else {
-                    let extra = sparse_extra(config, &sparse_xyz, &sparse.rgb);
-                    let clip = (
-                        chosen.iter().map(|m| m.time).fold(f64::INFINITY, f64::min),
-                        chosen.iter().map(|m| m.time).fold(f64::NEG_INFINITY, f64::max),
-                    );
-                    let (pts, counts) = statics::split_static(
-                        &points,
-                        &extra,
-                        config.static_radius.max(0.0) * radius,
-                        config.static_radius.max(0.0) * radius,
-                        voxel,
-                        clip,
-                    );
-                    tracing::info!(
-                        "point init: {} static points ({} sparse merged), {} moving points",
-                        counts.static_points,
-                        counts.sparse_merged,
-                        counts.dynamic_points
-                    );
-                    raw_points = Some(points.len() + counts.sparse_merged);
-                    statics = counts;
-                    fused = pts;
-                    used = Some(UsedSource::Triangulated);
+                    timed = points;
+                    timed_source = Some(UsedSource::Triangulated);
                 }
             }
         }
+        // Wide baselines or no COLMAP: too few points to train from. The plane sweep
+        // needs only the known cameras.
+        if config.source == Source::Auto && timed.len() < config.min_points && !chosen.is_empty() {
+            fall(format!(
+                "{} triangulated points (fewer than min_points = {}); adding the plane sweep's",
+                timed.len(),
+                config.min_points
+            ));
+            let points;
+            (sweeps, points) = sweep_moments(chosen, &inputs.cameras, config, progress)?;
+            if !points.is_empty() {
+                timed.extend(points);
+                timed_source = Some(UsedSource::Swept);
+            }
+        }
+    }
+    if let Some(source) = timed_source {
+        let (pts, counts) = split_moments(
+            &timed,
+            chosen,
+            config,
+            &sparse_xyz,
+            &sparse.rgb,
+            radius,
+            voxel,
+        );
+        raw_points = Some(timed.len() + counts.sparse_merged);
+        statics = counts;
+        fused = pts;
+        used = Some(source);
+    } else if used.is_none() && triangulate {
+        fall("no moment gave points; using the sparse COLMAP points".into());
     }
     if used.is_none() && config.source != Source::Random {
         if sparse.xyz.is_empty() {
@@ -585,6 +643,7 @@ pub fn run_init(
         fallbacks,
         pairs,
         moments: moment_reports,
+        sweeps,
         statics,
         points_before,
         points_after_voxel,
@@ -626,6 +685,82 @@ fn load_views(
         ));
     }
     Ok(views)
+}
+
+/// Sweep every moment of `moments` ([`sweep::sweep_moment`]): each moment's report and
+/// all confirmed points.
+fn sweep_moments(
+    moments: &[Moment],
+    cameras: &CameraSet,
+    config: &InitConfig,
+    progress: &dyn Progress,
+) -> Result<(Vec<sweep::SweepReport>, Vec<statics::TimedPoint>), InitError> {
+    let options = config.sweep_options();
+    progress.start(moments.len() as u64, "moments swept");
+    let (mut reports, mut points) = (Vec::new(), Vec::new());
+    for (k, moment) in moments.iter().enumerate() {
+        progress.message(&format!(
+            "moment {}/{} (frame {})",
+            k + 1,
+            moments.len(),
+            moment.frame
+        ));
+        let start = Instant::now();
+        let views = load_views(cameras, &moment.views, config.fit)?;
+        let views: Vec<&View> = views.iter().map(|(_, v)| v).collect();
+        let (pts, mut report) = sweep::sweep_moment(&views, k, moment.time, &options);
+        report.frame = moment.frame;
+        report.seconds = start.elapsed().as_secs_f64();
+        tracing::info!(
+            "point init: moment {} (frame {}) swept: {} of {} pixels matched, {} confirmed",
+            k + 1,
+            moment.frame,
+            report.matched,
+            report.pixels,
+            report.points
+        );
+        points.extend(pts);
+        reports.push(report);
+        progress.advance(1);
+    }
+    progress.finish();
+    Ok((reports, points))
+}
+
+/// Points found at several `moments` told static or moving ([`statics::split_static`]),
+/// with the pose solve's sparse points as static extras.
+fn split_moments(
+    points: &[statics::TimedPoint],
+    moments: &[Moment],
+    config: &InitConfig,
+    sparse_xyz: &[DVec3],
+    sparse_rgb: &[[u8; 3]],
+    radius: f64,
+    voxel: f64,
+) -> (Vec<FusedPoint>, StaticCounts) {
+    let clip = (
+        moments.iter().map(|m| m.time).fold(f64::INFINITY, f64::min),
+        moments
+            .iter()
+            .map(|m| m.time)
+            .fold(f64::NEG_INFINITY, f64::max),
+    );
+    let static_radius = config.static_radius.max(0.0) * radius;
+    let (pts, counts) = statics::split_static(
+        points,
+        &sparse_extra(config, sparse_xyz, sparse_rgb),
+        static_radius,
+        static_radius,
+        voxel,
+        clip,
+    );
+    tracing::info!(
+        "point init: {} static points ({} sparse merged), {} moving points",
+        counts.static_points,
+        counts.sparse_merged,
+        counts.dynamic_points
+    );
+    (pts, counts)
 }
 
 /// The pose solve's sparse points as static extras of a static/moving split, when

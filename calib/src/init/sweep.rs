@@ -1,0 +1,553 @@
+//! Dense points from plane-sweep stereo with the known cameras, for captures without point
+//! maps (an imported calibration, wide baselines where SIFT matches a few dozen points).
+//!
+//! At one moment, the views are shrunk to `size` pixels on their long side and each
+//! camera in turn is the reference: for depths uniform in inverse depth around where the
+//! rig looks, one pixel of motion apart in the other cameras (at most `max_planes`), every
+//! other camera's grey image is
+//! warped onto the reference through the fronto-parallel plane at that depth and compared
+//! with a zero-mean normalised cross-correlation (NCC) over a `(2·WINDOW+1)²` window. A
+//! pixel takes the depth where its best neighbour's NCC peaks (refined by a parabola) when
+//! that NCC reaches `min_score` and the window has texture. Depths are then kept only where
+//! another camera's depth map agrees (the point projects there at the same depth, and that
+//! pixel's point projects back within a pixel): two independent searches found the same
+//! surface. What is kept becomes coloured world points with the moment's time.
+
+use glam::{DVec2, DVec3};
+use image::RgbImage;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use shared_types::Camera;
+
+use super::View;
+use super::fuse::{rig_radius, rig_target};
+use super::statics::TimedPoint;
+
+/// Half-size of the NCC window (7×7 pixels).
+const WINDOW: usize = 3;
+/// Smallest standard deviation of a window's grey values (0..1) that counts as texture.
+const MIN_TEXTURE: f32 = 0.015;
+/// Depth range around where the rig looks: `[d / RANGE, d · RANGE]` for a reference
+/// camera whose depth of the rig's target is `d`.
+const RANGE: f64 = 4.0;
+/// Relative depth difference two depth maps may have and still agree.
+const DEPTH_TOLERANCE: f64 = 0.005;
+/// Fewest depth planes swept.
+const MIN_PLANES: usize = 16;
+/// Pixels the round trip through another camera's depth map may move.
+const PIXEL_TOLERANCE: f64 = 1.0;
+
+/// Sweep settings (from `[init]`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SweepOptions {
+    /// Long side (pixels) the views are shrunk to for the sweep (never enlarged).
+    pub size: u32,
+    /// Most depth planes per reference camera (they are one pixel of motion apart).
+    pub max_planes: usize,
+    /// Least NCC of the best neighbour for a pixel to take a depth.
+    pub min_score: f32,
+    /// Cameras whose depth maps must agree on a point (the reference included, ≥ 2).
+    pub min_views: usize,
+}
+
+/// What one moment's sweep gave.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SweepReport {
+    pub frame: usize,
+    pub time: f64,
+    /// Reference pixels, pixels that took a depth, and depths other cameras confirmed.
+    pub pixels: usize,
+    pub matched: usize,
+    pub points: usize,
+    pub seconds: f64,
+}
+
+/// One camera's depth map (pinhole, the view's size); 0 where no depth was found.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DepthMap {
+    pub width: usize,
+    pub height: usize,
+    pub depth: Vec<f32>,
+}
+
+impl DepthMap {
+    /// The depth at the pixel containing `p` (0 outside or where none).
+    fn at(&self, p: DVec2) -> f64 {
+        if !(p.x >= 0.0 && p.y >= 0.0) {
+            return 0.0;
+        }
+        let (x, y) = (p.x as usize, p.y as usize);
+        if x >= self.width || y >= self.height {
+            return 0.0;
+        }
+        self.depth[y * self.width + x] as f64
+    }
+}
+
+/// A view's grey image in `0..1` (Rec. 601 luma), row-major.
+fn grey(image: &RgbImage) -> Vec<f32> {
+    image
+        .pixels()
+        .map(|p| (0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32) / 255.0)
+        .collect()
+}
+
+/// Bilinear sample of a grey image at continuous pixel coordinates (pixel centres at
+/// integer + 0.5); `None` outside the centres' hull.
+fn bilinear(img: &[f32], w: usize, h: usize, p: DVec2) -> Option<f32> {
+    let (x, y) = (p.x - 0.5, p.y - 0.5);
+    if !(x >= 0.0 && y >= 0.0) || x > (w - 1) as f64 || y > (h - 1) as f64 {
+        return None;
+    }
+    let (x0, y0) = (x as usize, y as usize);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+    let top = img[y0 * w + x0] * (1.0 - fx) + img[y0 * w + x1] * fx;
+    let bottom = img[y1 * w + x0] * (1.0 - fx) + img[y1 * w + x1] * fx;
+    Some(top * (1.0 - fy) + bottom * fy)
+}
+
+/// Sums of `values` over the `(2r+1)²` window around each pixel (windows clipped at the
+/// border), through a summed-area table in `f64`.
+fn box_sums(values: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
+    let mut table = vec![0.0f64; (w + 1) * (h + 1)];
+    for y in 0..h {
+        let mut row = 0.0;
+        for x in 0..w {
+            row += values[y * w + x] as f64;
+            table[(y + 1) * (w + 1) + x + 1] = table[y * (w + 1) + x + 1] + row;
+        }
+    }
+    let mut out = vec![0.0f32; w * h];
+    for y in 0..h {
+        let (y0, y1) = (y.saturating_sub(r), (y + r + 1).min(h));
+        for x in 0..w {
+            let (x0, x1) = (x.saturating_sub(r), (x + r + 1).min(w));
+            let s = table[y1 * (w + 1) + x1] - table[y0 * (w + 1) + x1] - table[y1 * (w + 1) + x0]
+                + table[y0 * (w + 1) + x0];
+            out[y * w + x] = s as f32;
+        }
+    }
+    out
+}
+
+/// Per pixel of the reference: the unit-z ray in world coordinates (`X = C + d · ray` is
+/// the point at depth `d`).
+fn rays(camera: &Camera) -> Vec<DVec3> {
+    let (w, h) = (
+        camera.intrinsics.width as usize,
+        camera.intrinsics.height as usize,
+    );
+    let rt = camera.world_to_camera.rotation().transpose();
+    (0..w * h)
+        .map(|i| {
+            let p = DVec2::new((i % w) as f64 + 0.5, (i / w) as f64 + 0.5);
+            let n = camera.intrinsics.to_normalised(p);
+            rt * DVec3::new(n.x, n.y, 1.0)
+        })
+        .collect()
+}
+
+/// The depth of the rig's target in `camera` (the rig radius when it is behind).
+fn target_depth(camera: &Camera, target: DVec3, radius: f64) -> f64 {
+    let d = camera.world_to_camera.apply(target).z;
+    if d > 1e-9 { d } else { radius }
+}
+
+/// How many planes put neighbouring planes about one pixel of motion apart in `others`:
+/// the largest motion per unit of inverse depth, at the target's depth, of the reference's
+/// centre and corner pixels, times the inverse-depth range; within
+/// `[MIN_PLANES, max_planes]`.
+fn plane_count(camera: &Camera, others: &[&Camera], depth: f64, max_planes: usize) -> usize {
+    let (w, h) = (
+        camera.intrinsics.width as f64,
+        camera.intrinsics.height as f64,
+    );
+    let centre = camera.world_to_camera.centre();
+    let rt = camera.world_to_camera.rotation().transpose();
+    let step = 1e-3 / depth;
+    let mut motion = 0.0f64;
+    for p in [(0.5, 0.5), (0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)] {
+        let n = camera
+            .intrinsics
+            .to_normalised(DVec2::new(p.0 * w, p.1 * h));
+        let ray = rt * DVec3::new(n.x, n.y, 1.0);
+        let at = |inv: f64| centre + ray / inv;
+        for o in others {
+            if let (Some((a, _)), Some((b, _))) = (
+                o.project(at(1.0 / depth)),
+                o.project(at(1.0 / depth + step)),
+            ) {
+                motion = motion.max((a - b).length() / step);
+            }
+        }
+    }
+    let range = RANGE / depth - 1.0 / (RANGE * depth);
+    ((motion * range).ceil() as usize).clamp(MIN_PLANES, max_planes.max(MIN_PLANES))
+}
+
+/// The depths swept: `planes` values uniform in inverse depth over `[d / RANGE, d · RANGE]`,
+/// nearest first, `d` the depth of the rig's target.
+fn plane_depths(d: f64, planes: usize) -> Vec<f64> {
+    let (near, far) = (1.0 / (d / RANGE), 1.0 / (d * RANGE));
+    let planes = planes.max(2);
+    (0..planes)
+        .map(|k| 1.0 / (near + (far - near) * k as f64 / (planes - 1) as f64))
+        .collect()
+}
+
+/// The reference's window statistics: sums of I and I², and whether each window has
+/// texture.
+struct Reference {
+    sum: Vec<f32>,
+    sum_sq: Vec<f32>,
+    count: Vec<f32>,
+    textured: Vec<bool>,
+}
+
+impl Reference {
+    fn new(img: &[f32], w: usize, h: usize) -> Self {
+        let sum = box_sums(img, w, h, WINDOW);
+        let sq: Vec<f32> = img.iter().map(|v| v * v).collect();
+        let sum_sq = box_sums(&sq, w, h, WINDOW);
+        let count = box_sums(&vec![1.0; w * h], w, h, WINDOW);
+        let textured = (0..w * h)
+            .map(|i| {
+                let n = count[i];
+                let var = sum_sq[i] / n - (sum[i] / n).powi(2);
+                var >= MIN_TEXTURE * MIN_TEXTURE
+            })
+            .collect();
+        Self {
+            sum,
+            sum_sq,
+            count,
+            textured,
+        }
+    }
+}
+
+/// NCC of every reference window against `other` warped through the plane at `depth`
+/// (`-1` where the warp leaves `other` anywhere in the window or either side is flat).
+#[allow(clippy::too_many_arguments)]
+fn plane_scores(
+    reference: &Reference,
+    ref_img: &[f32],
+    rays: &[DVec3],
+    origin: DVec3,
+    depth: f64,
+    other: &Camera,
+    other_img: &[f32],
+    w: usize,
+    h: usize,
+) -> Vec<f32> {
+    let (ow, oh) = (
+        other.intrinsics.width as usize,
+        other.intrinsics.height as usize,
+    );
+    let mut warped = vec![0.0f32; w * h];
+    let mut valid = vec![0.0f32; w * h];
+    for (i, ray) in rays.iter().enumerate() {
+        if let Some((p, _)) = other.project(origin + depth * *ray)
+            && let Some(v) = bilinear(other_img, ow, oh, p)
+        {
+            warped[i] = v;
+            valid[i] = 1.0;
+        }
+    }
+    let sw = box_sums(&warped, w, h, WINDOW);
+    let sww = box_sums(
+        &warped.iter().map(|v| v * v).collect::<Vec<_>>(),
+        w,
+        h,
+        WINDOW,
+    );
+    let siw = box_sums(
+        &warped
+            .iter()
+            .zip(ref_img)
+            .map(|(a, b)| a * b)
+            .collect::<Vec<_>>(),
+        w,
+        h,
+        WINDOW,
+    );
+    let count = box_sums(&valid, w, h, WINDOW);
+    (0..w * h)
+        .map(|i| {
+            let n = reference.count[i];
+            if !reference.textured[i] || count[i] < n - 0.5 {
+                return -1.0;
+            }
+            let (mi, mw) = (reference.sum[i] / n, sw[i] / n);
+            let vi = reference.sum_sq[i] / n - mi * mi;
+            let vw = sww[i] / n - mw * mw;
+            if vw < 0.25 * MIN_TEXTURE * MIN_TEXTURE {
+                return -1.0;
+            }
+            ((siw[i] / n - mi * mw) / (vi * vw).sqrt()).clamp(-1.0, 1.0)
+        })
+        .collect()
+}
+
+/// The depth map of `views[reference]` against every other view.
+pub fn depth_map(
+    views: &[&View],
+    reference: usize,
+    target: DVec3,
+    radius: f64,
+    options: &SweepOptions,
+) -> DepthMap {
+    let r = views[reference];
+    let (w, h) = (r.image.width() as usize, r.image.height() as usize);
+    let ref_img = grey(&r.image);
+    let stats = Reference::new(&ref_img, w, h);
+    let rays = rays(&r.camera);
+    let origin = r.camera.world_to_camera.centre();
+    let others: Vec<(&Camera, Vec<f32>)> = views
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| *k != reference)
+        .map(|(_, v)| (&v.camera, grey(&v.image)))
+        .collect();
+    let d = target_depth(&r.camera, target, radius);
+    let other_cameras: Vec<&Camera> = others.iter().map(|(c, _)| *c).collect();
+    let depths = plane_depths(
+        d,
+        plane_count(&r.camera, &other_cameras, d, options.max_planes),
+    );
+    // Planes in parallel batches; per pixel the best plane and the scores beside it.
+    let n = w * h;
+    let (mut best, mut best_k) = (vec![f32::MIN; n], vec![usize::MAX; n]);
+    let (mut before, mut after) = (vec![-1.0f32; n], vec![-1.0f32; n]);
+    let mut prev = vec![-1.0f32; n];
+    let batch = rayon::current_num_threads().max(1) * 2;
+    for (b, chunk) in depths.chunks(batch).enumerate() {
+        let scores: Vec<Vec<f32>> = chunk
+            .par_iter()
+            .map(|&d| {
+                let mut s = vec![-1.0f32; n];
+                for (cam, img) in &others {
+                    let o = plane_scores(&stats, &ref_img, &rays, origin, d, cam, img, w, h);
+                    s.iter_mut().zip(o).for_each(|(a, o)| *a = a.max(o));
+                }
+                s
+            })
+            .collect();
+        for (j, s) in scores.into_iter().enumerate() {
+            let k = b * batch + j;
+            for i in 0..n {
+                if s[i] > best[i] {
+                    (best[i], best_k[i], before[i], after[i]) = (s[i], k, prev[i], -1.0);
+                } else if best_k[i].wrapping_add(1) == k {
+                    after[i] = s[i];
+                }
+            }
+            prev = s;
+        }
+    }
+    let inv = |k: usize| 1.0 / depths[k];
+    let depth = (0..n)
+        .map(|i| {
+            let k = best_k[i];
+            if best[i] < options.min_score || k == 0 || k + 1 >= depths.len() {
+                return 0.0;
+            }
+            // Parabola through the neighbouring planes, in inverse depth.
+            let (a, b, c) = (before[i], best[i], after[i]);
+            let denom = a - 2.0 * b + c;
+            let shift = if denom < 0.0 {
+                (0.5 * (a - c) / denom).clamp(-0.5, 0.5) as f64
+            } else {
+                0.0
+            };
+            (1.0 / (inv(k) + shift * (inv(k + 1) - inv(k)))) as f32
+        })
+        .collect();
+    DepthMap {
+        width: w,
+        height: h,
+        depth,
+    }
+}
+
+/// Whether `other`'s depth map agrees with the point `x` (seen at pixel `p` of `camera`).
+fn agrees(x: DVec3, p: DVec2, camera: &Camera, other: &Camera, map: &DepthMap) -> bool {
+    let Some((q, z)) = other.project(x) else {
+        return false;
+    };
+    let d = map.at(q);
+    if d <= 0.0 || (d - z).abs() > DEPTH_TOLERANCE * z {
+        return false;
+    }
+    let centre = DVec2::new(q.x.floor() + 0.5, q.y.floor() + 0.5);
+    let back = super::fuse::unproject(other, centre, d);
+    camera
+        .project(back)
+        .is_some_and(|(b, _)| (b - p).length() <= PIXEL_TOLERANCE)
+}
+
+/// `view` shrunk to at most `size` pixels on its long side (Triangle filter), with its
+/// camera rescaled to match.
+fn shrunk(view: &View, size: u32) -> View {
+    let (w, h) = view.image.dimensions();
+    let long = w.max(h);
+    if long <= size || size == 0 {
+        return View {
+            camera: view.camera.clone(),
+            image: view.image.clone(),
+            time: view.time,
+        };
+    }
+    let (nw, nh) = (
+        ((w as f64 * size as f64 / long as f64).round() as u32).max(1),
+        ((h as f64 * size as f64 / long as f64).round() as u32).max(1),
+    );
+    let mut camera = view.camera.clone();
+    camera.intrinsics = camera.intrinsics.scaled_to(nw, nh);
+    View {
+        camera,
+        image: image::imageops::resize(&view.image, nw, nh, image::imageops::FilterType::Triangle),
+        time: view.time,
+    }
+}
+
+/// Sweep one moment's views: every confirmed depth as a coloured point of moment `moment`
+/// at `time`, and the counts.
+pub fn sweep_moment(
+    views: &[&View],
+    moment: usize,
+    time: f64,
+    options: &SweepOptions,
+) -> (Vec<TimedPoint>, SweepReport) {
+    let small: Vec<View> = views.iter().map(|v| shrunk(v, options.size)).collect();
+    let views: Vec<&View> = small.iter().collect();
+    let views = views.as_slice();
+    let cameras: Vec<Camera> = views.iter().map(|v| v.camera.clone()).collect();
+    let mut report = SweepReport {
+        time,
+        ..SweepReport::default()
+    };
+    if views.len() < 2 {
+        return (Vec::new(), report);
+    }
+    let (target, radius) = (rig_target(&cameras), rig_radius(&cameras));
+    let maps: Vec<DepthMap> = (0..views.len())
+        .map(|r| depth_map(views, r, target, radius, options))
+        .collect();
+    let mut points = Vec::new();
+    for (r, map) in maps.iter().enumerate() {
+        let cam = &views[r].camera;
+        report.pixels += map.depth.len();
+        for (i, &d) in map.depth.iter().enumerate() {
+            if d <= 0.0 {
+                continue;
+            }
+            report.matched += 1;
+            let p = DVec2::new((i % map.width) as f64 + 0.5, (i / map.width) as f64 + 0.5);
+            let x = super::fuse::unproject(cam, p, d as f64);
+            let support = 1
+                + (0..views.len())
+                    .filter(|&o| o != r && agrees(x, p, cam, &views[o].camera, &maps[o]))
+                    .count();
+            if support < options.min_views.max(2) {
+                continue;
+            }
+            let c = views[r]
+                .image
+                .get_pixel((i % map.width) as u32, (i / map.width) as u32);
+            points.push(TimedPoint {
+                xyz: x,
+                rgb: [c[0] as f32, c[1] as f32, c[2] as f32],
+                moment,
+                time,
+            });
+        }
+    }
+    report.points = points.len();
+    (points, report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn box_sums_match_a_direct_sum() {
+        let (w, h) = (7, 5);
+        let v: Vec<f32> = (0..w * h).map(|i| ((i * 37) % 11) as f32 * 0.1).collect();
+        let s = box_sums(&v, w, h, 1);
+        for y in 0..h {
+            for x in 0..w {
+                let mut direct = 0.0;
+                for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                    for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                        direct += v[yy * w + xx];
+                    }
+                }
+                assert!((s[y * w + x] - direct).abs() < 1e-5, "({x}, {y})");
+            }
+        }
+    }
+
+    #[test]
+    fn planes_are_uniform_in_inverse_depth_around_the_target() {
+        let cam = crate::test_support::looking_at(
+            "c",
+            shared_types::Intrinsics::from_hfov(64, 48, 60.0),
+            DVec3::new(0.0, -2.0, 0.0),
+            DVec3::ZERO,
+        );
+        let d = plane_depths(target_depth(&cam, DVec3::ZERO, 1.0), 5);
+        assert!(
+            (d[0] - 0.5).abs() < 1e-12 && (d[4] - 8.0).abs() < 1e-9,
+            "{d:?}"
+        );
+        let inv: Vec<f64> = d.iter().map(|d| 1.0 / d).collect();
+        for k in 1..4 {
+            assert!(((inv[k] - inv[k - 1]) - (inv[k + 1] - inv[k])).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn neighbouring_planes_are_about_a_pixel_of_motion_apart() {
+        let intr = shared_types::Intrinsics::from_hfov(320, 240, 60.0);
+        let looking = |eye| crate::test_support::looking_at("c", intr, eye, DVec3::ZERO);
+        let (a, b) = (
+            looking(DVec3::new(0.0, -3.0, 0.5)),
+            looking(DVec3::new(2.0, -2.5, 0.5)),
+        );
+        let d = target_depth(&a, DVec3::ZERO, 1.0);
+        let depths = plane_depths(d, plane_count(&a, &[&b], d, 100_000));
+        let ray = a.pixel_ray(DVec2::new(160.0, 120.0));
+        let z = (a.world_to_camera.rotation() * ray).z;
+        let centre = a.world_to_camera.centre();
+        let motions: Vec<f64> = depths
+            .windows(2)
+            .filter_map(|p| {
+                let (u, _) = b.project(centre + ray * (p[0] / z))?;
+                let (v, _) = b.project(centre + ray * (p[1] / z))?;
+                Some((u - v).length())
+            })
+            .collect();
+        let largest = motions.iter().copied().fold(0.0, f64::max);
+        let at_target = motions[depths.iter().position(|&x| x >= d).unwrap()];
+        assert!(
+            largest < 1.5 && (0.3..=1.0).contains(&at_target),
+            "{largest} {at_target}"
+        );
+        // A cap wins over the count.
+        assert_eq!(plane_count(&a, &[&b], d, 40), 40);
+        assert_eq!(plane_count(&a, &[&b], d, 2), MIN_PLANES);
+    }
+
+    #[test]
+    fn bilinear_interpolates_between_pixel_centres() {
+        let img = [0.0, 1.0, 2.0, 3.0];
+        assert_eq!(bilinear(&img, 2, 2, DVec2::new(0.5, 0.5)), Some(0.0));
+        assert_eq!(bilinear(&img, 2, 2, DVec2::new(1.0, 1.0)), Some(1.5));
+        assert_eq!(bilinear(&img, 2, 2, DVec2::new(1.5, 1.5)), Some(3.0));
+        assert_eq!(bilinear(&img, 2, 2, DVec2::new(0.4, 1.0)), None);
+        assert_eq!(bilinear(&img, 2, 2, DVec2::new(f64::NAN, 1.0)), None);
+    }
+}
