@@ -28,6 +28,7 @@ fn an_orbit_renders_to_colour_depth_and_alpha_frames() {
         &path,
         dir.path(),
         FrameOutputs::ALL,
+        [0.0; 3],
         &NoProgress,
         Some(&mut sink),
     )
@@ -95,6 +96,7 @@ fn a_failing_sink_stops_the_render() {
         &path,
         dir.path(),
         FrameOutputs::NONE,
+        [0.0; 3],
         &NoProgress,
         Some(&mut sink),
     )

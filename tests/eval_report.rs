@@ -67,6 +67,7 @@ fn report_files_hold_per_frame_and_mean_metrics_with_definitions() {
         &s.train,
         &out,
         None,
+        [0.0; 3],
         &NoProgress,
     )
     .unwrap();
@@ -200,6 +201,7 @@ fn per_frame_csv_names_images_relative_to_its_folder_and_survives_the_rename() {
         &train,
         &partial,
         None,
+        [0.0; 3],
         &NoProgress,
     )
     .unwrap();
@@ -235,6 +237,7 @@ fn lpips_is_computed_with_an_onnx_model() {
         &[],
         &out,
         Some(&net),
+        [0.0; 3],
         &NoProgress,
     )
     .unwrap();
@@ -301,6 +304,7 @@ fn moving_region_metrics_are_reported_where_views_have_masks() {
         &s.train,
         &out,
         None,
+        [0.0; 3],
         &NoProgress,
     )
     .unwrap();
@@ -380,6 +384,7 @@ fn moving_region_metrics_are_reported_where_views_have_masks() {
         &[],
         &dir.join("e"),
         None,
+        [0.0; 3],
         &NoProgress,
     )
     .unwrap_err();
@@ -411,6 +416,7 @@ fn ground_truth_of_another_size_renders_at_that_size() {
         &[],
         &s.dir.path().join("e"),
         None,
+        [0.0; 3],
         &NoProgress,
     )
     .unwrap();
@@ -430,6 +436,7 @@ fn missing_images_and_empty_requests_are_typed_errors() {
         &[],
         &s.dir.path().join("e"),
         None,
+        [0.0; 3],
         &NoProgress,
     )
     .unwrap_err();
@@ -444,6 +451,7 @@ fn missing_images_and_empty_requests_are_typed_errors() {
         &[],
         &s.dir.path().join("e"),
         None,
+        [0.0; 3],
         &NoProgress,
     )
     .unwrap_err();
@@ -458,8 +466,47 @@ fn missing_images_and_empty_requests_are_typed_errors() {
         &[],
         &s.dir.path().join("e"),
         None,
+        [0.0; 3],
         &NoProgress,
     )
     .unwrap_err();
     assert!(matches!(e, EvalError::Render { .. }), "{e}");
+}
+
+#[test]
+fn views_are_rendered_on_the_background_the_model_was_trained_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = scene();
+    let cam = rig(64, 48).remove(1);
+    let grey = [0.6f32, 0.5, 0.4];
+    let options = splat4d::render::RenderOptions {
+        background: grey,
+        ..Default::default()
+    };
+    let r = splat4d::render::cpu::render_with(&model, &cam, 0.5, &options).unwrap();
+    let path = dir.path().join("truth.png");
+    splat4d::eval::images::rgb8(&r).save(&path).unwrap();
+    let views = [EvalView {
+        camera: cam,
+        time: 0.5,
+        image_path: path,
+        mask: None,
+    }];
+    let psnr = |background: [f32; 3], name: &str| {
+        let report = evaluate(
+            &CpuBackend,
+            &model,
+            &views,
+            &[],
+            &dir.path().join(name),
+            None,
+            background,
+            &NoProgress,
+        )
+        .unwrap();
+        report.heldout.psnr.unwrap()
+    };
+    let (right, black) = (psnr(grey, "grey"), psnr([0.0; 3], "black"));
+    assert!(right > 40.0, "8-bit rounding only: {right}");
+    assert!(black < right - 10.0, "{black} vs {right}");
 }

@@ -68,6 +68,7 @@ fn render_and_eval_timing() {
                 &path,
                 &dir.path().join(format!("r{w}{label}")),
                 outputs,
+                [0.0; 3],
                 &NoProgress,
                 None,
             )
@@ -123,6 +124,7 @@ fn render_and_eval_timing() {
         &[],
         &dir.path().join("eval"),
         None,
+        [0.0; 3],
         &NoProgress,
     )
     .unwrap();
@@ -145,6 +147,7 @@ fn render_and_eval_timing() {
         &[],
         &dir.path().join("eval2"),
         Some(&net),
+        [0.0; 3],
         &NoProgress,
     )
     .unwrap();

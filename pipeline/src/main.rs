@@ -235,6 +235,7 @@ fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
         let frames = pipeline::stages::render::render(
             backend.as_ref(),
             &model,
+            config.train.background,
             &cameras,
             &heldout,
             &settings,

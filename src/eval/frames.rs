@@ -54,18 +54,24 @@ pub struct RenderedPath {
     pub depth_range: Option<(f32, f32)>,
 }
 
-/// Render every `(camera, model time)` of `path` with a black background into `out_dir`
+/// Render every `(camera, model time)` of `path` on `background` into `out_dir`
 /// (`rgb/`, `depth/`, `alpha/` as asked, frames `000000.png`, …), giving each colour
 /// frame to `sink` when there is one. Each PNG is written under a temporary name first.
+#[allow(clippy::too_many_arguments)]
 pub fn render_path(
     backend: &dyn RenderBackend,
     model: &Gaussians<f32>,
     path: &[(Camera, f64)],
     out_dir: &Path,
     outputs: FrameOutputs,
+    background: [f32; 3],
     progress: &dyn Progress,
     mut sink: Option<FrameSink<'_>>,
 ) -> Result<RenderedPath, EvalError> {
+    let options = RenderOptions {
+        background,
+        ..RenderOptions::default()
+    };
     let mut folders = Vec::new();
     for (wanted, name) in [
         (outputs.rgb, "rgb"),
@@ -85,7 +91,7 @@ pub fn render_path(
     let mut range = None;
     for (i, (camera, t)) in path.iter().enumerate() {
         let r = backend
-            .render(model, camera, *t as f32, &RenderOptions::default())
+            .render(model, camera, *t as f32, &options)
             .map_err(|source| EvalError::Render {
                 view: format!("frame {i} ({})", camera.name),
                 source,

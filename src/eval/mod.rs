@@ -293,7 +293,9 @@ struct SetRun<'a> {
 /// write into `out_dir`: `metrics.json` (definitions, LPIPS status, per-set means),
 /// `per_frame.csv` (one row per view) and `grid_<set>_<frame>.png` (ground truth |
 /// render | error heat map) for a few frames of each set. LPIPS is computed only when
-/// `lpips` is given; otherwise it is reported as [`LPIPS_SKIPPED`].
+/// `lpips` is given; otherwise it is reported as [`LPIPS_SKIPPED`]. Views are rendered on
+/// `background`, the colour the model was trained on.
+#[allow(clippy::too_many_arguments)]
 pub fn evaluate(
     backend: &dyn RenderBackend,
     model: &Gaussians<f32>,
@@ -301,6 +303,7 @@ pub fn evaluate(
     train: &[EvalView],
     out_dir: &Path,
     lpips: Option<&Lpips>,
+    background: [f32; 3],
     progress: &dyn Progress,
 ) -> Result<EvalReport, EvalError> {
     if heldout.is_empty() && train.is_empty() {
@@ -354,7 +357,10 @@ pub fn evaluate(
                 .map(|(view, camera)| ViewRequest {
                     camera,
                     t: view.time as f32,
-                    options: RenderOptions::default(),
+                    options: RenderOptions {
+                        background,
+                        ..RenderOptions::default()
+                    },
                 })
                 .collect();
             let renders =

@@ -50,7 +50,7 @@ impl DensifyConfig {
     /// Whether training densifies after `done` steps: at the multiples of `every` in the
     /// window.
     pub fn densifies_at(&self, done: u64) -> bool {
-        self.in_window(done) && self.every > 0 && done % self.every == 0
+        self.in_window(done) && self.every > 0 && done.is_multiple_of(self.every)
     }
 
     /// How many times training densifies ([`Self::densifies_at`]) in a run long enough to

@@ -42,9 +42,9 @@ use statics::StaticCounts;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Source {
-    /// `model` if set, else `pointmaps` if set, else triangulated moments (when `moments`
-    /// > 0), with the plane sweep's points added when they are fewer than `min_points`
-    /// (COLMAP missing, wide baselines), else sparse points, else random.
+    /// `model` if set, else `pointmaps` if set, else triangulated moments (unless
+    /// `moments` is 0), with the plane sweep's points added when they are fewer than
+    /// `min_points` (COLMAP missing, wide baselines), else sparse points, else random.
     #[default]
     Auto,
     /// Run the ONNX model `model` (falls back when every pair is rejected).

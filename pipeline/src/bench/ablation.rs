@@ -78,6 +78,7 @@ pub fn run(
             &[],
             &dir.join("eval"),
             lpips.as_ref(),
+            train_config.background,
             &progress,
         )?;
         let m = &report.heldout;

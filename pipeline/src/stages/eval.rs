@@ -388,11 +388,13 @@ pub fn any_heldout_views(
     }
 }
 
-/// The `eval` stage; `heldout_cameras` are the held-out camera names of `[capture] heldout`.
+/// The `eval` stage; `heldout_cameras` are the held-out camera names of `[capture] heldout`,
+/// `background` is `[train] background` (views are rendered on what the model was trained on).
 pub fn run(
     ctx: &StageContext,
     settings: &EvalSettings,
     heldout_cameras: &[String],
+    background: [f32; 3],
     engine: &EngineSettings,
 ) -> anyhow::Result<()> {
     let model = load_trained_model(&ctx.capture.work_dir())?;
@@ -435,6 +437,7 @@ pub fn run(
         &train,
         &ctx.out_dir,
         lpips.as_ref(),
+        background,
         ctx.progress,
     )?;
     let show = |set: &str, m: &splat4d::eval::SetMetrics| {

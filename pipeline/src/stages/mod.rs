@@ -105,7 +105,9 @@ pub fn pipeline() -> Pipeline {
             StageDef::new("render", "render videos along camera paths")
                 .after(&["frames", "poses", "train"])
                 .output_one_of(&render::OUTPUTS)
-                .run(|ctx, config| render::run(ctx, &config.render, &config.engine)),
+                .run(|ctx, config| {
+                    render::run(ctx, &config.render, config.train.background, &config.engine)
+                }),
             StageDef::new(
                 "eval",
                 "metrics on held-out views (PSNR, SSIM, DSSIM, LPIPS)",
@@ -115,7 +117,13 @@ pub fn pipeline() -> Pipeline {
             .params(with_heldout("eval"))
             .outputs(&["metrics.json", "per_frame.csv"])
             .run(|ctx, config| {
-                eval::run(ctx, &config.eval, &config.capture.heldout, &config.engine)
+                eval::run(
+                    ctx,
+                    &config.eval,
+                    &config.capture.heldout,
+                    config.train.background,
+                    &config.engine,
+                )
             }),
             StageDef::new("export", "PLY / .splatv exports and a browser viewer")
                 .after(&["frames", "poses", "train"])

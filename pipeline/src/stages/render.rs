@@ -71,11 +71,12 @@ pub fn path_cameras(work_dir: &Path) -> anyhow::Result<(FramesIndex, Vec<Camera>
 
 /// Render `model` along the path of `settings` into `out_dir` (`render.mp4` and/or PNG
 /// folders) with `backend`. `cameras` are the pinhole training cameras, `heldout` the
-/// held-out ones.
+/// held-out ones; `background` is the colour the model was trained on (`[train] background`).
 #[allow(clippy::too_many_arguments)]
 pub fn render(
     backend: &dyn RenderBackend,
     model: &Gaussians<f32>,
+    background: [f32; 3],
     cameras: &[Camera],
     heldout: &[Camera],
     settings: &RenderSettings,
@@ -126,6 +127,7 @@ pub fn render(
         &path,
         out_dir,
         outputs,
+        background,
         progress,
         Some(&mut sink),
     )?;
@@ -135,10 +137,11 @@ pub fn render(
     Ok(rendered.frames)
 }
 
-/// The `render` stage.
+/// The `render` stage; `background` is `[train] background`.
 pub fn run(
     ctx: &StageContext,
     settings: &RenderSettings,
+    background: [f32; 3],
     engine: &EngineSettings,
 ) -> anyhow::Result<()> {
     if !settings.video && !settings.png {
@@ -153,6 +156,7 @@ pub fn run(
     let frames = render(
         backend.as_ref(),
         &model,
+        background,
         &cameras,
         &heldout,
         settings,
