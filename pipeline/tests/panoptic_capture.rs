@@ -3,9 +3,9 @@
 //! the fifth is held out, Panoptic's own calibration in centimetres), run through every
 //! stage that leads to `eval`. The held-out PSNR must stay near what the pipeline reaches
 //! (BENCHMARKS.md, "Session 14: panoptic-5view with plane-sweep init"). The held-out camera
-//! is 68° from the nearest training camera; the plane-sweep init and the training frames'
-//! mean colour as background lift it from grey fog (13.4 dB) to 16.6 dB, above a flat image
-//! of that colour (15.6 dB).
+//! is 68° from the nearest training camera; the plane-sweep init, the training frames' mean
+//! colour as background and 4C4D's decay lift it from grey fog (13.4 dB) to 17.7 dB, above
+//! a flat image of that colour (15.6 dB).
 
 mod common;
 
@@ -15,10 +15,10 @@ use std::process::Command;
 
 use pipeline::runner::Selection;
 
-/// Held-out PSNR floor (dB) at the fixture's settings; measured 16.58 dB (BENCHMARKS.md).
-const HELDOUT_PSNR_FLOOR: f64 = 16.3;
-/// Training-view PSNR floor (dB) at the fixture's settings; measured 23.51 dB.
-const TRAIN_PSNR_FLOOR: f64 = 23.2;
+/// Held-out PSNR floor (dB) at the fixture's settings; measured 17.71 dB (BENCHMARKS.md).
+const HELDOUT_PSNR_FLOOR: f64 = 17.4;
+/// Training-view PSNR floor (dB) at the fixture's settings; measured 22.75 dB.
+const TRAIN_PSNR_FLOOR: f64 = 22.4;
 
 fn data_dir() -> Option<PathBuf> {
     let rel = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/panoptic-5view");
