@@ -1,12 +1,12 @@
 //! Dense points from plane-sweep stereo with the known cameras, for captures without point
 //! maps (an imported calibration, wide baselines where SIFT matches a few dozen points).
 //!
-//! At one moment, the views are shrunk to `size` pixels on their long side and each
-//! camera in turn is the reference: for depths uniform in inverse depth around where the
-//! rig looks, one pixel of motion apart in the other cameras (at most `max_planes`), every
-//! other camera's grey image is
-//! warped onto the reference through the fronto-parallel plane at that depth and compared
-//! with a zero-mean normalised cross-correlation (NCC) over a `(2·WINDOW+1)²` window. A
+//! At one moment, the views (pinhole cameras with undistorted frames) are shrunk to `size`
+//! pixels on their long side and each camera in turn is the reference: for depths uniform
+//! in inverse depth around where the rig looks, one pixel of motion apart in the other
+//! cameras (at most `max_planes`), every other camera's grey image is warped onto the
+//! reference through the fronto-parallel plane at that depth and compared with a
+//! zero-mean normalised cross-correlation (NCC) over a `(2·WINDOW+1)²` window. A
 //! pixel takes the depth where its best neighbour's NCC peaks (refined by a parabola) when
 //! that NCC reaches `min_score` and the window has texture. Depths are then kept only where
 //! another camera's depth map agrees (the point projects there at the same depth, and that
