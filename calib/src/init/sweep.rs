@@ -63,11 +63,10 @@ pub struct SweepReport {
 }
 
 /// One camera's depth map (pinhole, the view's size); 0 where no depth was found.
-#[derive(Clone, Debug, PartialEq)]
-pub struct DepthMap {
-    pub width: usize,
-    pub height: usize,
-    pub depth: Vec<f32>,
+struct DepthMap {
+    width: usize,
+    height: usize,
+    depth: Vec<f32>,
 }
 
 impl DepthMap {
@@ -290,9 +289,11 @@ fn plane_scores(
         .collect()
 }
 
-/// The depth map of `views[reference]` against every other view.
-pub fn depth_map(
+/// The depth map of `views[reference]` against every other view (`greys`: each view's
+/// [`grey`] image).
+fn depth_map(
     views: &[&View],
+    greys: &[Vec<f32>],
     reference: usize,
     target: DVec3,
     radius: f64,
@@ -300,15 +301,16 @@ pub fn depth_map(
 ) -> DepthMap {
     let r = views[reference];
     let (w, h) = (r.image.width() as usize, r.image.height() as usize);
-    let ref_img = grey(&r.image);
-    let stats = Reference::new(&ref_img, w, h);
+    let ref_img = &greys[reference];
+    let stats = Reference::new(ref_img, w, h);
     let rays = rays(&r.camera);
     let origin = r.camera.world_to_camera.centre();
-    let others: Vec<(&Camera, Vec<f32>)> = views
+    let others: Vec<(&Camera, &[f32])> = views
         .iter()
+        .zip(greys)
         .enumerate()
         .filter(|(k, _)| *k != reference)
-        .map(|(_, v)| (&v.camera, grey(&v.image)))
+        .map(|(_, (v, g))| (&v.camera, g.as_slice()))
         .collect();
     let d = target_depth(&r.camera, target, radius);
     let other_cameras: Vec<&Camera> = others.iter().map(|(c, _)| *c).collect();
@@ -328,7 +330,7 @@ pub fn depth_map(
             .map(|&d| {
                 let mut s = vec![-1.0f32; n];
                 for (cam, img) in &others {
-                    let o = plane_scores(&stats, &ref_img, &rays, origin, d, cam, img, w, h);
+                    let o = plane_scores(&stats, ref_img, &rays, origin, d, cam, img, w, h);
                     s.iter_mut().zip(o).for_each(|(a, o)| *a = a.max(o));
                 }
                 s
@@ -432,8 +434,9 @@ pub fn sweep_moment(
         return (Vec::new(), report);
     }
     let (target, radius) = (rig_target(&cameras), rig_radius(&cameras));
+    let greys: Vec<Vec<f32>> = views.iter().map(|v| grey(&v.image)).collect();
     let maps: Vec<DepthMap> = (0..views.len())
-        .map(|r| depth_map(views, r, target, radius, options))
+        .map(|r| depth_map(views, &greys, r, target, radius, options))
         .collect();
     let mut points = Vec::new();
     for (r, map) in maps.iter().enumerate() {
