@@ -1,5 +1,5 @@
 //! `calib`: geometry of the rig. COLMAP driving and model IO, camera models and
-//! undistortion, calibration import, point initialisation from point maps.
+//! undistortion, calibration import.
 //!
 //! The poses stage calls [`poses::solve`] (COLMAP) or [`import::import_calibration`] then
 //! [`poses::write_imported`]; frames are made pinhole with [`undistort::UndistortMap`].
@@ -10,14 +10,13 @@ pub mod colmap;
 pub mod colmap_runner;
 pub mod convert;
 pub mod import;
-pub mod init;
 pub mod poses;
 pub mod similarity;
 pub mod undistort;
 
-/// Cameras for the unit tests.
-#[cfg(test)]
-pub(crate) mod test_support {
+/// Cameras for the unit tests (of this crate, and of crates that enable `test-support`).
+#[cfg(any(test, feature = "test-support"))]
+pub mod test_support {
     use glam::DVec3;
     use shared_types::{Camera, Intrinsics, WorldToCamera};
 

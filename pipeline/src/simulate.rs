@@ -109,7 +109,7 @@ pub fn truth_video_cameras(
 /// (`groundtruth/depth/camN.npy`), as exported point maps `pointmaps/a__b.npz` (the
 /// layout of docs/init.md). Set `[init] pointmaps = "pointmaps"` to initialise from them.
 pub fn write_truth_pointmaps(capture_dir: &Path) -> anyhow::Result<std::path::PathBuf> {
-    use calib::init::npy;
+    use pointinit::npy;
     let (path, cameras) = truth_video_cameras(capture_dir)?;
     check_pinhole(&path, &cameras)?;
     let mut depths = Vec::new();
@@ -172,7 +172,7 @@ pub fn write_truth_moment_pointmaps(
                 cameras.push(camera.clone());
                 depths.push(depth.collect());
             }
-            let dir = calib::init::moment_maps::frame_dir(partial, frame);
+            let dir = pointinit::moment_maps::frame_dir(partial, frame);
             write_pairs(&dir, &cameras, &depths)?;
         }
         Ok(())
@@ -212,7 +212,7 @@ fn write_pairs(
     cameras: &[shared_types::Camera],
     depths: &[Vec<f32>],
 ) -> anyhow::Result<()> {
-    use calib::init::npy;
+    use pointinit::npy;
     fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     for a in 0..cameras.len() {
         for b in a + 1..cameras.len() {

@@ -209,10 +209,10 @@ fn simulated_static_capture_gets_poses_from_colmap() {
         },
     );
     assert_eq!(summary.ran, ["init"], "{summary:?}");
-    let report: calib::init::InitReport =
+    let report: pointinit::InitReport =
         serde_json::from_str(&fs::read_to_string(root.join("work/init/init.json")).unwrap())
             .unwrap();
-    assert_eq!(report.source, calib::init::UsedSource::Npy, "{report:#?}");
+    assert_eq!(report.source, pointinit::UsedSource::Npy, "{report:#?}");
     assert_eq!(report.pairs.len(), 6);
     for p in &report.pairs {
         assert!(p.accepted, "{p:?}");

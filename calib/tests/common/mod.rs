@@ -2,8 +2,6 @@
 //! rendered through real cameras, so COLMAP has something to solve with known answers.
 #![allow(dead_code)]
 
-pub mod sim_moments;
-
 use std::path::{Path, PathBuf};
 
 use glam::{DVec2, DVec3};

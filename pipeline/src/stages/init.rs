@@ -2,13 +2,13 @@
 //! run here on pairs of the first aligned frames, or point maps exported beforehand),
 //! else points triangulated with COLMAP and the known cameras at `[init] moments` aligned
 //! frames spread over the clip, else the poses stage's sparse points, else a random cloud
-//! (`calib::init`, docs/init.md), into `points.ply` and `init.json`.
+//! (`pointinit`, docs/init.md), into `points.ply` and `init.json`.
 
 use std::path::PathBuf;
 
 use anyhow::Context;
-use calib::init::{InitConfig, InitInputs, Moment, ViewImage};
 use calib::poses::PosesFile;
+use pointinit::{InitConfig, InitInputs, Moment, ViewImage};
 use rig::frames::FramesIndex;
 use shared_types::atomic::write_atomic;
 
@@ -81,7 +81,7 @@ pub fn run(ctx: &StageContext, settings: &InitSettings) -> anyhow::Result<()> {
         sparse,
         moments,
     };
-    let mut report = calib::init::run_init(&inputs, &config, &ctx.out_dir, ctx.progress)?;
+    let mut report = pointinit::run_init(&inputs, &config, &ctx.out_dir, ctx.progress)?;
     // Recorded relative to work/init/: the stage is built in a temporary folder.
     if let Ok(relative) = report.output.strip_prefix(&ctx.out_dir) {
         report.output = relative.to_path_buf();
@@ -102,7 +102,7 @@ fn moments_of(
     settings: &InitSettings,
     pointmaps: Option<&std::path::Path>,
 ) -> anyhow::Result<Vec<usize>> {
-    use calib::init::moment_maps::{exported_frames, frame_dir};
+    use pointinit::moment_maps::{exported_frames, frame_dir};
     let exported = pointmaps.map(|root| (root, exported_frames(root)));
     let Some((root, exported)) = exported.filter(|(_, e)| !e.is_empty()) else {
         return Ok(moment_frames(index.frames.len(), settings.moments));

@@ -495,7 +495,7 @@ mod tests {
 
     #[test]
     fn planes_are_uniform_in_inverse_depth_around_the_target() {
-        let cam = crate::test_support::looking_at(
+        let cam = calib::test_support::looking_at(
             "c",
             shared_types::Intrinsics::from_hfov(64, 48, 60.0),
             DVec3::new(0.0, -2.0, 0.0),
@@ -515,7 +515,7 @@ mod tests {
     #[test]
     fn neighbouring_planes_are_about_a_pixel_of_motion_apart() {
         let intr = shared_types::Intrinsics::from_hfov(320, 240, 60.0);
-        let looking = |eye| crate::test_support::looking_at("c", intr, eye, DVec3::ZERO);
+        let looking = |eye| calib::test_support::looking_at("c", intr, eye, DVec3::ZERO);
         let (a, b) = (
             looking(DVec3::new(0.0, -3.0, 0.5)),
             looking(DVec3::new(2.0, -2.5, 0.5)),

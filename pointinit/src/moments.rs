@@ -1,7 +1,7 @@
 //! Points triangulated at several moments of the clip with the known cameras: at each
 //! moment the training cameras' simultaneous frames are undistorted to their pinhole twins
 //! and COLMAP triangulates their matches with intrinsics and poses fixed
-//! ([`crate::colmap_runner::known_poses`]). Every point keeps its moment's time and
+//! ([`calib::colmap_runner::known_poses`]). Every point keeps its moment's time and
 //! COLMAP's colour. A moment that fails is reported and skipped, not fatal.
 
 use std::path::{Path, PathBuf};
@@ -13,7 +13,7 @@ use shared_types::{CameraSet, Progress};
 
 use super::statics::TimedPoint;
 use super::{InitConfig, InitError, ViewImage, pinhole_view};
-use crate::colmap_runner::known_poses::{KnownPosesOptions, KnownView, triangulate_known};
+use calib::colmap_runner::known_poses::{KnownPosesOptions, KnownView, triangulate_known};
 
 /// The training cameras' frames at one moment.
 #[derive(Clone, Debug, PartialEq)]

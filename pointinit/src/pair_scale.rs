@@ -198,7 +198,7 @@ pub fn sparse_scale(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_support::looking_at;
+    use calib::test_support::looking_at;
     use shared_types::Intrinsics;
 
     fn camera(name: &str, eye: DVec3) -> Camera {

@@ -6,9 +6,9 @@
 
 mod common;
 
-use calib::init::{InitConfig, InitInputs, Source, UsedSource, run_init};
 use common::sim_moments::{FPS, median, moments, on_moving_mask, simulate, surface_distance};
 use glam::DVec3;
+use pointinit::{InitConfig, InitInputs, Source, UsedSource, run_init};
 use shared_types::NoProgress;
 
 /// Aligned frames used as moments (tiny: 15 frames at 15 fps, cameras start together).

@@ -5,11 +5,11 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use calib::init::npy::{self, OutputNames, PairMaps};
-use calib::init::{
+use glam::{DVec2, DVec3};
+use pointinit::npy::{self, OutputNames, PairMaps};
+use pointinit::{
     InitConfig, InitInputs, Moment, Source, UsedSource, ViewImage, moment_maps, run_init,
 };
-use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 use shared_types::{Camera, CameraSet, NoProgress};
 
@@ -262,7 +262,7 @@ fn inconsistent_scales_and_nans_are_rejected_and_counted() {
     let config = InitConfig {
         source: Source::Npy,
         pointmaps: Some(maps_dir),
-        pairs: calib::init::Pairs::List(vec![
+        pairs: pointinit::Pairs::List(vec![
             [name(0), name(1)],
             [name(0), name(2)],
             [name(1), name(3)],

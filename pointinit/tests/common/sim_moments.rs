@@ -4,8 +4,8 @@
 
 use std::path::{Path, PathBuf};
 
-use calib::init::{Moment, ViewImage};
 use glam::DVec3;
+use pointinit::{Moment, ViewImage};
 use shared_types::{CameraSet, NoProgress};
 
 /// `fixtures/tiny.toml`'s frame rate.

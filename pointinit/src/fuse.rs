@@ -215,7 +215,7 @@ pub fn random_cloud(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_support::looking_at;
+    use calib::test_support::looking_at;
     use shared_types::Intrinsics;
 
     fn cam(eye: DVec3) -> Camera {

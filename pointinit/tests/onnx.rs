@@ -7,13 +7,13 @@
 
 use std::path::{Path, PathBuf};
 
-use calib::init::npy::OutputNames;
-use calib::init::onnx::{ModelConfig, OnnxError, PointMapModel};
-use calib::init::{
-    InitConfig, InitError, InitInputs, Moment, Source, UsedSource, ViewImage, run_init,
-};
 use glam::{DMat3, DVec2, DVec3};
 use image::RgbImage;
+use pointinit::npy::OutputNames;
+use pointinit::onnx::{ModelConfig, OnnxError, PointMapModel};
+use pointinit::{
+    InitConfig, InitError, InitInputs, Moment, Source, UsedSource, ViewImage, run_init,
+};
 use shared_types::{Camera, CameraSet, Intrinsics, NoProgress, WorldToCamera};
 
 const W: u32 = 32;

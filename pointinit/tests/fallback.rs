@@ -1,9 +1,9 @@
 //! The init stage's settings and its fallback chain (point maps → sparse → random).
 
-use calib::init::{
+use glam::DVec3;
+use pointinit::{
     InitConfig, InitError, InitInputs, Pairs, PairsKeyword, Source, UsedSource, run_init,
 };
-use glam::DVec3;
 use shared_types::{Camera, CameraSet, Intrinsics, NoProgress, WorldToCamera};
 
 fn rig() -> CameraSet {
@@ -164,7 +164,7 @@ fn bad_settings_and_inputs_are_typed_errors() {
     let e = run_init(&inputs, &npy, &out, &NoProgress).unwrap_err();
     assert!(e.to_string().contains("nowhere"), "{e}");
     let mut bad = inputs.clone();
-    bad.images.push(calib::init::ViewImage {
+    bad.images.push(pointinit::ViewImage {
         camera: "cam9".into(),
         path: tmp.path().join("x.png"),
         time: 0.0,
@@ -177,7 +177,7 @@ fn bad_settings_and_inputs_are_typed_errors() {
     let png = tmp.path().join("small.png");
     image::RgbImage::new(16, 12).save(&png).unwrap();
     let mut bad = inputs.clone();
-    bad.images.push(calib::init::ViewImage {
+    bad.images.push(pointinit::ViewImage {
         camera: "cam0".into(),
         path: png,
         time: 0.0,

@@ -29,8 +29,8 @@ use serde::{Deserialize, Serialize};
 use shared_types::points::{PlyError, read_points_ply, write_points_ply};
 use shared_types::{Camera, CameraSet, Progress};
 
-use crate::colmap_runner::find_colmap;
-use crate::undistort::{Fit, UndistortMap};
+use calib::colmap_runner::find_colmap;
+use calib::undistort::{Fit, UndistortMap};
 use fuse::{FusedPoint, colour_at, unproject};
 pub use moments::{Moment, MomentReport};
 use npy::{NpyError, OutputNames, PairMaps, PointMap};
