@@ -8,9 +8,11 @@
 
 use std::path::{Path, PathBuf};
 
+use super::config::InitConfig;
 use super::fuse::FusedPoint;
+use super::inputs::{InitInputs, ViewImage};
+use super::report::UsedSource;
 use super::statics::TimedPoint;
-use super::{InitConfig, InitInputs, UsedSource, ViewImage};
 
 /// One moment's point maps: where they are, the frames they belong to.
 pub struct MomentSet<'a> {

@@ -7,24 +7,16 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use calib::colmap_runner::known_poses::{KnownPosesOptions, KnownView, triangulate_known};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use shared_types::{CameraSet, Progress};
 
+use super::config::InitConfig;
+use super::error::InitError;
+use super::inputs::Moment;
 use super::statics::TimedPoint;
-use super::{InitConfig, InitError, ViewImage, pinhole_view};
-use calib::colmap_runner::known_poses::{KnownPosesOptions, KnownView, triangulate_known};
-
-/// The training cameras' frames at one moment.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Moment {
-    /// Aligned frame index (`frames.json`), for the report.
-    pub frame: usize,
-    /// Model time of the moment (the mean of its views' times).
-    pub time: f64,
-    /// One frame per camera; each keeps its own time.
-    pub views: Vec<ViewImage>,
-}
+use super::views::pinhole_view;
 
 /// What one moment gave.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -19,9 +19,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use shared_types::Camera;
 
-use super::View;
 use super::fuse::{rig_radius, rig_target};
 use super::statics::TimedPoint;
+use super::views::View;
 
 /// Half-size of the NCC window (7×7 pixels).
 const WINDOW: usize = 3;
