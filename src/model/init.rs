@@ -18,7 +18,7 @@ pub use shared_types::PointCloud;
 
 /// Why a point cloud cannot seed a model.
 #[derive(Debug, thiserror::Error)]
-pub enum InitError {
+pub enum SeedError {
     #[error("the point cloud is empty; run the `init` stage (or give COLMAP points) first")]
     Empty,
     #[error("the point cloud has {xyz} positions but {other} {what}; rewrite points.ply")]
@@ -67,13 +67,13 @@ pub fn gaussians_from_points(
     cloud: &PointCloud,
     time: TimeMapping,
     options: &InitOptions,
-) -> Result<Gaussians<f32>, InitError> {
+) -> Result<Gaussians<f32>, SeedError> {
     let n = cloud.xyz.len();
     if n == 0 {
-        return Err(InitError::Empty);
+        return Err(SeedError::Empty);
     }
     if cloud.rgb.len() != n {
-        return Err(InitError::LengthMismatch {
+        return Err(SeedError::LengthMismatch {
             xyz: n,
             other: cloud.rgb.len(),
             what: "colours",
@@ -82,7 +82,7 @@ pub fn gaussians_from_points(
     if let Some(t) = &cloud.time
         && t.len() != n
     {
-        return Err(InitError::LengthMismatch {
+        return Err(SeedError::LengthMismatch {
             xyz: n,
             other: t.len(),
             what: "times",
@@ -91,7 +91,7 @@ pub fn gaussians_from_points(
     if let Some(s) = &cloud.time_span
         && s.len() != n
     {
-        return Err(InitError::LengthMismatch {
+        return Err(SeedError::LengthMismatch {
             xyz: n,
             other: s.len(),
             what: "time spans",
@@ -104,7 +104,7 @@ pub fn gaussians_from_points(
             .as_ref()
             .is_none_or(|s| s[i].is_finite() && s[i] >= 0.0);
         if !p.iter().all(|v| v.is_finite()) || !t_ok || !span_ok {
-            return Err(InitError::NonFinite { index: i });
+            return Err(SeedError::NonFinite { index: i });
         }
     }
     let scales = nearest_neighbour_scales(&cloud.xyz);
@@ -395,7 +395,7 @@ mod tests {
                 TimeMapping::default(),
                 &InitOptions::default()
             ),
-            Err(InitError::Empty)
+            Err(SeedError::Empty)
         ));
         let c = PointCloud {
             xyz: vec![[0.0, f32::NAN, 0.0]],
@@ -405,7 +405,7 @@ mod tests {
         };
         assert!(matches!(
             gaussians_from_points(&c, TimeMapping::default(), &InitOptions::default()),
-            Err(InitError::NonFinite { index: 0 })
+            Err(SeedError::NonFinite { index: 0 })
         ));
         let spans = |s: Vec<f32>| PointCloud {
             xyz: vec![[0.0; 3], [1.0; 3]],

@@ -21,7 +21,7 @@ pub use dataset::{Dataset, FrameSource, ImageLoadError, ImageU8, View};
 pub use step::ModelAccess;
 
 use crate::metrics::{mse, psnr_from_mse};
-use crate::model::init::{InitError, InitOptions, gaussians_from_points};
+use crate::model::init::{InitOptions, SeedError, gaussians_from_points};
 use crate::model::{ColourDegrees, Gaussians};
 use crate::render::gpu::GpuDecay;
 use crate::render::{RenderBackend, RenderError, RenderOptions};
@@ -161,7 +161,7 @@ pub enum TrainError {
         camera_h: u32,
     },
     #[error(transparent)]
-    Init(#[from] InitError),
+    Seed(#[from] SeedError),
     #[error("rendering view {index} failed: {source}")]
     Render { index: usize, source: RenderError },
     #[error("moving the training state to or from the GPU failed: {0}")]
