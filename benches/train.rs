@@ -51,6 +51,7 @@ fn iterations(c: &mut Criterion) {
     let init = train_scene::points(24, 18, &[0.0, 0.5, 1.0]);
     let dir = tempfile::tempdir().unwrap();
     let mut config = TrainConfig {
+        background: splat4d::train::Background::Colour([0.0; 3]),
         iterations: 20,
         checkpoint_every: 0,
         ..Default::default()

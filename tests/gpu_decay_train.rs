@@ -82,6 +82,7 @@ fn gpu_neural_decay_training_matches_the_cpu_host_path() {
     let held = train_scene::dataset_of(&train_scene::held_out_cameras(w, h), &held_times);
     let iterations = 150;
     let mut config = TrainConfig {
+        background: splat4d::train::Background::Colour([0.0; 3]),
         iterations,
         batch_size: 2,
         checkpoint_every: 0,
@@ -100,9 +101,12 @@ fn gpu_neural_decay_training_matches_the_cpu_host_path() {
         let initial = hooks.mlp().clone();
         let s = run(backend, &config, &data, dir.path(), false, &mut hooks).unwrap();
         let model = load_model(&s.model_path).unwrap();
-        let train_psnr =
-            mean(evaluate_psnr(&CpuBackend, &model, &data, config.background).unwrap());
-        let held_psnr = mean(evaluate_psnr(&CpuBackend, &model, &held, config.background).unwrap());
+        let train_psnr = mean(
+            evaluate_psnr(&CpuBackend, &model, &data, config.background.resolve(&data)).unwrap(),
+        );
+        let held_psnr = mean(
+            evaluate_psnr(&CpuBackend, &model, &held, config.background.resolve(&data)).unwrap(),
+        );
         let n = counts(dir.path());
         let stats = hooks.last_stats().expect("the decay ran");
         eprintln!(
@@ -203,6 +207,7 @@ fn gpu_neural_decay_resume_is_bit_identical() {
     let Some(gpu) = gpu() else { return };
     let data = train_scene::dataset(32, 24);
     let mut config = TrainConfig {
+        background: splat4d::train::Background::Colour([0.0; 3]),
         iterations: 24,
         checkpoint_every: 8,
         keep_checkpoints: 10,
@@ -301,6 +306,7 @@ fn bench_neural_decay_device_path_against_the_host_path() {
         .and_then(|v| v.parse().ok())
         .unwrap_or(150);
     let mut config = TrainConfig {
+        background: splat4d::train::Background::Colour([0.0; 3]),
         iterations,
         batch_size: 2,
         checkpoint_every: 0,
@@ -330,7 +336,9 @@ fn bench_neural_decay_device_path_against_the_host_path() {
         let s = run(gpu, &config, &data, dir.path(), false, hooks).unwrap();
         assert_eq!(s.placement, if device { "gpu" } else { "host" });
         let model = load_model(&s.model_path).unwrap();
-        let p = mean(evaluate_psnr(&CpuBackend, &model, &data, config.background).unwrap());
+        let p = mean(
+            evaluate_psnr(&CpuBackend, &model, &data, config.background.resolve(&data)).unwrap(),
+        );
         eprintln!(
             "neural decay, step on the {}: {iterations} iterations in {:.1} s ({:.2} it/s), {} Gaussians, training PSNR {p:.3} dB",
             s.placement,

@@ -42,6 +42,7 @@ fn fit(backend: &dyn RenderBackend, iterations: u64, w: u32, h: u32, batch: usiz
     let init = train_scene::points(16, 12, &[0.0, 0.5, 1.0]);
     let dir = tempfile::tempdir().unwrap();
     let mut config = TrainConfig {
+        background: splat4d::train::Background::Colour([0.0; 3]),
         iterations,
         batch_size: batch,
         checkpoint_every: 0,
@@ -64,7 +65,7 @@ fn fit(backend: &dyn RenderBackend, iterations: u64, w: u32, h: u32, batch: usiz
     )
     .unwrap();
     let model = load_model(&summary.model_path).unwrap();
-    let psnr = evaluate_psnr(&CpuBackend, &model, &data, config.background).unwrap();
+    let psnr = evaluate_psnr(&CpuBackend, &model, &data, config.background.resolve(&data)).unwrap();
     let mean = psnr.iter().sum::<f64>() / psnr.len() as f64;
     eprintln!(
         "{}: {} Gaussians, mean PSNR {mean:.2} dB, {:.1}s",

@@ -26,6 +26,7 @@ fn gpu() -> Option<&'static GpuBackend> {
 /// colour degree 1 from two thirds on, no checkpoints but the last.
 fn fit_config(iterations: u64, batch: usize) -> TrainConfig {
     let mut c = TrainConfig {
+        background: splat4d::train::Background::Colour([0.0; 3]),
         iterations,
         batch_size: batch,
         checkpoint_every: 0,
@@ -98,7 +99,9 @@ fn gpu_training_reaches_the_cpu_held_out_psnr_and_densifies() {
         let dir = tempfile::tempdir().unwrap();
         let s = run(backend, &config, &data, dir.path(), false, &mut NoHooks).unwrap();
         let model = load_model(&s.model_path).unwrap();
-        let held_psnr = mean(evaluate_psnr(&CpuBackend, &model, &held, config.background).unwrap());
+        let held_psnr = mean(
+            evaluate_psnr(&CpuBackend, &model, &held, config.background.resolve(&data)).unwrap(),
+        );
         let n = counts(dir.path());
         eprintln!(
             "{} (step on the {}): {iterations} iterations in {:.1} s ({:.2} it/s), Gaussians {} → {}, held-out PSNR {held_psnr:.2} dB",

@@ -14,6 +14,7 @@ fn fit(width: u32, height: u32, resolution: f64) -> (f64, f64) {
     let init = train_scene::points(20, 15, &[0.0, 0.5, 1.0]);
     let dir = tempfile::tempdir().unwrap();
     let mut config = TrainConfig {
+        background: splat4d::train::Background::Colour([0.0; 3]),
         iterations: 300,
         resolution,
         checkpoint_every: 0,
@@ -37,7 +38,7 @@ fn fit(width: u32, height: u32, resolution: f64) -> (f64, f64) {
     .unwrap();
     assert!(dir.path().join("log.csv").exists());
     let model = load_model(&summary.model_path).unwrap();
-    let psnr = evaluate_psnr(&CpuBackend, &model, &data, config.background).unwrap();
+    let psnr = evaluate_psnr(&CpuBackend, &model, &data, config.background.resolve(&data)).unwrap();
     let mean = psnr.iter().sum::<f64>() / psnr.len() as f64;
     let min = psnr.iter().copied().fold(f64::INFINITY, f64::min);
     eprintln!(
@@ -83,6 +84,7 @@ fn half_resolution_training_renders_the_full_size_views() {
     let dir = tempfile::tempdir().unwrap();
     for bad in [0.0, -0.5, 1.5, f64::NAN] {
         let c = TrainConfig {
+            background: splat4d::train::Background::Colour([0.0; 3]),
             iterations: 2,
             resolution: bad,
             ..Default::default()
@@ -111,6 +113,7 @@ fn no_opacity_reset_in_the_last_half_period() {
     let run = |iterations: u64, reset_every: u64| {
         let dir = tempfile::tempdir().unwrap();
         let mut config = TrainConfig {
+            background: splat4d::train::Background::Colour([0.0; 3]),
             iterations,
             checkpoint_every: 0,
             ..Default::default()
@@ -137,7 +140,8 @@ fn no_opacity_reset_in_the_last_half_period() {
             .iter()
             .map(|&o| 1.0 / (1.0 + (-o as f64).exp()))
             .fold(0.0, f64::max);
-        let psnr = evaluate_psnr(&CpuBackend, &model, &data, config.background).unwrap();
+        let psnr =
+            evaluate_psnr(&CpuBackend, &model, &data, config.background.resolve(&data)).unwrap();
         (max_opacity, psnr.iter().sum::<f64>() / psnr.len() as f64)
     };
     // The reset due at the last step (80 of 80) does not come: the run ends as one

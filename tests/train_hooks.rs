@@ -50,6 +50,7 @@ fn decay_hooks_are_called_and_see_gradients() {
     let init = train_scene::points(10, 8, &[0.5]);
     let dir = tempfile::tempdir().unwrap();
     let mut config = TrainConfig {
+        background: splat4d::train::Background::Colour([0.0; 3]),
         iterations: 6,
         batch_size: 2,
         checkpoint_every: 3,

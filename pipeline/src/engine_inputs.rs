@@ -203,3 +203,41 @@ pub fn load_trained_model(work_dir: &Path) -> anyhow::Result<Gaussians<f32>> {
         )
     })
 }
+
+/// What the train stage records beside the model (`work/train/train.json`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrainRecord {
+    /// The colour the model was trained on (`[train] background` resolved; `"mean"`
+    /// becomes the training images' mean colour): every render of the model uses it.
+    pub background: [f32; 3],
+}
+
+/// Where the train stage records its [`TrainRecord`].
+pub const TRAIN_RECORD: &str = "train.json";
+
+/// The background a capture's model was trained on: `work/train/train.json`, or, for a
+/// model trained before the record existed, `[train] background` when it is a colour.
+pub fn trained_background(
+    work_dir: &Path,
+    setting: splat4d::train::Background,
+) -> anyhow::Result<[f32; 3]> {
+    let path = work_dir.join("train").join(TRAIN_RECORD);
+    match std::fs::read(&path) {
+        Ok(bytes) => {
+            let record: TrainRecord = serde_json::from_slice(&bytes).with_context(|| {
+                format!(
+                    "{} is corrupt; rerun the train stage (`pipeline run DIR --only train --force`)",
+                    path.display()
+                )
+            })?;
+            Ok(record.background)
+        }
+        Err(_) => match setting {
+            splat4d::train::Background::Colour(c) => Ok(c),
+            splat4d::train::Background::Mean => bail!(
+                "{} is missing, so the mean-colour background the model was trained on is unknown; rerun the train stage (`pipeline run DIR --only train --force`)",
+                path.display()
+            ),
+        },
+    }
+}

@@ -211,6 +211,7 @@ fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
         pipeline::engine_inputs::render_backend(args.backend.unwrap_or(config.engine.backend))?;
     let work = capture.work_dir();
     let model = pipeline::engine_inputs::load_trained_model(&work)?;
+    let background = pipeline::engine_inputs::trained_background(&work, config.train.background)?;
     let (index, cameras, heldout) = pipeline::stages::render::path_cameras(&work)?;
     let video = args
         .out
@@ -235,7 +236,7 @@ fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
         let frames = pipeline::stages::render::render(
             backend.as_ref(),
             &model,
-            config.train.background,
+            background,
             &cameras,
             &heldout,
             &settings,

@@ -28,6 +28,8 @@ use crate::train::{Dataset, TrainConfig, TrainError, TrainHooks};
 pub(crate) struct DeviceStep<'a> {
     gpu: &'a GpuBackend,
     config: &'a TrainConfig,
+    /// `config.background` resolved.
+    background: [f32; 3],
     dataset: &'a Dataset,
     /// One uploaded image per view of the dataset.
     targets: Vec<GpuImage>,
@@ -52,6 +54,7 @@ impl<'a> DeviceStep<'a> {
     pub fn new(
         gpu: &'a GpuBackend,
         config: &'a TrainConfig,
+        background: [f32; 3],
         dataset: &'a Dataset,
         model: &Gaussians<f32>,
         adam: &Adam,
@@ -74,6 +77,7 @@ impl<'a> DeviceStep<'a> {
         Ok(Self {
             gpu,
             config,
+            background,
             dataset,
             targets,
             adam: GpuAdam::from_state(gpu, model, adam).map_err(TrainError::Device)?,
@@ -126,7 +130,7 @@ impl Stepper for DeviceStep<'_> {
                 self.gpu,
                 model,
                 &views,
-                self.config.background,
+                self.background,
                 self.config.lambda_ssim,
                 rates,
                 Some(&self.stats),

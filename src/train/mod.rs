@@ -6,6 +6,7 @@
 //! Randomness is drawn from a ChaCha8 stream chosen by `(seed, iteration)`, so a run
 //! resumed from a checkpoint replays exactly the batches and splits of the original.
 
+pub mod background;
 pub mod checkpoint;
 pub mod dataset;
 pub mod densify;
@@ -17,6 +18,7 @@ pub mod regularise;
 mod step;
 
 pub use crate::model::init::PointCloud;
+pub use background::Background;
 pub use dataset::{Dataset, FrameSource, ImageLoadError, ImageU8, View};
 pub use step::ModelAccess;
 
@@ -52,8 +54,9 @@ pub struct TrainConfig {
     pub seed: u64,
     /// Weight λ of `(1 − SSIM)` in the loss.
     pub lambda_ssim: f64,
-    /// Background colour composited behind the Gaussians.
-    pub background: [f32; 3],
+    /// What is composited behind the Gaussians (`"mean"`: the training images' mean
+    /// colour; [`Background`]).
+    pub background: Background,
     /// Colour storage (spatial SH degree ≤ 3, temporal degree ≤ 2).
     pub colour_degrees: ColourDegrees,
     /// The active colour degree grows every this many iterations (0: DC only).
@@ -90,7 +93,7 @@ impl Default for TrainConfig {
             batch_size: 4,
             seed: 0,
             lambda_ssim: 0.2,
-            background: [0.0; 3],
+            background: Background::Mean,
             colour_degrees: ColourDegrees::FULL,
             degree_every: 1000,
             init_opacity: 0.1,
@@ -263,6 +266,8 @@ pub struct TrainSummary {
     /// Where the iterations ran: `host` (render and backward by the backend, loss and
     /// Adam on the host) or `gpu` (the whole step on the GPU).
     pub placement: &'static str,
+    /// The background colour the model was trained on (`[train] background` resolved).
+    pub background: [f32; 3],
 }
 
 fn validate(config: &TrainConfig, dataset: &Dataset) -> Result<(), TrainError> {
@@ -370,6 +375,8 @@ pub fn train(
     progress: &dyn Progress,
 ) -> Result<TrainSummary, TrainError> {
     validate(config, dataset)?;
+    // Resolved on the full-size images, so the colour does not depend on `resolution`.
+    let background = config.background.resolve(dataset);
     let scaled;
     let dataset = if config.resolution < 1.0 {
         scaled = dataset.downscaled(config.resolution);
@@ -456,10 +463,12 @@ pub fn train(
             .device_decay()
             .is_some_and(|d| GpuDecay::supports(d.config));
     let mut stepper: Box<dyn Stepper + '_> = match backend.as_gpu() {
-        Some(gpu) if access != ModelAccess::OpacityFactor || decay_on_device => Box::new(
-            DeviceStep::new(gpu, config, dataset, &model, &adam, &stats, hooks)?,
-        ),
-        _ => Box::new(HostStep::new(backend, config, dataset, &model)),
+        Some(gpu) if access != ModelAccess::OpacityFactor || decay_on_device => {
+            Box::new(DeviceStep::new(
+                gpu, config, background, dataset, &model, &adam, &stats, hooks,
+            )?)
+        }
+        _ => Box::new(HostStep::new(backend, config, background, dataset, &model)),
     };
     // The cap and hooks that touch the model run on the host every step (a decay on the
     // device touches the device's model only).
@@ -610,6 +619,7 @@ pub fn train(
         seconds: started.elapsed().as_secs_f64(),
         model_path,
         placement: stepper.placement(),
+        background,
     })
 }
 

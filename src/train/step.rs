@@ -103,6 +103,8 @@ pub(crate) trait Stepper {
 pub(crate) struct HostStep<'a> {
     backend: &'a dyn RenderBackend,
     config: &'a TrainConfig,
+    /// `config.background` resolved.
+    background: [f32; 3],
     dataset: &'a Dataset,
     target: Vec<f32>,
     d_image: Vec<f32>,
@@ -115,12 +117,14 @@ impl<'a> HostStep<'a> {
     pub fn new(
         backend: &'a dyn RenderBackend,
         config: &'a TrainConfig,
+        background: [f32; 3],
         dataset: &'a Dataset,
         model: &Gaussians<f32>,
     ) -> Self {
         Self {
             backend,
             config,
+            background,
             dataset,
             target: Vec::new(),
             d_image: Vec::new(),
@@ -146,6 +150,7 @@ impl Stepper for HostStep<'_> {
     ) -> Result<BatchLoss, TrainError> {
         let it = iteration;
         let (config, backend, g) = (self.config, self.backend, &mut self.g);
+        let background = self.background;
         let (target, d_image) = (&mut self.target, &mut self.d_image);
         let mut grads = Gradients::zeros_like(model, false);
         let mut losses = Vec::with_capacity(batch.len());
@@ -154,7 +159,7 @@ impl Stepper for HostStep<'_> {
             let view = &self.dataset.views[vi];
             let factor = hooks.opacity_factor(it, model, view);
             let options = RenderOptions {
-                background: config.background,
+                background,
                 opacity_factor: factor.as_deref(),
                 ..Default::default()
             };

@@ -78,7 +78,7 @@ pub fn run(
             &[],
             &dir.join("eval"),
             lpips.as_ref(),
-            train_config.background,
+            summary.background,
             &progress,
         )?;
         let m = &report.heldout;

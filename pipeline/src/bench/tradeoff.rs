@@ -555,7 +555,7 @@ fn measure(
         &[],
         &dir.join("eval"),
         inputs.lpips.as_ref(),
-        inputs.config.train.background,
+        summary.background,
         &progress,
     )?;
     shared_types::Progress::finish(&progress);

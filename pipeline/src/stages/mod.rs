@@ -99,14 +99,18 @@ pub fn pipeline() -> Pipeline {
             StageDef::new("train", "train the 4C4D Gaussian model")
                 .after(&["frames", "poses", "init"])
                 .params(train_params)
-                .outputs(&["model.bin", "log.csv"])
+                .outputs(&["model.bin", "log.csv", crate::engine_inputs::TRAIN_RECORD])
                 .resumable()
                 .run(|ctx, config| train::run(ctx, &config.train, &config.decay, &config.engine)),
             StageDef::new("render", "render videos along camera paths")
                 .after(&["frames", "poses", "train"])
                 .output_one_of(&render::OUTPUTS)
                 .run(|ctx, config| {
-                    render::run(ctx, &config.render, config.train.background, &config.engine)
+                    let background = crate::engine_inputs::trained_background(
+                        &ctx.capture.work_dir(),
+                        config.train.background,
+                    )?;
+                    render::run(ctx, &config.render, background, &config.engine)
                 }),
             StageDef::new(
                 "eval",
@@ -117,11 +121,15 @@ pub fn pipeline() -> Pipeline {
             .params(with_heldout("eval"))
             .outputs(&["metrics.json", "per_frame.csv"])
             .run(|ctx, config| {
+                let background = crate::engine_inputs::trained_background(
+                    &ctx.capture.work_dir(),
+                    config.train.background,
+                )?;
                 eval::run(
                     ctx,
                     &config.eval,
                     &config.capture.heldout,
-                    config.train.background,
+                    background,
                     &config.engine,
                 )
             }),

@@ -126,6 +126,19 @@ pub fn run(
         summary.gaussians,
         summary.final_psnr
     );
+    tracing::info!(
+        "background: {:?} ({:?})",
+        summary.background,
+        settings.background
+    );
+    let record = crate::engine_inputs::TrainRecord {
+        background: summary.background,
+    };
+    write_atomic(
+        &ctx.output(crate::engine_inputs::TRAIN_RECORD),
+        &serde_json::to_vec_pretty(&record)?,
+    )
+    .context("cannot write train.json")?;
     // What the decay did, as evidence (docs/decay.md "Is it working?").
     let model = splat4d::model::file::load_model(&summary.model_path)?;
     let report = splat4d::decay::report::report(&method, &model);

@@ -124,6 +124,7 @@ pub fn demo_data(scale: usize) -> (Dataset, Dataset, PointCloud) {
 /// the end.
 pub fn train_config(iterations: u64) -> TrainConfig {
     let mut config = TrainConfig {
+        background: splat4d::train::Background::Colour([0.0; 3]),
         iterations,
         checkpoint_every: 0,
         ..Default::default()
@@ -166,9 +167,24 @@ pub fn train_and_measure(
     .unwrap();
     let model = load_model(&summary.model_path).unwrap();
     let mean = |v: Vec<f64>| v.iter().sum::<f64>() / v.len() as f64;
-    let train_psnr =
-        mean(evaluate_psnr(&CpuBackend, &model, train_data, config.background).unwrap());
-    let held_psnr = mean(evaluate_psnr(&CpuBackend, &model, held_data, config.background).unwrap());
+    let train_psnr = mean(
+        evaluate_psnr(
+            &CpuBackend,
+            &model,
+            train_data,
+            config.background.resolve(train_data),
+        )
+        .unwrap(),
+    );
+    let held_psnr = mean(
+        evaluate_psnr(
+            &CpuBackend,
+            &model,
+            held_data,
+            config.background.resolve(train_data),
+        )
+        .unwrap(),
+    );
     Trained {
         model,
         summary,
