@@ -121,6 +121,14 @@ pub struct InitConfig {
     pub sweep_min_score: f32,
     /// Plane sweep: cameras whose depth maps must agree on a point (≥ 2).
     pub sweep_min_views: usize,
+    /// Frames per camera, spread over the clip, whose per-pixel median is the camera's
+    /// static plate; points of several moments are then told static or moving by where
+    /// they land on each moment's moving pixels ([`crate::plates`]). 0: by `static_radius`
+    /// alone (cameras that move during the clip).
+    pub plates: usize,
+    /// Least difference (0..255, in some colour channel) of a frame from its camera's
+    /// plate for a pixel to count as moving.
+    pub motion_threshold: u8,
 }
 
 impl Default for InitConfig {
@@ -154,6 +162,8 @@ impl Default for InitConfig {
             sweep_max_planes: 512,
             sweep_min_score: 0.7,
             sweep_min_views: 2,
+            plates: 48,
+            motion_threshold: crate::plates::MOTION_THRESHOLD,
         }
     }
 }

@@ -27,6 +27,9 @@ pub struct InitInputs {
     /// Frames of every training camera at each moment to triangulate (the first config
     /// `moments` of them are used; empty: no triangulation).
     pub moments: Vec<Moment>,
+    /// Frames of every training camera spread over the clip, for the cameras' static
+    /// plates (`[init] plates` of them per camera; empty: no plates).
+    pub plate_frames: Vec<ViewImage>,
 }
 
 /// The training cameras' frames at one moment.

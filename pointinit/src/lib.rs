@@ -2,7 +2,8 @@
 //! maps (an ONNX model run here with [`onnx`], or its outputs exported as `.npy`/`.npz`,
 //! [`npy`]), each pair scaled into the posed cameras' world frame ([`pair_scale`]) and
 //! fused ([`fuse`]); or triangulated with COLMAP and the known cameras at several moments
-//! of the clip ([`moments`]), static points told from moving ones ([`statics`]); with the
+//! of the clip ([`moments`]) or swept ([`sweep`]), static points told from moving ones by
+//! each camera's static plate ([`plates`]) or by repetition ([`statics`]); with the
 //! fallback chain point maps → triangulated moments → sparse COLMAP points → a random
 //! cloud in the cameras' common view volume, each fallback announced with `tracing::warn!`.
 //!
@@ -33,6 +34,7 @@ pub mod moments;
 pub mod npy;
 pub mod onnx;
 pub mod pair_scale;
+pub mod plates;
 pub mod statics;
 pub mod sweep;
 

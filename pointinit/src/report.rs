@@ -64,6 +64,10 @@ pub struct InitReport {
     /// Static/moving split of the triangulated points (zero unless triangulated).
     #[serde(default)]
     pub statics: StaticCounts,
+    /// The static plates that told swept or triangulated points static or moving (`None`:
+    /// no plates, the repetition test decided).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plates: Option<PlatesReport>,
     /// Points before downsampling (from the source), after voxel downsampling, written.
     pub points_before: usize,
     pub points_after_voxel: usize,
@@ -73,4 +77,14 @@ pub struct InitReport {
     /// The written cloud (the pipeline records it relative to `work/init/`).
     pub output: PathBuf,
     pub seconds: f64,
+}
+
+/// What the static plates did ([`crate::plates`]).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PlatesReport {
+    /// Cameras with a plate, and frames per camera behind each.
+    pub cameras: usize,
+    pub frames_per_camera: usize,
+    /// Per moment: the fraction of the frames' pixels that moved (mean over cameras).
+    pub moving_fraction: Vec<f64>,
 }

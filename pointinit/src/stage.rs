@@ -17,7 +17,8 @@ use crate::fuse::{self, FusedPoint};
 use crate::inputs::{InitInputs, Moment};
 use crate::onnx::PointMapModel;
 use crate::pairs::pointmap_points;
-use crate::report::{InitReport, UsedSource};
+use crate::plates::Plates;
+use crate::report::{InitReport, PlatesReport, UsedSource};
 use crate::statics::{self, StaticCounts};
 use crate::views::{View, load_views};
 use crate::{moment_maps, moments, sweep};
@@ -159,6 +160,7 @@ pub fn run_init(
                 voxel,
                 voxel,
                 moment_maps::clip(&sets),
+                None,
             );
             tracing::info!(
                 "point init: point maps of {} moments: {} static points, {} moving points",
@@ -247,16 +249,19 @@ pub fn run_init(
             }
         }
     }
+    let mut plates_report = None;
     if let Some(source) = timed_source {
+        let tags = plate_tags(inputs, config, &timed, chosen, progress)?;
         let (pts, counts) = split_moments(
             &timed,
             chosen,
             config,
-            &sparse_xyz,
-            &sparse.rgb,
+            &sparse_extra(config, &sparse_xyz, &sparse.rgb),
             radius,
             voxel,
+            tags.as_ref().map(|(t, _)| t.as_slice()),
         );
+        plates_report = tags.map(|(_, r)| r);
         raw_points = Some(timed.len() + counts.sparse_merged);
         statics = counts;
         fused = pts;
@@ -332,6 +337,7 @@ pub fn run_init(
         moments: moment_reports,
         sweeps,
         statics,
+        plates: plates_report,
         points_before,
         points_after_voxel,
         points_written: kept.len(),
@@ -339,6 +345,45 @@ pub fn run_init(
         output,
         seconds: start.elapsed().as_secs_f64(),
     })
+}
+
+/// Static tags of `points` (found at `moments`) from the cameras' static plates, and what
+/// the plates did; `None` when `[init] plates` is 0 or the caller gave no frames for them.
+fn plate_tags(
+    inputs: &InitInputs,
+    config: &InitConfig,
+    points: &[statics::TimedPoint],
+    moments: &[Moment],
+    progress: &dyn Progress,
+) -> Result<Option<(Vec<bool>, PlatesReport)>, InitError> {
+    if config.plates == 0 || inputs.plate_frames.is_empty() {
+        return Ok(None);
+    }
+    progress.message("static plates");
+    let plates = Plates::new(
+        &inputs.cameras,
+        &inputs.plate_frames,
+        config.motion_threshold,
+    )?;
+    if plates.is_empty() {
+        return Ok(None);
+    }
+    let (tags, moving_fraction) = plates.static_tags(points, moments)?;
+    let frames_per_camera = inputs.plate_frames.len() / plates.len();
+    tracing::info!(
+        "point init: static plates of {} cameras ({} frames each); {:.1} % of the moments' pixels move",
+        plates.len(),
+        frames_per_camera,
+        100.0 * moving_fraction.iter().sum::<f64>() / moving_fraction.len().max(1) as f64
+    );
+    Ok(Some((
+        tags,
+        PlatesReport {
+            cameras: plates.len(),
+            frames_per_camera,
+            moving_fraction,
+        },
+    )))
 }
 
 /// Sweep every moment of `moments` ([`sweep::sweep_moment`]): each moment's report and
@@ -381,16 +426,16 @@ fn sweep_moments(
     Ok((reports, points))
 }
 
-/// Points found at several `moments` told static or moving ([`statics::split_static`]),
-/// with the pose solve's sparse points as static extras.
+/// Points found at several `moments` told static or moving ([`statics::split_static`]; by
+/// the plates' `tags` when given), with the pose solve's sparse points as static extras.
 fn split_moments(
     points: &[statics::TimedPoint],
     moments: &[Moment],
     config: &InitConfig,
-    sparse_xyz: &[DVec3],
-    sparse_rgb: &[[u8; 3]],
+    sparse: &[(DVec3, [f32; 3])],
     radius: f64,
     voxel: f64,
+    tags: Option<&[bool]>,
 ) -> (Vec<FusedPoint>, StaticCounts) {
     let clip = (
         moments.iter().map(|m| m.time).fold(f64::INFINITY, f64::min),
@@ -402,11 +447,12 @@ fn split_moments(
     let static_radius = config.static_radius.max(0.0) * radius;
     let (pts, counts) = statics::split_static(
         points,
-        &sparse_extra(config, sparse_xyz, sparse_rgb),
+        sparse,
         static_radius,
         static_radius,
         voxel,
         clip,
+        tags,
     );
     tracing::info!(
         "point init: {} static points ({} sparse merged), {} moving points",

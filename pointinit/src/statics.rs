@@ -73,7 +73,9 @@ impl Grid {
 /// Tag, merge and downsample `points` (see the module doc): static within `radius` of a
 /// point of another moment, static points within `merge` merged; `sparse` are a pose solve's
 /// points (xyz, colour) and `clip` the model times of the first and last moment.
-/// `radius ≤ 0` tags nothing static. The output is deterministic (input order).
+/// `radius ≤ 0` tags nothing static. With `given` tags (a static plate's, one per point)
+/// those decide instead, and static points live over the whole clip. The output is
+/// deterministic (input order).
 pub fn split_static(
     points: &[TimedPoint],
     sparse: &[(DVec3, [f32; 3])],
@@ -81,19 +83,23 @@ pub fn split_static(
     merge: f64,
     voxel: f64,
     clip: (f64, f64),
+    given: Option<&[bool]>,
 ) -> (Vec<FusedPoint>, StaticCounts) {
     let mut counts = StaticCounts::default();
     let grid = (radius > 0.0).then(|| Grid::new(points.iter().map(|p| p.xyz).enumerate(), radius));
     let within = |a: DVec3, b: DVec3| (a - b).length_squared() <= radius * radius;
-    let is_static: Vec<bool> = points
-        .iter()
-        .map(|p| {
-            grid.as_ref().is_some_and(|g| {
-                g.near(p.xyz)
-                    .any(|j| points[j].moment != p.moment && within(points[j].xyz, p.xyz))
+    let is_static: Vec<bool> = match given {
+        Some(tags) => tags.to_vec(),
+        None => points
+            .iter()
+            .map(|p| {
+                grid.as_ref().is_some_and(|g| {
+                    g.near(p.xyz)
+                        .any(|j| points[j].moment != p.moment && within(points[j].xyz, p.xyz))
+                })
             })
-        })
-        .collect();
+            .collect(),
+    };
     counts.static_tagged = is_static.iter().filter(|s| **s).count();
     counts.dynamic_tagged = points.len() - counts.static_tagged;
 
@@ -102,7 +108,10 @@ pub fn split_static(
         .iter()
         .zip(&is_static)
         .filter(|(_, s)| **s)
-        .map(|(p, _)| (p.xyz, p.rgb, p.time, p.time))
+        .map(|(p, _)| match given {
+            Some(_) => (p.xyz, p.rgb, clip.0, clip.1),
+            None => (p.xyz, p.rgb, p.time, p.time),
+        })
         .collect();
     for &(xyz, rgb) in sparse {
         let beside_moving = grid.as_ref().is_some_and(|g| {
@@ -204,7 +213,7 @@ mod tests {
             p(6.0, 1),
             p(7.0, 2),
         ];
-        let (out, c) = split_static(&pts, &[], 0.05, 0.05, 0.0, (0.0, 3.0));
+        let (out, c) = split_static(&pts, &[], 0.05, 0.05, 0.0, (0.0, 3.0), None);
         assert_eq!((c.static_tagged, c.static_points), (3, 1));
         assert_eq!((c.dynamic_tagged, c.dynamic_points), (3, 3));
         let wall = out[0];
@@ -226,7 +235,7 @@ mod tests {
             (DVec3::new(5.01, 0.0, 0.0), [1.0; 3]), // saw the moving object
             (DVec3::new(-3.0, 0.0, 0.0), [1.0; 3]), // alone: static over the clip
         ];
-        let (out, c) = split_static(&pts, &sparse, 0.05, 0.05, 0.0, (0.0, 4.0));
+        let (out, c) = split_static(&pts, &sparse, 0.05, 0.05, 0.0, (0.0, 4.0), None);
         assert_eq!((c.sparse_merged, c.sparse_dropped), (2, 1));
         assert_eq!((c.static_points, c.dynamic_points), (2, 1));
         for q in &out[..2] {
@@ -239,8 +248,8 @@ mod tests {
     fn static_points_merge_within_the_merge_distance_only() {
         // Two wall points 0.03 apart, each seen at two moments (jitter 0.001).
         let pts = [p(0.0, 0), p(0.001, 1), p(0.03, 0), p(0.031, 1)];
-        let (_, coarse) = split_static(&pts, &[], 0.05, 0.05, 0.0, (0.0, 1.0));
-        let (fine, c) = split_static(&pts, &[], 0.05, 0.01, 0.0, (0.0, 1.0));
+        let (_, coarse) = split_static(&pts, &[], 0.05, 0.05, 0.0, (0.0, 1.0), None);
+        let (fine, c) = split_static(&pts, &[], 0.05, 0.01, 0.0, (0.0, 1.0), None);
         assert_eq!((coarse.static_tagged, coarse.static_points), (4, 1));
         assert_eq!((c.static_tagged, c.static_points), (4, 2));
         let mut x: Vec<_> = fine.iter().map(|q| q.xyz.x).collect();
@@ -251,7 +260,7 @@ mod tests {
     #[test]
     fn no_radius_tags_nothing_static() {
         let pts = [p(0.0, 0), p(0.0, 1)];
-        let (_, c) = split_static(&pts, &[], 0.0, 0.0, 0.0, (0.0, 1.0));
+        let (_, c) = split_static(&pts, &[], 0.0, 0.0, 0.0, (0.0, 1.0), None);
         assert_eq!((c.static_tagged, c.dynamic_points), (0, 2));
     }
 }

@@ -77,6 +77,7 @@ fn without_point_maps_the_sparse_points_are_used_then_a_random_cloud() {
         images: vec![],
         sparse: Some(sparse),
         moments: vec![],
+        plate_frames: Vec::new(),
     };
     let out = tmp.path().join("init");
     let exact = InitConfig {
@@ -146,6 +147,7 @@ fn bad_settings_and_inputs_are_typed_errors() {
         images: vec![],
         sparse: None,
         moments: vec![],
+        plate_frames: Vec::new(),
     };
     let out = tmp.path().join("init");
     let onnx = InitConfig {

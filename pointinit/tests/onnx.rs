@@ -139,6 +139,7 @@ fn the_whole_path_recovers_the_scale_and_the_predicted_points() {
         images: write_images(tmp.path()),
         sparse: None,
         moments: vec![],
+        plate_frames: Vec::new(),
     };
     let out = tmp.path().join("init");
     let report = run_init(&inputs, &init_config(fixture()), &out, &NoProgress).unwrap();
@@ -192,6 +193,7 @@ fn the_model_runs_at_each_moment_and_a_still_scene_is_static() {
         images: images.clone(),
         sparse: None,
         moments: vec![moment(0, 0.0), moment(9, 1.0)],
+        plate_frames: Vec::new(),
     };
     let out = tmp.path().join("init");
     let config = InitConfig {
@@ -291,6 +293,7 @@ fn corrupt_and_missing_models_are_typed_errors() {
         images: write_images(tmp.path()),
         sparse: None,
         moments: vec![],
+        plate_frames: Vec::new(),
     };
     let out = tmp.path().join("init");
     let e = run_init(&inputs, &init_config(p), &out, &NoProgress).unwrap_err();

@@ -165,6 +165,7 @@ fn inputs(t: &Truth, sparse: bool) -> InitInputs {
         images: t.images.clone(),
         sparse: sparse.then(|| t.sparse.clone()),
         moments: vec![],
+        plate_frames: Vec::new(),
     }
 }
 
@@ -374,6 +375,7 @@ fn point_maps_of_several_moments_split_static_from_moving() {
     };
     let inputs = InitInputs {
         moments: moments.clone(),
+        plate_frames: Vec::new(),
         ..inputs(t, false)
     };
     let out = t.dir.join("out_moments");

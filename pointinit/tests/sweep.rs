@@ -21,6 +21,7 @@ fn swept_points_lie_on_the_true_surfaces_and_moving_ones_on_the_moving_objects()
         images: vec![],
         sparse: None,
         moments: moments(&c, &FRAMES),
+        plate_frames: Vec::new(),
     };
     let config = InitConfig {
         source: Source::Sweep,

@@ -34,6 +34,7 @@ fn moments_triangulated_with_true_cameras_lie_on_the_true_surfaces() {
         images: vec![],
         sparse: None,
         moments: moments(&c, &FRAMES),
+        plate_frames: Vec::new(),
     };
     let config = InitConfig {
         source: Source::Triangulate,

@@ -75,11 +75,17 @@ pub fn run(ctx: &StageContext, settings: &InitSettings) -> anyhow::Result<()> {
     let mut config = settings.clone();
     config.model = config.model.map(|p| ctx.capture.resolve(&p));
     config.pointmaps = pointmaps;
+    // The static plates' frames: `[init] plates` per camera, spread over the clip.
+    let plate_frames = moment_frames(index.frames.len(), settings.plates)
+        .into_iter()
+        .flat_map(|i| views_of(&index.frames[i]))
+        .collect();
     let inputs = InitInputs {
         cameras: poses.set,
         images,
         sparse,
         moments,
+        plate_frames,
     };
     let mut report = pointinit::run_init(&inputs, &config, &ctx.out_dir, ctx.progress)?;
     // Recorded relative to work/init/: the stage is built in a temporary folder.
