@@ -44,8 +44,7 @@ pub enum LpipsError {
     )]
     BadWeights { path: PathBuf, message: String },
     #[error(
-        "LPIPS_WEIGHTS is {path}, which is not a file; set it to the weights file, or unset it and {}",
-        weights::INSTALL_HINT
+        "LPIPS_WEIGHTS is {path}, which is not a file; point it at an LPIPS-alex weights file (scripts/setup.sh writes weights/lpips-alex-v0.1.safetensors), or unset it"
     )]
     EnvWeightsMissing { path: PathBuf },
     #[error(
