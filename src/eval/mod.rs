@@ -1,9 +1,9 @@
 //! Rendering and evaluating a trained model: render camera paths to frames
 //! ([`render_path`]) and measure renders against ground-truth images ([`evaluate`]):
-//! PSNR, SSIM, DSSIM₁, DSSIM₂ and (when weights are installed or given) LPIPS per frame and mean,
-//! PSNR and SSIM inside the moving region where a view has a mask, held-out and training
-//! views reported separately, written as `metrics.json`,
-//! `per_frame.csv` and side-by-side PNG grids. Every file is written under a temporary
+//! PSNR, SSIM, DSSIM₁, DSSIM₂ and (when weights are installed or given) LPIPS per frame
+//! and mean, PSNR and SSIM inside the moving region where a view has a mask, held-out and
+//! training views reported separately, written as `metrics.json`, `per_frame.csv` and
+//! side-by-side PNG grids. Every file is written under a temporary
 //! name and renamed. Every render goes through a [`RenderBackend`], in batches of its
 //! preferred size. The metric maths is in `metrics`, the camera paths in `trajectories`.
 
