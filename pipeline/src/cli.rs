@@ -77,6 +77,14 @@ pub enum Command {
     ///
     /// Example: pipeline render my_capture/ --path spiral --time fixed:1.0 --out spiral.mp4
     Render(RenderArgs),
+    /// PSNR, SSIM, DSSIM1, DSSIM2 and LPIPS between two images, or between the
+    /// same-named images of two folders (paired by name without extension, so 0001.png
+    /// pairs with 0001.jpg) — e.g. renders against ground truth, or against another
+    /// tool's renders. LPIPS is LPIPS-alex from the weights scripts/setup.sh installs.
+    ///
+    /// Examples: pipeline metrics render.png truth.png
+    ///           pipeline metrics my_capture/work/render/rgb/ other_tool/renders/
+    Metrics(MetricsArgs),
     /// Benchmarks that train and measure (numbers for BENCHMARKS.md).
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -176,6 +184,18 @@ pub struct RecordArgs {
     /// Do not prompt for a sync flash or clap once all cameras run.
     #[arg(long)]
     pub no_flash_prompt: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct MetricsArgs {
+    /// An image, or a folder of images (the first of each pair: e.g. the renders).
+    pub a: PathBuf,
+    /// An image, or a folder of images (the second of each pair: e.g. the ground truth).
+    pub b: PathBuf,
+    /// LPIPS network: LPIPS-alex weights (.safetensors) or an ONNX model (default: the
+    /// installed weights, see docs/render-eval.md "LPIPS").
+    #[arg(long, value_name = "FILE")]
+    pub lpips: Option<PathBuf>,
 }
 
 #[derive(Debug, Args)]

@@ -13,10 +13,12 @@
 //!   `partial_dir` (outputs appear only when complete) and `lock` (one run per capture).
 //! - `report` shows progress, `status` prints the table, `cli` is the command line;
 //!   `simulate` and `ablation` are the `simulate`/`demo` and `bench ablation` commands,
-//!   `bench` the `bench sync` and `bench poses` commands (and their resumable results table).
+//!   `bench` the `bench sync` and `bench poses` commands (and their resumable results table),
+//!   `compare` the `metrics` command (image metrics between two images or folders).
 
 pub mod bench;
 pub mod cli;
+pub mod compare;
 pub mod config;
 pub mod engine_inputs;
 pub mod heldout;

@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::Parser;
 use indicatif::MultiProgress;
-use pipeline::cli::{BenchCommand, Cli, Command, RecordArgs, RenderArgs, RunArgs};
+use pipeline::cli::{BenchCommand, Cli, Command, MetricsArgs, RecordArgs, RenderArgs, RunArgs};
 use pipeline::partial_dir::{build_fresh, partial_path, swap_in};
 use pipeline::report::{OutputMode, Reporter};
 use pipeline::runner::{RunSummary, Selection};
@@ -73,6 +73,7 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             preset,
         } => demo(&out_dir, backend, preset, reporter),
         Command::Render(args) => render(args, reporter),
+        Command::Metrics(args) => metrics(args, reporter),
         Command::Bench(BenchCommand::Ablation {
             scene,
             capture_dir,
@@ -507,4 +508,84 @@ impl Write for BarSafeWriter {
     fn flush(&mut self) -> std::io::Result<()> {
         std::io::stderr().flush()
     }
+}
+
+/// `pipeline metrics A B`: the table on stdout (JSON lines with `--json`), notes on stderr.
+fn metrics(args: MetricsArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
+    use splat4d::metrics::lpips::{INSTALL_HINT, Lpips};
+    let lpips = match &args.lpips {
+        Some(path) => Some(
+            Lpips::load(path)
+                .with_context(|| format!("--lpips {}: cannot load it", path.display()))?,
+        ),
+        None => Lpips::installed().context("cannot load the installed LPIPS weights")?,
+    };
+    match &lpips {
+        Some(net) => reporter.say(&format!(
+            "LPIPS: {} from {}",
+            net.kind(),
+            net.path().display()
+        )),
+        None => reporter.say(&format!(
+            "LPIPS skipped: no weights installed; {INSTALL_HINT}"
+        )),
+    }
+    let progress = reporter.progress("metrics");
+    let comparison = pipeline::compare::compare(&args.a, &args.b, lpips.as_ref(), &progress)?;
+    for (folder, names) in [
+        (&args.a, &comparison.only_in_a),
+        (&args.b, &comparison.only_in_b),
+    ] {
+        if !names.is_empty() {
+            let shown: Vec<&str> = names.iter().take(5).map(String::as_str).collect();
+            let more = if names.len() > shown.len() {
+                ", …"
+            } else {
+                ""
+            };
+            reporter.say(&format!(
+                "{} image(s) only in {}, left out: {}{more}",
+                names.len(),
+                folder.display(),
+                shown.join(", ")
+            ));
+        }
+    }
+    if reporter.mode() == OutputMode::Json {
+        let finite = |v: f64| v.is_finite().then_some(v);
+        for p in &comparison.pairs {
+            reporter.json(&serde_json::json!({
+                "event": "metrics",
+                "image": p.name,
+                "a": p.a,
+                "b": p.b,
+                "width": p.width,
+                "height": p.height,
+                "psnr": finite(p.metrics.psnr),
+                "ssim": p.metrics.ssim,
+                "dssim1": p.metrics.dssim1,
+                "dssim2": p.metrics.dssim2,
+                "lpips": p.lpips,
+            }));
+        }
+        let mean = comparison.mean();
+        reporter.json(&serde_json::json!({
+            "event": "metrics_mean",
+            "images": comparison.pairs.len(),
+            "only_in_a": comparison.only_in_a,
+            "only_in_b": comparison.only_in_b,
+            "psnr": mean.psnr.and_then(finite),
+            "ssim": mean.ssim,
+            "dssim1": mean.dssim1,
+            "dssim2": mean.dssim2,
+            "lpips": mean.lpips,
+            "lpips_network": lpips.as_ref().map(|l| l.kind()),
+        }));
+    } else {
+        print!(
+            "{}",
+            pipeline::compare::format_table(&comparison, lpips.is_some())
+        );
+    }
+    Ok(ExitCode::SUCCESS)
 }

@@ -307,3 +307,152 @@ fn presets_are_announced_and_keys_they_set_are_refused_beside_them() {
         "{stderr}"
     );
 }
+
+/// The LPIPS repository's example images (fixtures/lpips).
+fn lpips_example(name: &str) -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../fixtures/lpips")
+        .join(name)
+}
+
+/// Whether LPIPS weights are installed; a panic under `CI=true` when they are not
+/// (scripts/setup.sh installs them).
+fn lpips_weights_installed() -> bool {
+    match splat4d::metrics::lpips::find_weights() {
+        Ok(Some(_)) => true,
+        _ if std::env::var("CI").is_ok_and(|v| v == "true" || v == "1") => panic!(
+            "no LPIPS weights under CI=true: {}",
+            splat4d::metrics::lpips::INSTALL_HINT
+        ),
+        _ => {
+            eprintln!("LPIPS weights are not installed: only the other metrics are checked");
+            false
+        }
+    }
+}
+
+#[test]
+fn metrics_compares_two_images_or_two_folders() {
+    let weights = lpips_weights_installed();
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .args(["--json", "metrics"])
+        .arg(lpips_example("ex_ref.png"))
+        .arg(lpips_example("ex_p0.png"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let events: Vec<serde_json::Value> = stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("each line is JSON"))
+        .collect();
+    let pair = events.iter().find(|e| e["event"] == "metrics").unwrap();
+    assert_eq!(
+        (pair["width"].as_u64(), pair["height"].as_u64()),
+        (Some(64), Some(64))
+    );
+    let psnr = pair["psnr"].as_f64().unwrap();
+    assert!(psnr > 5.0 && psnr < 40.0, "{psnr}");
+    if weights {
+        let lpips = pair["lpips"].as_f64().unwrap();
+        assert!((lpips - 0.722).abs() <= 0.001, "{lpips}");
+    } else {
+        assert!(pair["lpips"].is_null());
+    }
+
+    // Two folders: pairs by name without extension, the rest left out and said so.
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("renders"), tmp.path().join("truth"));
+    std::fs::create_dir_all(&a).unwrap();
+    std::fs::create_dir_all(&b).unwrap();
+    for (src, dst) in [
+        ("ex_p0.png", a.join("0001.png")),
+        ("ex_p1.png", a.join("0002.png")),
+        ("ex_p1.png", a.join("0003.png")),
+        ("ex_ref.png", b.join("0001.png")),
+        ("ex_ref.png", b.join("0002.png")),
+    ] {
+        std::fs::copy(lpips_example(src), dst).unwrap();
+    }
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .arg("metrics")
+        .arg(&a)
+        .arg(&b)
+        .output()
+        .unwrap();
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert!(out.status.success(), "{stdout}{stderr}");
+    assert!(
+        stdout.contains("0001.png") && stdout.contains("0002.png"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("mean of 2"), "{stdout}");
+    assert!(
+        stderr.contains("1 image(s) only in") && stderr.contains("0003.png"),
+        "{stderr}"
+    );
+    if weights {
+        assert!(
+            stdout.contains("0.72") && stdout.contains("0.13"),
+            "{stdout}"
+        );
+    } else {
+        assert!(
+            stdout.contains("skipped") && stderr.contains("scripts/setup.sh"),
+            "{stderr}"
+        );
+    }
+}
+
+#[test]
+fn metrics_mistakes_name_the_path_and_the_fix() {
+    let tmp = tempfile::tempdir().unwrap();
+    let small = tmp.path().join("small.png");
+    image::RgbImage::new(32, 20).save(&small).unwrap();
+    let metrics = |a: &std::path::Path, b: &std::path::Path| {
+        let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+            .arg("metrics")
+            .arg(a)
+            .arg(b)
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let reference = lpips_example("ex_ref.png");
+    let err = metrics(&reference, &small);
+    assert!(
+        err.contains("64×64") && err.contains("32×20") && err.contains("small.png"),
+        "{err}"
+    );
+    let absent = tmp.path().join("absent.png");
+    let err = metrics(&absent, &reference);
+    assert!(
+        err.contains("absent.png") && err.contains("does not exist"),
+        "{err}"
+    );
+    let err = metrics(tmp.path(), &reference);
+    assert!(err.contains("is a folder but"), "{err}");
+
+    // LPIPS_WEIGHTS naming a file that is not there is an error, not a silent skip.
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .arg("metrics")
+        .arg(&reference)
+        .arg(&reference)
+        .env("LPIPS_WEIGHTS", &absent)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("LPIPS_WEIGHTS") && err.contains("absent.png"),
+        "{err}"
+    );
+}

@@ -1,9 +1,9 @@
 //! Rendering and evaluating a trained model: render camera paths to frames
 //! ([`render_path`]) and measure renders against ground-truth images ([`evaluate`]):
-//! PSNR, SSIM, DSSIM₁, DSSIM₂ and (with user-supplied weights) LPIPS per frame and mean,
-//! PSNR and SSIM inside the moving region where a view has a mask, held-out and training
-//! views reported separately, written as `metrics.json`,
-//! `per_frame.csv` and side-by-side PNG grids. Every file is written under a temporary
+//! PSNR, SSIM, DSSIM₁, DSSIM₂ and (when weights are installed or given) LPIPS per frame
+//! and mean, PSNR and SSIM inside the moving region where a view has a mask, held-out and
+//! training views reported separately, written as `metrics.json`, `per_frame.csv` and
+//! side-by-side PNG grids. Every file is written under a temporary
 //! name and renamed. Every render goes through a [`RenderBackend`], in batches of its
 //! preferred size. The metric maths is in `metrics`, the camera paths in `trajectories`.
 
@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 pub use frames::{FrameOutputs, FrameSink, RenderedPath, render_path};
 
 use crate::camera::Camera;
-use crate::metrics::lpips::{Lpips, LpipsError};
+use crate::metrics::lpips::{ImagePair, Lpips, LpipsError};
 use crate::metrics::{MetricsError, image_metrics, masked_metrics};
 use crate::model::Gaussians;
 use crate::progress::Progress;
@@ -26,8 +26,8 @@ use images::{error_heat_map, rgb8_from, side_by_side, write_atomic, write_png};
 /// Grids written per set (first, middle and last frame).
 pub const GRIDS_PER_SET: usize = 3;
 
-/// What `metrics.json` says about LPIPS when no model was given.
-pub const LPIPS_SKIPPED: &str = "skipped: no weights";
+/// What `metrics.json` says about LPIPS when no network was given: why, and how to get one.
+pub const LPIPS_SKIPPED: &str = "skipped: no LPIPS weights installed (run scripts/setup.sh, or set LPIPS_WEIGHTS to the weights file)";
 
 /// Why rendering or evaluation stopped.
 #[derive(Debug, thiserror::Error)]
@@ -59,8 +59,8 @@ pub enum EvalError {
         width: u32,
         height: u32,
     },
-    #[error(transparent)]
-    Lpips(#[from] LpipsError),
+    #[error("LPIPS of {view}: {source}")]
+    Lpips { view: String, source: LpipsError },
     #[error("cannot write {path}: {source}")]
     Write {
         path: PathBuf,
@@ -182,7 +182,7 @@ fn definitions() -> serde_json::Value {
         "ssim": "Structural similarity, 11×11 Gaussian window σ=1.5, data range 1, zero-padded same-size filtering, mean over pixels and RGB channels (3DGS convention)",
         "dssim1": "(1 − SSIM)/2 with SSIM at data range 1.0 (C1=(0.01·1)², C2=(0.03·1)²)",
         "dssim2": "(1 − SSIM)/2 with SSIM at data range 2.0 (C1=(0.01·2)², C2=(0.03·2)²; the older scikit-image default for float images); smaller than dssim1 for the same images",
-        "lpips": "Learned perceptual distance from a user-supplied ONNX model (images scaled to [-1,1]); lower is better; 'skipped: no weights' when no model was given",
+        "lpips": "LPIPS v0.1 (learned perceptual image patch similarity) with AlexNet, computed natively from the weights scripts/setup.sh installs, or with the ONNX model of [eval] lpips (lpips.network says which); images scaled to [-1,1]; lower is better; a 'skipped: …' text saying how to get the weights when there are none",
         "heldout": "views not used for training (novel-view quality)",
         "train": "training views (reported separately so overfitting is visible)",
     })
@@ -370,14 +370,43 @@ pub fn evaluate(
                         view: label(first),
                         source,
                     })?;
-            for (k, (view, (r, (truth, w, h)))) in chunk
+            let rendered: Vec<Vec<f32>> = renders
                 .iter()
-                .zip(renders.into_iter().zip(truths))
+                .map(|r| r.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect())
+                .collect();
+            // LPIPS of the whole batch at once: the native network runs the views in parallel.
+            let lpips_values: Vec<Option<f64>> = match lpips {
+                Some(net) => {
+                    let pairs: Vec<ImagePair> = rendered
+                        .iter()
+                        .zip(&truths)
+                        .map(|(r, (t, w, h))| ImagePair {
+                            a: r,
+                            b: t,
+                            width: *w as usize,
+                            height: *h as usize,
+                        })
+                        .collect();
+                    net.distances(&pairs)
+                        .into_iter()
+                        .enumerate()
+                        .map(|(k, d)| {
+                            d.map(Some).map_err(|source| EvalError::Lpips {
+                                view: label(first + k),
+                                source,
+                            })
+                        })
+                        .collect::<Result<_, _>>()?
+                }
+                None => vec![None; chunk.len()],
+            };
+            for (k, (view, ((rendered, (truth, w, h)), lp))) in chunk
+                .iter()
+                .zip(rendered.into_iter().zip(truths).zip(lpips_values))
                 .enumerate()
             {
                 let i = first + k;
                 let label = || label(i);
-                let rendered: Vec<f32> = r.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect();
                 let m =
                     image_metrics(&rendered, &truth, w as usize, h as usize).map_err(|source| {
                         EvalError::Metrics {
@@ -385,10 +414,6 @@ pub fn evaluate(
                             source,
                         }
                     })?;
-                let lp = match lpips {
-                    Some(net) => Some(net.distance(&rendered, &truth, w as usize, h as usize)?),
-                    None => None,
-                };
                 let moving = moving_metrics(view, &rendered, &truth, w, h, label)?;
                 if wanted_grids.contains(&i) {
                     let grid = side_by_side(&[
@@ -499,6 +524,7 @@ pub fn evaluate(
         "definitions": definitions(),
         "lpips": {
             "status": report.lpips_status,
+            "network": lpips.map(|l| l.kind()),
             "model": lpips.map(|l| l.path().display().to_string()),
         },
         "heldout": set_json(&report.heldout),

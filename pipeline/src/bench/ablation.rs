@@ -95,11 +95,12 @@ pub fn run(
     shared_types::Progress::finish(&progress);
     let md = bench.join("ablation.md");
     let header = format!(
-        "scene {}, {} training views, {} held-out views, {iterations} iterations, seed {}",
+        "scene {}, {} training views, {} held-out views, {iterations} iterations, seed {}. {}",
         scene.display(),
         dataset.views.len(),
         heldout.len(),
-        train_config.seed
+        train_config.seed,
+        crate::bench::inputs::lpips_note(lpips.as_ref()),
     );
     shared_types::atomic::write_atomic(&md, markdown(&header, &rows).as_bytes())?;
     shared_types::atomic::write_atomic(&bench.join("ablation.csv"), csv(&rows).as_bytes())?;
@@ -124,8 +125,7 @@ pub fn markdown(header: &str, rows: &[AblationRow]) -> String {
             cell(r.psnr, 2),
             cell(r.dssim1, 4),
             cell(r.dssim2, 4),
-            r.lpips
-                .map_or("skipped: no weights".into(), |v| format!("{v:.4}")),
+            r.lpips.map_or("skipped".into(), |v| format!("{v:.4}")),
             r.gaussians,
             r.seconds
         );

@@ -26,7 +26,8 @@ pub struct BenchInputs {
     pub dataset: Dataset,
     pub points: PointCloud,
     pub heldout: Vec<EvalView>,
-    /// The LPIPS model of `[eval] lpips`, when the capture sets one.
+    /// The LPIPS network: `[eval] lpips` when the capture sets one, else the installed
+    /// LPIPS-alex weights; `None` when there are none.
     pub lpips: Option<splat4d::metrics::lpips::Lpips>,
     /// `work/bench/` of the capture: where the benches write.
     pub bench_dir: PathBuf,
@@ -155,4 +156,14 @@ pub fn prepare(source: &BenchSource, reporter: &Reporter) -> anyhow::Result<Benc
         heldout,
         bench_dir,
     })
+}
+
+/// The sentence a bench table's header says about LPIPS: which network measured it, or
+/// that it was skipped and how to get the weights.
+pub fn lpips_note(lpips: Option<&splat4d::metrics::lpips::Lpips>) -> String {
+    match lpips {
+        Some(net) => format!("LPIPS: {} ({}).", net.kind(), net.path().display()),
+        None => "LPIPS skipped: no weights installed (run scripts/setup.sh, or set LPIPS_WEIGHTS)."
+            .into(),
+    }
 }

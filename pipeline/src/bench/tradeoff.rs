@@ -380,8 +380,7 @@ pub fn markdown(header: &str, rows: &[Row]) -> String {
             cell(r.psnr, 2),
             cell(r.ssim, 3),
             cell(r.dssim1, 4),
-            r.lpips
-                .map_or("skipped: no weights".into(), |v| format!("{v:.4}")),
+            r.lpips.map_or("skipped".into(), |v| format!("{v:.4}")),
             cell(r.moving_psnr, 2),
         );
     }
@@ -448,13 +447,14 @@ pub fn run(source: &BenchSource, grid: &Grid, reporter: &Reporter) -> anyhow::Re
     // earlier ones'); delete tradeoff.csv to start afresh.
     let shown = rows;
     let header = format!(
-        "{}, {} training views of {}×{}, {} held-out views, seed {}. Machine: {}. Last command: `pipeline bench tradeoff {}`.",
+        "{}, {} training views of {}×{}, {} held-out views, seed {}. {} Machine: {}. Last command: `pipeline bench tradeoff {}`.",
         source.describe(),
         inputs.dataset.views.len(),
         inputs.dataset.views[0].image.width,
         inputs.dataset.views[0].image.height,
         inputs.heldout.len(),
         inputs.config.train.seed,
+        crate::bench::inputs::lpips_note(inputs.lpips.as_ref()),
         sysinfo::describe_machine(),
         grid.describe(source)
     );

@@ -32,8 +32,10 @@ const GROUNDTRUTH_DIR: &str = "groundtruth";
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EvalSettings {
-    /// LPIPS weights as ONNX (docs/render-eval.md says how to export them); without them
-    /// LPIPS is reported as skipped. Relative to the capture directory.
+    /// Another LPIPS network than the installed LPIPS-alex weights: an ONNX model
+    /// (docs/render-eval.md says how to export one) or a `.safetensors` weights file.
+    /// Relative to the capture directory. Unset: the installed weights
+    /// (`scripts/setup.sh`); with none installed LPIPS is reported as skipped.
     pub lpips: Option<PathBuf>,
     /// Training views measured (evenly spread over cameras and frames; 0: none).
     pub train_views: usize,
@@ -52,15 +54,19 @@ impl Default for EvalSettings {
     }
 }
 
-/// The capture files the stage reads: the simulator's ground truth (`groundtruth/`, when
-/// present), the user's moving-region masks (`masks/`, when present) and the `lpips`
-/// weights, when set.
+/// The files the stage reads besides upstream outputs: the simulator's ground truth
+/// (`groundtruth/`, when present), the user's moving-region masks (`masks/`, when
+/// present) and the LPIPS network: the `lpips` file when set, else the installed weights
+/// (so installing them reruns eval, which then reports LPIPS).
 pub fn inputs(capture: &Capture, settings: &EvalSettings) -> Vec<PathBuf> {
     let mut inputs = vec![
         capture.root.join(GROUNDTRUTH_DIR),
         capture.root.join(CAPTURE_MASKS_DIR),
     ];
-    inputs.extend(settings.lpips.as_deref().map(|path| capture.resolve(path)));
+    match &settings.lpips {
+        Some(path) => inputs.push(capture.resolve(path)),
+        None => inputs.extend(splat4d::metrics::lpips::find_weights().ok().flatten()),
+    }
     inputs
 }
 
@@ -343,16 +349,24 @@ fn train_views(
     )
 }
 
-/// The LPIPS model of `[eval] lpips` (a path relative to the capture), if one is set.
+/// The LPIPS network: the file of `[eval] lpips` (a path relative to the capture) when it
+/// is set, else the installed LPIPS-alex weights; `None` (with a warning saying how to
+/// install them) when there are none.
 pub fn load_lpips(
     capture: &Capture,
     settings: &EvalSettings,
 ) -> anyhow::Result<Option<splat4d::metrics::lpips::Lpips>> {
+    use splat4d::metrics::lpips::{INSTALL_HINT, Lpips};
     let Some(path) = &settings.lpips else {
-        return Ok(None);
+        let lpips = Lpips::installed().context("cannot load the installed LPIPS weights")?;
+        match &lpips {
+            Some(net) => tracing::debug!("LPIPS: {} from {}", net.kind(), net.path().display()),
+            None => tracing::warn!("LPIPS skipped: no weights installed; {INSTALL_HINT}"),
+        }
+        return Ok(lpips);
     };
     let path = capture.resolve(path);
-    let lpips = splat4d::metrics::lpips::Lpips::load(&path).with_context(|| {
+    let lpips = Lpips::load(&path).with_context(|| {
         format!(
             "[eval] lpips = {}: cannot load the LPIPS model",
             path.display()
@@ -442,14 +456,17 @@ pub fn run(
     )?;
     let show = |set: &str, m: &splat4d::eval::SetMetrics| {
         let f = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.4}"));
+        let lpips_text = match (&lpips, m.lpips) {
+            (None, _) => "skipped (no weights: run scripts/setup.sh)".to_string(),
+            (Some(_), v) => f(v),
+        };
         tracing::info!(
-            "{set}: {} views, PSNR {} dB, SSIM {}, DSSIM1 {}, DSSIM2 {}, LPIPS {}",
+            "{set}: {} views, PSNR {} dB, SSIM {}, DSSIM1 {}, DSSIM2 {}, LPIPS {lpips_text}",
             m.frames.len(),
             f(m.psnr),
             f(m.ssim),
             f(m.dssim1),
             f(m.dssim2),
-            f(m.lpips)
         );
     };
     show("held-out", &report.heldout);

