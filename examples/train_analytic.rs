@@ -60,9 +60,8 @@ fn main() {
     let model = load_model(&s.model_path).expect("model");
     let mean = |v: Vec<f64>| v.iter().sum::<f64>() / v.len() as f64;
     let train_psnr =
-        mean(evaluate_psnr(&CpuBackend, &model, &train_data, config.background).expect("eval"));
-    let held_psnr =
-        mean(evaluate_psnr(&CpuBackend, &model, &held, config.background).expect("eval"));
+        mean(evaluate_psnr(&CpuBackend, &model, &train_data, s.background).expect("eval"));
+    let held_psnr = mean(evaluate_psnr(&CpuBackend, &model, &held, s.background).expect("eval"));
     println!(
         "{width}x{height}, {} train views, {} held-out views, {iterations} iterations (batch {}): {:.1} s, {:.2} it/s, \
          {} Gaussians (from {}), train PSNR {train_psnr:.2} dB, held-out PSNR {held_psnr:.2} dB, peak RSS {:.0} MiB",
