@@ -6,7 +6,7 @@
 //! `gpu_train_step`: forward + backward (a training step's render work; loss and optimiser
 //! excluded) and the backward alone, from image gradients to parameter gradients read
 //! back on the host. 2k Gaussians at 128×96 is the size a software adapter can run;
-//! 10k–1M at 512×384 and 1M at 1352×1014 (issue 17's 25 ms target) are for real GPUs.
+//! 10k–1M at 512×384 and 1M at 1352×1014 (the 25 ms target) are for real GPUs.
 //!
 //! `gpu_loss`: the L1 + D-SSIM loss with its image gradient (upload of both images and
 //! read-back of loss and gradient included), next to the CPU loss; `gpu_adam`: one Adam

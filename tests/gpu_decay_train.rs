@@ -291,8 +291,8 @@ impl TrainHooks for HostDecay {
     }
 }
 
-/// BENCHMARKS.md, session 11: the neural decay's training speed on the GPU backend, the
-/// device path against the previous host path, on the analytic scene (32×24, 20 views,
+/// BENCHMARKS.md, "Neural decay on the device": the neural decay's training speed on the
+/// GPU backend, the device path against the host path, on the analytic scene (32×24, 20 views,
 /// batch 2, warm-up 50, `GPU_DECAY_ITERATIONS` steps, default 150). Both must train alike
 /// (PSNR within 0.1 dB); the speeds are printed, not asserted.
 /// `cargo test -p splat4d --test gpu_decay_train bench -- --ignored --nocapture`

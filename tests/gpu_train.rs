@@ -186,7 +186,7 @@ fn buffer_groups(b: &ParamBuffers) -> Vec<(&'static str, Vec<f32>)> {
     ]
 }
 
-/// Issue 17's whole iteration on the device (`GpuAdam::train_step`: render, loss,
+/// The whole training iteration on the device (`GpuAdam::train_step`: render, loss,
 /// backward, batch sum and Adam with the parameters resident, targets uploaded once as
 /// bytes) against the CPU trainer's step (f32), 6 iterations of 2 views of the analytic
 /// scene, 144 turned anisotropic Gaussians with every colour degree: each view's loss

@@ -75,13 +75,14 @@ fn mean(v: Vec<f64>) -> f64 {
     v.iter().sum::<f64>() / v.len() as f64
 }
 
-/// Issue 17 (a) and (c): the analytic scene (32×24, 20 training views) trained on the GPU
-/// and on the CPU from the same points, schedule and seed: held-out PSNR (two unseen
-/// cameras at four unseen times) within 0.3 dB, and both densify (counts grow, within
-/// 25 % of each other). 150 iterations, batch 2 (~50 s on lavapipe on a 2-core VM;
-/// `GPU_TRAIN_ITERATIONS=300` for issue 17's length). The runs differ only by float
-/// rounding, but densification amplifies it: a short run still far from converged (120
-/// iterations) was seen 0.7 dB apart on held-out views, 150 iterations 0.00 dB.
+/// GPU training reaches the CPU's quality: the analytic scene (32×24, 20 training views)
+/// trained on the GPU and on the CPU from the same points, schedule and seed: held-out PSNR
+/// (two unseen cameras at four unseen times) within 0.3 dB, and both densify (counts grow,
+/// within 25 % of each other). 150 iterations, batch 2 (~50 s on lavapipe on a 2-core VM;
+/// `GPU_TRAIN_ITERATIONS=300` for the longer run in BENCHMARKS.md, "Training loop"). The
+/// runs differ only by float rounding, but densification amplifies it: a short run still
+/// far from converged (120 iterations) was seen 0.7 dB apart on held-out views, 150
+/// iterations 0.00 dB.
 #[test]
 fn gpu_training_reaches_the_cpu_held_out_psnr_and_densifies() {
     let Some(gpu) = gpu() else { return };
@@ -162,7 +163,7 @@ impl TrainHooks for StopAt {
     }
 }
 
-/// Issue 17 (b): on the GPU backend, a run stopped after 13 iterations (checkpoint 13
+/// Resuming on the GPU backend: a run stopped after 13 iterations (checkpoint 13
 /// from the device state) and resumed gives the same `model.bin`, byte for byte, as an
 /// uninterrupted run; and so does a resume from the older checkpoint 8 (densified, the
 /// state rebuilt from a checkpoint before the opacity reset at 12 and densification at 19).
@@ -276,7 +277,7 @@ impl TrainHooks for PeakMemory {
     }
 }
 
-/// Device memory of GPU training (issue 17: peak GPU memory per million Gaussians): the
+/// Device memory of GPU training (peak GPU memory per million Gaussians): the
 /// allocator's bytes after each step of 3-step runs from two cloud sizes (no densification)
 /// give the cost per Gaussian (parameters, colours, Adam moments, gradients, statistics,
 /// per-view buffers) and the fixed cost, for the full colour model and the demo's. Printed

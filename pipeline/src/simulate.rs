@@ -69,7 +69,7 @@ pub fn demo_scene() -> anyhow::Result<rig::sim::Scene> {
 /// filmed held-out cameras. They are synced, aligned and posed in the same COLMAP solve as
 /// the training cameras, never trained on, and measured by eval: a score of the model, not
 /// of how well simulated ground-truth cameras can be placed next to solved ones
-/// (BENCHMARKS.md, "where the demo's held-out PSNR goes").
+/// (BENCHMARKS.md, "Held-out cameras: filmed against simulated ground truth").
 pub fn demo_settings(scene: &rig::sim::Scene) -> String {
     let names: Vec<String> = scene
         .cameras

@@ -1,8 +1,8 @@
 //! `pipeline demo` end to end (simulate, every stage, the demo's training) held to the
-//! quality measured for it (BENCHMARKS.md, "Session 13"): held-out PSNR and SSIM on the four
+//! quality measured for it (BENCHMARKS.md, "Motion at init"): held-out PSNR and SSIM on the four
 //! filmed held-out cameras, and PSNR inside the masks of what moves (the walking figure and
 //! the waving flag), each within 0.5 dB / 0.02 of the measurement, and that region within
-//! 3 dB of the whole image (issue 18).
+//! 3 dB of the whole image.
 //!
 //! Long (6–12 minutes in a release build on 2 cores): ignored by default. Run with the
 //! release binary:
@@ -12,13 +12,13 @@ use std::path::PathBuf;
 use std::process::Command;
 
 /// Held-out PSNR (dB) and SSIM measured for the demo, minus the run-to-run margin.
-/// (BENCHMARKS.md "Session 13": 2000 steps on `RADIAL` poses with motion at init, 24.72 dB,
+/// (BENCHMARKS.md "Motion at init": 2000 steps on `RADIAL` poses with motion at init, 24.72 dB,
 /// SSIM 0.845; without it two captures gave 24.58 and 24.61 dB.)
 const PSNR_FLOOR: f64 = 24.72 - 0.5;
 const SSIM_FLOOR: f64 = 0.845 - 0.02;
 /// PSNR inside the masks of what moves (the figure and the flag), dB (22.67).
 const MOVING_FLOOR: f64 = 22.67 - 0.5;
-/// Issue 18: the moving region within 3 dB of the whole image.
+/// The moving region within 3 dB of the whole image.
 const MOVING_GAP: f64 = 3.0;
 
 fn binary() -> PathBuf {

@@ -2,7 +2,7 @@
 //! made into a capture by `scripts/panoptic-capture.sh` (four image-sequence cameras train,
 //! the fifth is held out, Panoptic's own calibration in centimetres), run through every
 //! stage that leads to `eval`. The held-out PSNR must stay near what the pipeline reaches
-//! (BENCHMARKS.md, "Session 14: panoptic-5view with plane-sweep init"). The held-out camera
+//! (BENCHMARKS.md, "panoptic-5view: plane-sweep init"). The held-out camera
 //! is 68° from the nearest training camera; the plane-sweep init, the training frames' mean
 //! colour as background and 4C4D's decay lift it from grey fog (13.4 dB) to 17.7 dB, above
 //! a flat image of that colour (15.6 dB).

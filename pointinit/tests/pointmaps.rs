@@ -226,7 +226,7 @@ fn ground_truth_point_maps_fuse_onto_the_true_surfaces() {
         p90
     );
     assert!(median < 0.005 * t.scene_size);
-    // Far tighter than the bound: the maps are exact, only voxel averaging (of
+    // Far tighter than the 0.5 % bound: the maps are exact, only voxel averaging (of
     // points on curved or meeting surfaces) and f32 storage move the points.
     assert!(median < 0.25 * report.voxel, "voxel {}", report.voxel);
 }
