@@ -13,9 +13,6 @@ use shared_types::Progress;
 use splat4d::metrics::lpips::{ImagePair, Lpips, LpipsError};
 use splat4d::metrics::{ImageMetrics, MetricsError, image_metrics};
 
-/// File extensions read as images (case-insensitive).
-pub const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
-
 /// Why two images or folders cannot be compared.
 #[derive(Debug, thiserror::Error)]
 pub enum CompareError {
@@ -326,10 +323,7 @@ fn images_by_stem(dir: &Path) -> Result<BTreeMap<String, String>, CompareError> 
         .map_err(list_err)?;
     entries.sort();
     for path in entries {
-        let is_image = path.is_file()
-            && path
-                .extension()
-                .is_some_and(|e| IMAGE_EXTENSIONS.iter().any(|x| e.eq_ignore_ascii_case(x)));
+        let is_image = path.is_file() && rig::media::is_photo(&path);
         let Some(stem) = path.file_stem().map(|s| s.to_string_lossy().into_owned()) else {
             continue;
         };

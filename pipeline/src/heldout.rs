@@ -112,7 +112,7 @@ pub fn pinhole_heldout_cameras(work_dir: &Path) -> anyhow::Result<Vec<Camera>> {
 }
 
 fn write_json(path: &Path, value: &impl serde::Serialize) -> anyhow::Result<()> {
-    shared_types::atomic::write_atomic(path, &serde_json::to_vec_pretty(value)?)
+    shared_types::atomic::write_json(path, value)
         .with_context(|| format!("cannot write {}", path.display()))
 }
 

@@ -18,20 +18,13 @@
 //! This module only reads; it never creates or changes anything.
 
 use std::fs;
-use std::io::Read;
 use std::path::{Path, PathBuf};
 
+use rig::media;
 use thiserror::Error;
 
 /// File name of the settings file inside a capture directory.
 pub const CONFIG_FILE: &str = "capture.toml";
-/// File extensions taken as videos (case-insensitive).
-pub const VIDEO_EXTENSIONS: &[&str] = &["mp4", "mov", "m4v", "mkv", "webm", "avi"];
-/// Camera sidecar files that are ignored (GoPro thumbnails and low-res proxies).
-const IGNORED_EXTENSIONS: &[&str] = &["thm", "lrv"];
-/// Still image extensions.
-pub const IMAGE_EXTENSIONS: &[&str] = &["jpg", "jpeg", "png"];
-
 /// A validated capture directory.
 #[derive(Clone, Debug)]
 pub struct Capture {
@@ -124,13 +117,15 @@ pub enum LayoutError {
         "{0} holds no video: copy that camera's recordings (e.g. GX010001.MP4) into it, or its numbered images (000000.jpg, …)"
     )]
     EmptyCameraDir(PathBuf),
-    #[error("{path} is not a video{detail}; only {exts} videos or .jpg/.png/.bmp/.tif images may be in a camera folder (move it elsewhere)",
-            exts = VIDEO_EXTENSIONS.join("/"))]
+    #[error("{path} is not a video{detail}; a camera folder holds videos (an FFmpeg-readable MP4/MOV, \
+             Matroska/WebM, AVI or MPEG-TS/PS container, e.g. .{exts}) or images (.{images}); move it elsewhere",
+            exts = media::VIDEO_EXTENSIONS.join("/."), images = media::IMAGE_EXTENSIONS.join("/."))]
     NotAVideo { path: PathBuf, detail: String },
     #[error("{0} is not a directory: stills/ must be a folder of photos")]
     StillsNotADirectory(PathBuf),
     #[error(
-        "{0} is not an image: stills/ may only hold .jpg/.jpeg/.png photos (move it elsewhere)"
+        "{0} is not an image: stills/ may only hold .{exts} photos (move it elsewhere)",
+        exts = media::PHOTO_EXTENSIONS.join("/.")
     )]
     NotAnImage(PathBuf),
     #[error("cannot read {path}: {source}")]
@@ -145,13 +140,6 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> LayoutError + '_ {
         path: path.to_path_buf(),
         source,
     }
-}
-
-fn extension(path: &Path) -> String {
-    path.extension()
-        .and_then(|e| e.to_str())
-        .unwrap_or("")
-        .to_ascii_lowercase()
 }
 
 fn is_hidden(path: &Path) -> bool {
@@ -180,53 +168,22 @@ fn camera_number(name: &str) -> Option<u32> {
         .and_then(|n| n.parse().ok())
 }
 
-/// Sort key that puts GoPro chapters (`GXccnnnn.MP4`, `GHccnnnn.MP4`, `GOPRnnnn.MP4` +
-/// `GPccnnnn.MP4`) in recording order: by clip number, then chapter. Other names sort by name.
-pub fn recording_order_key(path: &Path) -> (String, u32, String) {
-    let name = path
-        .file_name()
-        .and_then(|n| n.to_str())
-        .unwrap_or("")
-        .to_string();
-    let stem = name.split('.').next().unwrap_or("").to_ascii_uppercase();
-    let bytes = stem.as_bytes();
-    if stem.len() == 8
-        && (stem.starts_with("GX") || stem.starts_with("GH") || stem.starts_with("GP"))
-        && let (Ok(chapter), Ok(clip)) = (stem[2..4].parse::<u32>(), stem[4..8].parse::<u32>())
-    {
-        return (format!("{clip:04}"), chapter, name);
-    }
-    if stem.starts_with("GOPR") && bytes.len() == 8 {
-        return (stem[4..8].to_string(), 0, name);
-    }
-    (stem, 0, name)
-}
-
-/// Check that the file starts like a video container (MP4/MOV `ftyp`, Matroska/WebM, AVI).
+/// Check that the file's content is a video container ([`media::sniff`]).
 pub fn sniff_video(path: &Path) -> Result<(), LayoutError> {
-    let mut head = [0u8; 12];
-    let mut file = fs::File::open(path).map_err(io_err(path))?;
-    let n = file.read(&mut head).map_err(io_err(path))?;
-    let head = &head[..n];
-    let is_isobmff = n >= 8
-        && matches!(
-            &head[4..8],
-            b"ftyp" | b"moov" | b"mdat" | b"wide" | b"free" | b"skip"
-        );
-    let is_matroska = head.starts_with(&[0x1A, 0x45, 0xDF, 0xA3]);
-    let is_avi = n >= 12 && &head[0..4] == b"RIFF" && &head[8..12] == b"AVI ";
-    if is_isobmff || is_matroska || is_avi {
-        Ok(())
-    } else if n == 0 {
-        Err(LayoutError::NotAVideo {
+    match media::sniff_file(path).map_err(io_err(path))? {
+        Some(_) => Ok(()),
+        None if fs::metadata(path).map_err(io_err(path))?.len() == 0 => {
+            Err(LayoutError::NotAVideo {
+                path: path.to_path_buf(),
+                detail: " (the file is empty)".into(),
+            })
+        }
+        None => Err(LayoutError::NotAVideo {
             path: path.to_path_buf(),
-            detail: " (the file is empty)".into(),
-        })
-    } else {
-        Err(LayoutError::NotAVideo {
-            path: path.to_path_buf(),
-            detail: " (its contents are not an MP4/MOV, Matroska/WebM or AVI container)".into(),
-        })
+            detail:
+                " (its contents are not an MP4/MOV, Matroska/WebM, AVI or MPEG-TS/PS container)"
+                    .into(),
+        }),
     }
 }
 
@@ -300,7 +257,7 @@ pub fn validate_rig(
             return Err(LayoutError::StillsNotADirectory(stills_dir));
         }
         for file in list_dir(&stills_dir)? {
-            if file.is_dir() || !IMAGE_EXTENSIONS.contains(&extension(&file).as_str()) {
+            if file.is_dir() || !media::is_photo(&file) {
                 return Err(LayoutError::NotAnImage(file));
             }
             stills.push(file);
@@ -322,20 +279,20 @@ fn camera_folder(dir: PathBuf) -> Result<CameraFolder, LayoutError> {
     let mut videos = Vec::new();
     let mut images = Vec::new();
     for file in list_dir(&dir)? {
-        let ext = extension(&file);
-        if IGNORED_EXTENSIONS.contains(&ext.as_str()) {
+        if media::is_sidecar(&file) {
             continue;
         }
-        if !file.is_dir() && rig::ingest::is_image(&file) {
+        if !file.is_dir() && media::is_image(&file) {
             images.push(file);
             continue;
         }
-        if file.is_dir() || !VIDEO_EXTENSIONS.contains(&ext.as_str()) {
+        if file.is_dir() {
             return Err(LayoutError::NotAVideo {
                 path: file,
-                detail: " (unexpected file type)".into(),
+                detail: " (a folder)".into(),
             });
         }
+        // By content, whatever the name: FFmpeg demuxes by content too.
         sniff_video(&file)?;
         videos.push(file);
     }
@@ -352,7 +309,7 @@ fn camera_folder(dir: PathBuf) -> Result<CameraFolder, LayoutError> {
         // Ingest orders and times them (`rig::ingest::camera_files`).
         images
     } else {
-        videos.sort_by_key(|p| recording_order_key(p));
+        media::sort_recordings(&mut videos);
         videos
     };
     let name = dir
@@ -370,30 +327,6 @@ fn camera_folder(dir: PathBuf) -> Result<CameraFolder, LayoutError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn gopro_chapters_sort_in_recording_order() {
-        let mut names: Vec<PathBuf> = [
-            "GX020012.MP4",
-            "GX010013.MP4",
-            "GX010012.MP4",
-            "GX030012.MP4",
-        ]
-        .iter()
-        .map(PathBuf::from)
-        .collect();
-        names.sort_by_key(|p| recording_order_key(p));
-        let order: Vec<_> = names.iter().map(|p| p.to_str().unwrap()).collect();
-        assert_eq!(
-            order,
-            [
-                "GX010012.MP4",
-                "GX020012.MP4",
-                "GX030012.MP4",
-                "GX010013.MP4"
-            ]
-        );
-    }
 
     #[test]
     fn camera_folder_names() {

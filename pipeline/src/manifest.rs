@@ -13,7 +13,7 @@ use std::time::UNIX_EPOCH;
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
 
-use shared_types::atomic::write_atomic;
+use shared_types::atomic::write_json;
 
 /// Manifest format version.
 pub const MANIFEST_VERSION: u32 = 1;
@@ -76,8 +76,7 @@ impl Manifest {
     }
 
     pub fn write(&self, stage_dir: &Path) -> std::io::Result<()> {
-        let text = serde_json::to_string_pretty(self).map_err(std::io::Error::other)?;
-        write_atomic(&Self::path(stage_dir), text.as_bytes())
+        write_json(&Self::path(stage_dir), self)
     }
 }
 
@@ -111,9 +110,7 @@ impl RunRecord {
 
     pub fn write(&self, work_dir: &Path, stage: &str) -> std::io::Result<()> {
         let path = Self::path(work_dir, stage);
-        fs::create_dir_all(path.parent().expect("status path has a parent"))?;
-        let text = serde_json::to_string_pretty(self).map_err(std::io::Error::other)?;
-        write_atomic(&path, text.as_bytes())
+        write_json(&path, self)
     }
 
     pub fn clear(work_dir: &Path, stage: &str) {

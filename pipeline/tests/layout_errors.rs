@@ -147,6 +147,24 @@ fn image_sequence_cameras_are_accepted_but_not_mixed_with_videos() {
     );
 }
 
+/// Camcorder AVCHD files (`00001.MTS`, MPEG-TS with 192-byte packets) and a container
+/// whatever its name are videos: told by content, as FFmpeg demuxes them.
+#[test]
+fn camcorder_transport_streams_and_unnamed_containers_are_accepted() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = make_capture(tmp.path(), 4, 8);
+    let mut mts = vec![0u8; 2 * 192];
+    mts[4] = 0x47;
+    mts[196] = 0x47;
+    fs::remove_file(root.join("raw/cam1/GX010001.MP4")).unwrap();
+    fs::write(root.join("raw/cam1/00001.MTS"), &mts).unwrap();
+    fs::remove_file(root.join("raw/cam2/GX010001.MP4")).unwrap();
+    fs::write(root.join("raw/cam2/take"), MP4_HEADER).unwrap();
+    let (capture, _) = open_capture(&root).unwrap();
+    assert_eq!(capture.cameras[1].videos, [root.join("raw/cam1/00001.MTS")]);
+    assert_eq!(capture.cameras[2].videos, [root.join("raw/cam2/take")]);
+}
+
 #[test]
 fn a_file_that_is_not_a_video() {
     let tmp = tempfile::tempdir().unwrap();

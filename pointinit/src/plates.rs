@@ -12,6 +12,7 @@ use shared_types::{Camera, CameraSet};
 use crate::error::InitError;
 use crate::inputs::{Moment, ViewImage};
 use crate::statics::TimedPoint;
+use crate::views::read_frame;
 
 /// Least difference (0..255, largest over the three channels) between a frame and its
 /// camera's plate for a pixel to count as moving: the default of `[init] motion_threshold`.
@@ -26,26 +27,6 @@ const GROW: u32 = 2;
 pub struct Plates {
     plates: Vec<(Camera, RgbImage)>,
     threshold: u8,
-}
-
-/// A frame read from `path`, checked against `camera`'s calibrated size.
-fn read_frame(camera: &Camera, path: &std::path::Path) -> Result<RgbImage, InitError> {
-    let rgb = image::open(path)
-        .map_err(|source| InitError::Image {
-            path: path.into(),
-            source,
-        })?
-        .to_rgb8();
-    let want = (camera.intrinsics.width, camera.intrinsics.height);
-    if rgb.dimensions() != want {
-        return Err(InitError::ImageSize {
-            path: path.into(),
-            camera: camera.name.clone(),
-            got: rgb.dimensions(),
-            want,
-        });
-    }
-    Ok(rgb)
 }
 
 impl Plates {

@@ -53,26 +53,32 @@ pub(crate) fn load_views(
 
 /// A frame of `cam` read from `path` (checked against the calibrated size), undistorted
 /// to the camera's pinhole twin when it has a lens; with that pinhole camera.
-pub(crate) fn pinhole_view(
-    cam: &Camera,
-    path: &Path,
-    fit: Fit,
-) -> Result<(Camera, RgbImage), InitError> {
+/// Reads the image of `camera` at `path`, refusing one whose size is not the camera's.
+pub(crate) fn read_frame(camera: &Camera, path: &Path) -> Result<RgbImage, InitError> {
     let rgb = image::open(path)
         .map_err(|source| InitError::Image {
             path: path.into(),
             source,
         })?
         .to_rgb8();
-    let want = (cam.intrinsics.width, cam.intrinsics.height);
+    let want = (camera.intrinsics.width, camera.intrinsics.height);
     if rgb.dimensions() != want {
         return Err(InitError::ImageSize {
             path: path.into(),
-            camera: cam.name.clone(),
+            camera: camera.name.clone(),
             got: rgb.dimensions(),
             want,
         });
     }
+    Ok(rgb)
+}
+
+pub(crate) fn pinhole_view(
+    cam: &Camera,
+    path: &Path,
+    fit: Fit,
+) -> Result<(Camera, RgbImage), InitError> {
+    let rgb = read_frame(cam, path)?;
     if cam.distortion.is_none() {
         return Ok((cam.clone(), rgb));
     }

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::ingest::{IngestError, Streams, write_json_atomic};
+use crate::ingest::{IngestError, Streams};
 use crate::source::{CameraSource, PixelLayout, SourceError};
 use crate::sync::SyncResult;
 use shared_types::progress::Progress;
@@ -153,7 +153,7 @@ impl FramesIndex {
 
     /// Writes `frames.json` atomically.
     pub fn write_json(&self, path: &Path) -> Result<(), FramesError> {
-        write_json_atomic(path, self).map_err(|source| FramesError::Io {
+        shared_types::atomic::write_json(path, self).map_err(|source| FramesError::Io {
             path: path.into(),
             source,
         })

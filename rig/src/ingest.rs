@@ -14,6 +14,7 @@ use ffmpeg::media::Type;
 use ffmpeg_next as ffmpeg;
 use serde::{Deserialize, Serialize};
 
+use crate::media;
 use crate::source::{FileSource, PixelLayout, SourceError, decode_err, init_ffmpeg};
 use shared_types::progress::Progress;
 
@@ -221,7 +222,7 @@ impl Streams {
 
     /// Writes `streams.json` atomically (temporary name, then rename).
     pub fn write_json(&self, path: &Path) -> Result<(), IngestError> {
-        write_json_atomic(path, self).map_err(|source| IngestError::Io {
+        shared_types::atomic::write_json(path, self).map_err(|source| IngestError::Io {
             path: path.into(),
             source,
         })
@@ -259,67 +260,8 @@ impl CameraStream {
     }
 }
 
-/// Serialises `value` as pretty JSON to `path`, atomically (its folder created if needed).
-pub(crate) fn write_json_atomic<T: Serialize>(path: &Path, value: &T) -> std::io::Result<()> {
-    let text = serde_json::to_string_pretty(value).map_err(std::io::Error::other)?;
-    shared_types::atomic::write_atomic(path, text.as_bytes())
-}
-
-const VIDEO_EXTENSIONS: &[&str] = &["mp4", "mov", "mkv", "avi", "m4v", "webm", "mts", "ts"];
-const IMAGE_EXTENSIONS: &[&str] = &["jpg", "jpeg", "png", "bmp", "tif", "tiff"];
-
-/// The lower-case extension of `path` ("" when it has none).
-fn extension(path: &Path) -> String {
-    path.extension()
-        .and_then(|e| e.to_str())
-        .unwrap_or("")
-        .to_ascii_lowercase()
-}
-
-/// Whether `path` names a still image (by its extension).
-pub fn is_image(path: &Path) -> bool {
-    IMAGE_EXTENSIONS.contains(&extension(path).as_str())
-}
-
-/// A name split into text and numbers, so `img2` sorts before `img10`.
-fn natural_key(name: &str) -> Vec<(String, u128)> {
-    let mut key = Vec::new();
-    let mut text = String::new();
-    let mut chars = name.chars().peekable();
-    while let Some(c) = chars.next() {
-        if c.is_ascii_digit() {
-            let mut digits = c.to_string();
-            while let Some(d) = chars.next_if(char::is_ascii_digit) {
-                digits.push(d);
-            }
-            key.push((
-                std::mem::take(&mut text),
-                digits.parse().unwrap_or(u128::MAX),
-            ));
-        } else {
-            text.push(c);
-        }
-    }
-    key.push((text, 0));
-    key
-}
-
-/// A GoPro chapter name `G?CCNNNN.MP4` → (recording number, chapter number).
-fn gopro_chapter(name: &str) -> Option<(u32, u32)> {
-    let b = name.as_bytes();
-    if b.len() != 12 || !name.to_ascii_lowercase().ends_with(".mp4") {
-        return None;
-    }
-    if b[0] != b'G' || !b[1].is_ascii_alphabetic() || !b[2..8].iter().all(u8::is_ascii_digit) {
-        return None;
-    }
-    let chapter = name[2..4].parse().ok()?;
-    let recording = name[4..8].parse().ok()?;
-    Some((recording, chapter))
-}
-
 /// The video files of one camera in playback order, or its images in natural name order
-/// when the folder holds images and no video ([`is_image`] tells which).
+/// when the folder holds images and no video ([`media`] tells which).
 pub fn camera_files(camera: &str, path: &Path) -> Result<Vec<PathBuf>, IngestError> {
     if !path.exists() {
         return Err(IngestError::Missing {
@@ -347,21 +289,15 @@ pub fn camera_files(camera: &str, path: &Path) -> Result<Vec<PathBuf>, IngestErr
         if !p.is_file() || hidden {
             continue;
         }
-        if VIDEO_EXTENSIONS.contains(&extension(&p).as_str()) {
-            files.push(p);
-        } else if is_image(&p) {
+        if media::is_image(&p) {
             images.push(p);
+        } else if !media::is_sidecar(&p) && is_video(&p).map_err(io)? {
+            files.push(p);
         }
     }
-    let name_of = |p: &PathBuf| {
-        p.file_name()
-            .and_then(|n| n.to_str())
-            .unwrap_or("")
-            .to_string()
-    };
     if files.is_empty() && !images.is_empty() {
         // An image sequence (images next to videos are thumbnails and ignored).
-        images.sort_by_cached_key(|p| natural_key(&name_of(p)));
+        media::sort_images(&mut images);
         return Ok(images);
     }
     if files.is_empty() {
@@ -370,32 +306,29 @@ pub fn camera_files(camera: &str, path: &Path) -> Result<Vec<PathBuf>, IngestErr
             path: path.into(),
         });
     }
-    let gopro: Vec<_> = files
+    let recordings: std::collections::BTreeSet<u32> = files
         .iter()
-        .filter_map(|p| gopro_chapter(&name_of(p)).map(|k| (k, p.clone())))
+        .filter_map(|p| media::gopro_chapter(p.file_name()?.to_str()?).map(|(r, _)| r))
         .collect();
-    if !gopro.is_empty() && gopro.len() == files.len() {
-        let mut recordings: Vec<u32> = gopro.iter().map(|((r, _), _)| *r).collect();
-        recordings.sort_unstable();
-        recordings.dedup();
-        if recordings.len() > 1 {
-            let list = recordings
-                .iter()
-                .map(|r| format!("{r:04}"))
-                .collect::<Vec<_>>()
-                .join(", ");
-            return Err(IngestError::SeveralRecordings {
-                camera: camera.into(),
-                path: path.into(),
-                recordings: list,
-            });
-        }
-        let mut gopro = gopro;
-        gopro.sort_by_key(|((_, c), _)| *c);
-        return Ok(gopro.into_iter().map(|(_, p)| p).collect());
+    if recordings.len() > 1 {
+        let list = recordings
+            .iter()
+            .map(|r| format!("{r:04}"))
+            .collect::<Vec<_>>()
+            .join(", ");
+        return Err(IngestError::SeveralRecordings {
+            camera: camera.into(),
+            path: path.into(),
+            recordings: list,
+        });
     }
-    files.sort_by_key(name_of);
+    media::sort_recordings(&mut files);
     Ok(files)
+}
+
+/// Whether `path` is a video: by its name, or by its content when the name says nothing.
+fn is_video(path: &Path) -> std::io::Result<bool> {
+    Ok(media::has_video_name(path) || media::sniff_file(path)?.is_some())
 }
 
 /// Timestamps and stream facts of one file, from the demuxer.
@@ -542,7 +475,7 @@ pub fn probe_camera(
     options: &IngestOptions,
 ) -> Result<CameraStream, IngestError> {
     let files = camera_files(camera, path)?;
-    if files.first().is_some_and(|f| is_image(f)) {
+    if files.first().is_some_and(|f| media::is_image(f)) {
         return probe_images(camera, path, files, options.image_fps);
     }
     let src = |source| IngestError::Source {

@@ -5,6 +5,7 @@
 
 pub mod frames;
 pub mod ingest;
+pub mod media;
 pub mod record;
 pub mod sim;
 pub mod source;

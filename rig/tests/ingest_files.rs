@@ -141,6 +141,43 @@ fn gopro_chapters_are_joined_in_order() {
     assert!(err.to_string().contains("0042, 0043"), "{err}");
 }
 
+/// Camcorder files (AVCHD `.MTS`: MPEG-TS with 192-byte packets) are videos, and so is a
+/// file whose name says nothing when its content is a container.
+#[test]
+fn transport_streams_and_unnamed_containers_are_videos() {
+    if !ffmpeg_available() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let cam = dir.path().join("cam0");
+    std::fs::create_dir_all(&cam).unwrap();
+    clip(
+        &cam.join("00001.MTS"),
+        1.0,
+        25,
+        "160x120",
+        &["-f", "mpegts", "-mpegts_m2ts_mode", "1"],
+    );
+    let head = std::fs::read(cam.join("00001.MTS")).unwrap();
+    assert_eq!((head[4], head[196]), (0x47, 0x47), "192-byte packets");
+    std::fs::write(cam.join("notes.txt"), "not a video").unwrap();
+    let streams = ingest(
+        &[("cam0".into(), cam.clone())],
+        &IngestOptions::default(),
+        &NoProgress,
+    )
+    .unwrap();
+    let c = &streams.cameras[0];
+    assert_eq!(c.chapters.len(), 1, "{:?}", c.chapters);
+    assert_eq!(c.video.frame_count, 25);
+
+    let other = dir.path().join("cam1");
+    std::fs::create_dir_all(&other).unwrap();
+    clip(&other.join("take"), 1.0, 25, "160x120", &["-f", "mp4"]);
+    let files = camera_files("cam1", &other).unwrap();
+    assert_eq!(files, [other.join("take")]);
+}
+
 #[test]
 fn variable_frame_rate_and_dropped_frames_keep_exact_timestamps() {
     if !ffmpeg_available() {

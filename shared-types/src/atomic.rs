@@ -28,6 +28,14 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     })
 }
 
+/// Write `value` to `path` as pretty JSON with a final newline, atomically (its folder
+/// created if needed): the one JSON writer of the workspace.
+pub fn write_json<T: serde::Serialize + ?Sized>(path: &Path, value: &T) -> std::io::Result<()> {
+    let mut text = serde_json::to_vec_pretty(value).map_err(std::io::Error::other)?;
+    text.push(b'\n');
+    write_atomic(path, &text)
+}
+
 /// Let `write` create the file at a temporary sibling path (for writers that open the
 /// file themselves: encoders, streaming writers), then rename it over `path`. The folder
 /// is created first; on any error the temporary file is removed and `path` untouched.

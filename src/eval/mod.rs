@@ -537,8 +537,10 @@ pub fn evaluate(
         json["definitions"]["moving"] = MOVING_DEFINITION.into();
     }
     let json_path = out_dir.join("metrics.json");
-    let text = serde_json::to_string_pretty(&json).unwrap_or_default();
-    write_atomic(&json_path, text.as_bytes())?;
+    crate::atomic::write_json(&json_path, &json).map_err(|source| EvalError::Write {
+        path: json_path.clone(),
+        source,
+    })?;
     progress.finish();
 
     report.files = vec![json_path, csv_path];

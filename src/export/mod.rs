@@ -336,8 +336,11 @@ pub fn export_all(
                 rotation: space.rotation.to_array(),
             },
         };
-        let json = serde_json::to_vec_pretty(&scene).unwrap_or_default();
-        write_atomic(&dir.join("scene.json"), &json)?;
+        let scene_path = dir.join("scene.json");
+        crate::atomic::write_json(&scene_path, &scene).map_err(|source| ExportError::Io {
+            path: scene_path,
+            source,
+        })?;
         report.viewer_index = Some(dir.join("index.html"));
     }
     report.seconds = start.elapsed().as_secs_f64();

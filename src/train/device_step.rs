@@ -51,6 +51,7 @@ fn device_error(index: usize) -> impl Fn(RenderError) -> TrainError {
 impl<'a> DeviceStep<'a> {
     /// Upload the dataset's images and the training state (with f_θ's, when `hooks` lend
     /// a neural decay the device kernels cover).
+    #[allow(clippy::too_many_arguments)]
     pub fn new(
         gpu: &'a GpuBackend,
         config: &'a TrainConfig,

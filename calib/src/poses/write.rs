@@ -131,11 +131,7 @@ pub(super) fn write_outputs(
         num_points: points.len(),
     };
     let cameras_json = out_dir.join("cameras.json");
-    let text = serde_json::to_string_pretty(&file).map_err(|e| PosesError::Io {
-        path: cameras_json.clone(),
-        source: std::io::Error::other(e),
-    })?;
-    write_atomic(&cameras_json, text.as_bytes()).map_err(|source| PosesError::Io {
+    shared_types::atomic::write_json(&cameras_json, &file).map_err(|source| PosesError::Io {
         path: cameras_json.clone(),
         source,
     })?;

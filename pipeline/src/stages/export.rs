@@ -6,7 +6,7 @@ use anyhow::Context;
 use calib::poses::PosesFile;
 use rig::frames::FramesIndex;
 use shared_types::CameraSet;
-use shared_types::atomic::write_atomic;
+use shared_types::atomic::write_json;
 use splat4d::export::ExportOptions;
 
 use crate::engine_inputs::{load_trained_model, pinhole_cameras};
@@ -51,9 +51,9 @@ pub fn run(ctx: &StageContext, options: &ExportSettings) -> anyhow::Result<()> {
             None => String::new(),
         }
     );
-    write_atomic(
+    write_json(
         &ctx.output("export.json"),
-        &serde_json::to_vec_pretty(&report.relative_to(&ctx.out_dir))?,
+        &report.relative_to(&ctx.out_dir),
     )
     .context("cannot write export.json")?;
     Ok(())

@@ -10,7 +10,7 @@ use anyhow::Context;
 use calib::poses::PosesFile;
 use pointinit::{InitConfig, InitInputs, Moment, ViewImage};
 use rig::frames::FramesIndex;
-use shared_types::atomic::write_atomic;
+use shared_types::atomic::write_json;
 
 use crate::engine_inputs::time_mapping;
 use crate::layout::Capture;
@@ -92,11 +92,7 @@ pub fn run(ctx: &StageContext, settings: &InitSettings) -> anyhow::Result<()> {
     if let Ok(relative) = report.output.strip_prefix(&ctx.out_dir) {
         report.output = relative.to_path_buf();
     }
-    write_atomic(
-        &ctx.output("init.json"),
-        &serde_json::to_vec_pretty(&report)?,
-    )
-    .context("cannot write init.json")?;
+    write_json(&ctx.output("init.json"), &report).context("cannot write init.json")?;
     Ok(())
 }
 

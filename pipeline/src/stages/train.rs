@@ -12,7 +12,7 @@ use splat4d::train::{ModelAccess, PointCloud, TrainConfig, TrainError, TrainHook
 use crate::engine_inputs::{EngineSettings, load_dataset};
 use crate::interrupt::{Graceful, stop_requested};
 use crate::stage_context::StageContext;
-use shared_types::atomic::write_atomic;
+use shared_types::atomic::write_json;
 
 /// `[train]` settings: the trainer's own (iterations, learning rates, densification, …).
 pub type TrainSettings = TrainConfig;
@@ -134,19 +134,12 @@ pub fn run(
     let record = crate::engine_inputs::TrainRecord {
         background: summary.background,
     };
-    write_atomic(
-        &ctx.output(crate::engine_inputs::TRAIN_RECORD),
-        &serde_json::to_vec_pretty(&record)?,
-    )
-    .context("cannot write train.json")?;
+    write_json(&ctx.output(crate::engine_inputs::TRAIN_RECORD), &record)
+        .context("cannot write train.json")?;
     // What the decay did, as evidence (docs/decay.md "Is it working?").
     let model = splat4d::model::file::load_model(&summary.model_path)?;
     let report = splat4d::decay::report::report(&method, &model);
-    write_atomic(
-        &ctx.output("decay.json"),
-        &serde_json::to_vec_pretty(&report)?,
-    )
-    .context("cannot write decay.json")?;
+    write_json(&ctx.output("decay.json"), &report).context("cannot write decay.json")?;
     Ok(())
 }
 

@@ -13,10 +13,7 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), SimError> {
 }
 
 pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), SimError> {
-    let mut text = serde_json::to_string_pretty(value)
-        .map_err(|e| SimError::write(path, std::io::Error::other(e)))?;
-    text.push('\n');
-    write_atomic(path, text.as_bytes())
+    shared_types::atomic::write_json(path, value).map_err(|e| SimError::write(path, e))
 }
 
 /// An RGB8 image as PNG (lossless) or JPEG (`quality` 1–100), chosen by `jpeg_quality`.

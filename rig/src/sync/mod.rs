@@ -17,9 +17,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::ingest::{
-    CameraStream, IngestError, SourceKind, Streams, decode_audio, write_json_atomic,
-};
+use crate::ingest::{CameraStream, IngestError, SourceKind, Streams, decode_audio};
 use crate::source::{CameraSource, PixelLayout, SourceError};
 use audio::{AcousticConfig, AudioSyncConfig, audio_offsets};
 use flash::{FrameBrightness, detect_flash};
@@ -120,7 +118,7 @@ impl SyncResult {
 
     /// Writes `sync.json` atomically.
     pub fn write_json(&self, path: &Path) -> Result<(), SyncError> {
-        write_json_atomic(path, self).map_err(|source| SyncError::Io {
+        shared_types::atomic::write_json(path, self).map_err(|source| SyncError::Io {
             path: path.into(),
             source,
         })
