@@ -121,6 +121,9 @@ pub struct InitConfig {
     pub sweep_min_score: f32,
     /// Plane sweep: cameras whose depth maps must agree on a point (≥ 2).
     pub sweep_min_views: usize,
+    /// Plane sweep: also sweep level planes and planes facing each camera's side, for
+    /// floors and walls seen at a grazing angle (three times the work).
+    pub sweep_slanted: bool,
     /// Frames per camera, spread over the clip, whose per-pixel median is the camera's
     /// static plate; points of several moments are then told static or moving by where
     /// they land on each moment's moving pixels ([`crate::plates`]). 0: by `static_radius`
@@ -162,6 +165,7 @@ impl Default for InitConfig {
             sweep_max_planes: 512,
             sweep_min_score: 0.7,
             sweep_min_views: 2,
+            sweep_slanted: true,
             plates: 48,
             motion_threshold: crate::plates::MOTION_THRESHOLD,
         }
@@ -185,6 +189,7 @@ impl InitConfig {
             max_planes: self.sweep_max_planes,
             min_score: self.sweep_min_score,
             min_views: self.sweep_min_views,
+            slanted: self.sweep_slanted,
         }
     }
 }

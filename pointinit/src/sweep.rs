@@ -7,8 +7,14 @@
 //! cameras (at most `max_planes`), every other camera's grey image is warped onto the
 //! reference through the fronto-parallel plane at that depth and compared with a
 //! zero-mean normalised cross-correlation (NCC) over a `(2·WINDOW+1)²` window. A
-//! pixel takes the depth where its best neighbour's NCC peaks (refined by a parabola) when
-//! that NCC reaches `min_score` and the window has texture. Depths are then kept only where
+//! fronto-parallel window matches badly where the surface is steeply slanted (a floor or a
+//! side wall seen at a grazing angle), so with `slanted` two more families of planes are
+//! swept: planes facing the scene's up direction (the cameras' mean up) and planes facing
+//! the reference camera's side (its x axis made level), each warping the whole window
+//! through the plane, i.e. by the plane's homography (the multi-direction sweep of Gallup
+//! et al., CVPR 2007). A pixel takes the depth where its best neighbour's NCC peaks over all
+//! planes (refined by a parabola within the family) when that NCC reaches `min_score` and
+//! the window has texture. Depths are then kept only where
 //! another camera's depth map agrees (the point projects there at the same depth, and that
 //! pixel's point projects back within a pixel): two independent searches found the same
 //! surface. What is kept becomes coloured world points with the moment's time.
@@ -48,6 +54,10 @@ pub struct SweepOptions {
     pub min_score: f32,
     /// Cameras whose depth maps must agree on a point (the reference included, ≥ 2).
     pub min_views: usize,
+    /// Also sweep planes that face the scene's up direction (floors, ceilings, tables) and
+    /// the reference camera's side (walls seen at a grazing angle), not only planes facing
+    /// the reference camera: three times the work.
+    pub slanted: bool,
 }
 
 /// What one moment's sweep gave.
@@ -195,6 +205,76 @@ fn plane_depths(d: f64, planes: usize) -> Vec<f64> {
         .collect()
 }
 
+/// A family of parallel planes: world normal `normal` and, per plane, the parameter
+/// uniform between neighbours (`inverse`: the inverse of the offset, else the offset
+/// itself); plane `k` is `{X : normal · (X − origin) = offset_k}`, so a reference ray
+/// (unit z, [`rays`]) meets it at depth `offset_k / (normal · ray)`.
+struct Family {
+    normal: DVec3,
+    params: Vec<f64>,
+    inverse: bool,
+}
+
+impl Family {
+    fn offset(&self, param: f64) -> f64 {
+        if self.inverse { 1.0 / param } else { param }
+    }
+}
+
+/// The scene's up direction: cameras are held level (no roll), so their x axes are
+/// horizontal and up is the direction most perpendicular to all of them (the smallest
+/// eigenvector of `Σ x xᵀ`, by power iteration on `trace − Σ x xᵀ` from the cameras' mean
+/// up axis, which it stays near when the x axes do not tell, as for parallel cameras);
+/// `None` when the cameras' up axes cancel out.
+fn scene_up(cameras: &[Camera]) -> Option<DVec3> {
+    let axis = |c: &Camera, a: DVec3| c.world_to_camera.rotation().transpose() * a;
+    // Image y points down.
+    let mean: DVec3 = cameras.iter().map(|c| -axis(c, DVec3::Y)).sum();
+    if mean.length() <= 0.5 * cameras.len() as f64 {
+        return None;
+    }
+    let xs: Vec<DVec3> = cameras.iter().map(|c| axis(c, DVec3::X)).collect();
+    let trace = xs.len() as f64;
+    let mut up = mean.normalize();
+    for _ in 0..100 {
+        let next = trace * up - xs.iter().map(|x| x * x.dot(up)).sum::<DVec3>();
+        up = next.normalize_or(up);
+    }
+    Some(if up.dot(mean) < 0.0 { -up } else { up })
+}
+
+/// The plane families swept for `camera`: fronto-parallel planes uniform in inverse
+/// depth, and with `up` (slanted sweeps) level planes and planes facing the camera's side,
+/// `planes` each, uniform in offset over `[-d, d]`.
+fn families(camera: &Camera, d: f64, planes: usize, up: Option<DVec3>) -> Vec<Family> {
+    let rt = camera.world_to_camera.rotation().transpose();
+    let mut out = vec![Family {
+        normal: rt * DVec3::Z,
+        params: plane_depths(d, planes).iter().map(|x| 1.0 / x).collect(),
+        inverse: true,
+    }];
+    let Some(up) = up else {
+        return out;
+    };
+    let x = rt * DVec3::X;
+    let side = x - x.dot(up) * up;
+    // Offsets uniform over [-d, d], skipping the plane through the camera itself.
+    let offsets: Vec<f64> = (0..planes.max(2))
+        .map(|k| -d + 2.0 * d * (k as f64 + 0.5) / planes.max(2) as f64)
+        .collect();
+    for normal in [Some(up), (side.length() > 0.1).then(|| side.normalize())]
+        .into_iter()
+        .flatten()
+    {
+        out.push(Family {
+            normal,
+            params: offsets.clone(),
+            inverse: false,
+        });
+    }
+    out
+}
+
 /// The reference's window statistics: sums of I and I², and whether each window has
 /// texture.
 struct Reference {
@@ -226,15 +306,16 @@ impl Reference {
     }
 }
 
-/// NCC of every reference window against `other` warped through the plane at `depth`
-/// (`-1` where the warp leaves `other` anywhere in the window or either side is flat).
+/// NCC of every reference window against `other` warped through a plane that puts
+/// reference pixel `i` at depth `depths[i]` (`-1` where the warp leaves `other` or the
+/// depth range anywhere in the window, or either side is flat).
 #[allow(clippy::too_many_arguments)]
 fn plane_scores(
     reference: &Reference,
     ref_img: &[f32],
     rays: &[DVec3],
     origin: DVec3,
-    depth: f64,
+    depths: &[f64],
     other: &Camera,
     other_img: &[f32],
     w: usize,
@@ -247,7 +328,8 @@ fn plane_scores(
     let mut warped = vec![0.0f32; w * h];
     let mut valid = vec![0.0f32; w * h];
     for (i, ray) in rays.iter().enumerate() {
-        if let Some((p, _)) = other.project(origin + depth * *ray)
+        if depths[i] > 0.0
+            && let Some((p, _)) = other.project(origin + depths[i] * *ray)
             && let Some(v) = bilinear(other_img, ow, oh, p)
         {
             warped[i] = v;
@@ -295,8 +377,8 @@ fn depth_map(
     views: &[&View],
     greys: &[Vec<f32>],
     reference: usize,
-    target: DVec3,
-    radius: f64,
+    (target, radius): (DVec3, f64),
+    up: Option<DVec3>,
     options: &SweepOptions,
 ) -> DepthMap {
     let r = views[reference];
@@ -314,29 +396,61 @@ fn depth_map(
         .collect();
     let d = target_depth(&r.camera, target, radius);
     let other_cameras: Vec<&Camera> = others.iter().map(|(c, _)| *c).collect();
-    let depths = plane_depths(
-        d,
-        plane_count(&r.camera, &other_cameras, d, options.max_planes),
-    );
-    // Planes in parallel batches; per pixel the best plane and the scores beside it.
+    let planes = plane_count(&r.camera, &other_cameras, d, options.max_planes);
+    let (near, far) = (d / RANGE, d * RANGE);
     let n = w * h;
+    let (mut best, mut depth) = (vec![f32::MIN; n], vec![0.0f32; n]);
+    for family in families(&r.camera, d, planes, up) {
+        let facing: Vec<f64> = rays.iter().map(|ray| family.normal.dot(*ray)).collect();
+        // Pixel i's depth on the plane of parameter `param` (0 outside the depth range).
+        let depth_at = |param: f64, i: usize| {
+            let z = family.offset(param) / facing[i];
+            if (near..=far).contains(&z) { z } else { 0.0 }
+        };
+        let (score, param) = sweep_family(&family.params, n, |param| {
+            let depths: Vec<f64> = (0..n).map(|i| depth_at(param, i)).collect();
+            let mut s = vec![-1.0f32; n];
+            for (cam, img) in &others {
+                let o = plane_scores(&stats, ref_img, &rays, origin, &depths, cam, img, w, h);
+                s.iter_mut().zip(o).for_each(|(a, o)| *a = a.max(o));
+            }
+            s
+        });
+        for i in 0..n {
+            if score[i] > best[i] {
+                best[i] = score[i];
+                depth[i] = param[i].map_or(0.0, |p| depth_at(p, i) as f32);
+            }
+        }
+    }
+    for (d, &b) in depth.iter_mut().zip(&best) {
+        if b < options.min_score {
+            *d = 0.0;
+        }
+    }
+    DepthMap {
+        width: w,
+        height: h,
+        depth,
+    }
+}
+
+/// Sweeps one family's planes (`params`, uniform between neighbours; `scores` gives
+/// every pixel's NCC on a plane): per pixel the best NCC and its plane's parameter refined
+/// by a parabola through the neighbouring planes (`None` at the first or last plane).
+fn sweep_family(
+    params: &[f64],
+    n: usize,
+    scores: impl Fn(f64) -> Vec<f32> + Sync,
+) -> (Vec<f32>, Vec<Option<f64>>) {
+    // Planes in parallel batches; per pixel the best plane and the scores beside it.
     let (mut best, mut best_k) = (vec![f32::MIN; n], vec![usize::MAX; n]);
     let (mut before, mut after) = (vec![-1.0f32; n], vec![-1.0f32; n]);
     let mut prev = vec![-1.0f32; n];
     let batch = rayon::current_num_threads().max(1) * 2;
-    for (b, chunk) in depths.chunks(batch).enumerate() {
-        let scores: Vec<Vec<f32>> = chunk
-            .par_iter()
-            .map(|&d| {
-                let mut s = vec![-1.0f32; n];
-                for (cam, img) in &others {
-                    let o = plane_scores(&stats, ref_img, &rays, origin, d, cam, img, w, h);
-                    s.iter_mut().zip(o).for_each(|(a, o)| *a = a.max(o));
-                }
-                s
-            })
-            .collect();
-        for (j, s) in scores.into_iter().enumerate() {
+    for (b, chunk) in params.chunks(batch).enumerate() {
+        let batch_scores: Vec<Vec<f32>> = chunk.par_iter().map(|&p| scores(p)).collect();
+        for (j, s) in batch_scores.into_iter().enumerate() {
             let k = b * batch + j;
             for i in 0..n {
                 if s[i] > best[i] {
@@ -348,14 +462,12 @@ fn depth_map(
             prev = s;
         }
     }
-    let inv = |k: usize| 1.0 / depths[k];
-    let depth = (0..n)
+    let param = (0..n)
         .map(|i| {
             let k = best_k[i];
-            if best[i] < options.min_score || k == 0 || k + 1 >= depths.len() {
-                return 0.0;
+            if k == 0 || k + 1 >= params.len() {
+                return None;
             }
-            // Parabola through the neighbouring planes, in inverse depth.
             let (a, b, c) = (before[i], best[i], after[i]);
             let denom = a - 2.0 * b + c;
             let shift = if denom < 0.0 {
@@ -363,14 +475,10 @@ fn depth_map(
             } else {
                 0.0
             };
-            (1.0 / (inv(k) + shift * (inv(k + 1) - inv(k)))) as f32
+            Some(params[k] + shift * (params[k + 1] - params[k]))
         })
         .collect();
-    DepthMap {
-        width: w,
-        height: h,
-        depth,
-    }
+    (best, param)
 }
 
 /// Whether `other`'s depth map agrees with the point `x` (seen at pixel `p` of `camera`).
@@ -435,8 +543,9 @@ pub fn sweep_moment(
     }
     let (target, radius) = (rig_target(&cameras), rig_radius(&cameras));
     let greys: Vec<Vec<f32>> = views.iter().map(|v| grey(&v.image)).collect();
+    let up = scene_up(&cameras).filter(|_| options.slanted);
     let maps: Vec<DepthMap> = (0..views.len())
-        .map(|r| depth_map(views, &greys, r, target, radius, options))
+        .map(|r| depth_map(views, &greys, r, (target, radius), up, options))
         .collect();
     let mut points = Vec::new();
     for (r, map) in maps.iter().enumerate() {
@@ -542,6 +651,101 @@ mod tests {
         // A cap wins over the count.
         assert_eq!(plane_count(&a, &[&b], d, 40), 40);
         assert_eq!(plane_count(&a, &[&b], d, 2), MIN_PLANES);
+    }
+
+    /// A random-dot floor (z = 0) seen by `camera`: the image, and each pixel's true depth.
+    fn floor_view(camera: &Camera) -> (View, Vec<f64>) {
+        let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
+        let hash = |x: i64, y: i64| {
+            let v = (x.wrapping_mul(73_856_093) ^ y.wrapping_mul(19_349_663)) as u64;
+            (v.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 56) as f64 / 255.0
+        };
+        // Value noise at 2 cm cells, bilinear between cell corners.
+        let texture = |u: f64, v: f64| {
+            let (x, y) = (u / 0.02, v / 0.02);
+            let (x0, y0) = (x.floor(), y.floor());
+            let (fx, fy) = (x - x0, y - y0);
+            let (x0, y0) = (x0 as i64, y0 as i64);
+            let top = hash(x0, y0) * (1.0 - fx) + hash(x0 + 1, y0) * fx;
+            let bottom = hash(x0, y0 + 1) * (1.0 - fx) + hash(x0 + 1, y0 + 1) * fx;
+            top * (1.0 - fy) + bottom * fy
+        };
+        let centre = camera.world_to_camera.centre();
+        let mut depth = vec![0.0; (w * h) as usize];
+        let image = RgbImage::from_fn(w, h, |x, y| {
+            let ray = camera.pixel_ray(DVec2::new(x as f64 + 0.5, y as f64 + 0.5));
+            if ray.z >= -1e-6 {
+                return image::Rgb([128, 128, 128]);
+            }
+            let t = -centre.z / ray.z;
+            let hit = centre + t * ray;
+            depth[(y * w + x) as usize] = camera.world_to_camera.apply(hit).z;
+            let g = (255.0 * texture(hit.x, hit.y)) as u8;
+            image::Rgb([g, g, g])
+        });
+        let view = View {
+            camera: camera.clone(),
+            image,
+            time: 0.0,
+        };
+        (view, depth)
+    }
+
+    /// Depth maps of the first camera: (pixels with a depth, median relative error).
+    fn floor_sweep(slanted: bool) -> (usize, f64) {
+        let intr = shared_types::Intrinsics::from_hfov(160, 120, 60.0);
+        let target = DVec3::new(0.0, 2.0, 0.0);
+        let cameras: Vec<Camera> = [-0.4, 0.0, 0.4]
+            .iter()
+            .map(|&x| calib::test_support::looking_at("c", intr, DVec3::new(x, 0.0, 0.6), target))
+            .collect();
+        let views: Vec<(View, Vec<f64>)> = cameras.iter().map(floor_view).collect();
+        let refs: Vec<&View> = views.iter().map(|(v, _)| v).collect();
+        let greys: Vec<Vec<f32>> = refs.iter().map(|v| grey(&v.image)).collect();
+        let options = SweepOptions {
+            size: 160,
+            max_planes: 256,
+            min_score: 0.7,
+            min_views: 2,
+            slanted,
+        };
+        let up = scene_up(&cameras).filter(|_| slanted);
+        let map = depth_map(&refs, &greys, 0, (target, 1.0), up, &options);
+        let truth = &views[0].1;
+        let mut errors: Vec<f64> = map
+            .depth
+            .iter()
+            .zip(truth)
+            .filter(|(d, t)| **d > 0.0 && **t > 0.0)
+            .map(|(d, t)| (*d as f64 - t).abs() / t)
+            .collect();
+        errors.sort_by(f64::total_cmp);
+        (errors.len(), errors[errors.len() / 2])
+    }
+
+    #[test]
+    fn a_floor_at_a_grazing_angle_is_found_by_the_level_planes() {
+        let cameras = [DVec3::new(-1.0, 0.0, 0.5), DVec3::new(1.0, 0.0, 0.5)].map(|eye| {
+            calib::test_support::looking_at(
+                "c",
+                shared_types::Intrinsics::from_hfov(64, 48, 60.0),
+                eye,
+                DVec3::new(0.0, 2.0, 0.0),
+            )
+        });
+        let up = scene_up(&cameras).unwrap();
+        assert!((up - DVec3::Z).length() < 1e-6, "{up}");
+        let (fronto, fronto_error) = floor_sweep(false);
+        let (slanted, slanted_error) = floor_sweep(true);
+        eprintln!(
+            "floor: {fronto} pixels at median error {fronto_error:.4} fronto-parallel only, \
+             {slanted} at {slanted_error:.4} with level planes"
+        );
+        assert!(
+            slanted as f64 >= 1.3 * fronto as f64 && slanted_error < 0.01,
+            "fronto-parallel only: {fronto} pixels (median error {fronto_error:.4}); \
+             with level planes: {slanted} pixels (median error {slanted_error:.4})"
+        );
     }
 
     #[test]
