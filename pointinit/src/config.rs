@@ -15,9 +15,8 @@ use crate::sweep;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Source {
-    /// `model` if set, else `pointmaps` if set, else triangulated moments (unless
-    /// `moments` is 0), with the plane sweep's points added when they are fewer than
-    /// `min_points` (COLMAP missing, wide baselines), else sparse points, else random.
+    /// `model` if set, else `pointmaps` if set, else the plane sweep of `moments` moments
+    /// (unless `moments` is 0), else triangulated moments, else sparse points, else random.
     #[default]
     Auto,
     /// Run the ONNX model `model` (falls back when every pair is rejected).
@@ -121,6 +120,10 @@ pub struct InitConfig {
     pub sweep_min_score: f32,
     /// Plane sweep: cameras whose depth maps must agree on a point (≥ 2).
     pub sweep_min_views: usize,
+    /// Plane sweep: a swept point with fewer other points than this within 3 voxels is
+    /// dropped as a false match (0, the default: keep all; dense captures gain, sparse
+    /// wide-baseline ones lose real points).
+    pub min_neighbours: usize,
     /// Plane sweep: also sweep level planes and planes facing each camera's side, for
     /// floors and walls seen at a grazing angle (three times the work).
     pub sweep_slanted: bool,
@@ -166,6 +169,7 @@ impl Default for InitConfig {
             sweep_min_score: 0.7,
             sweep_min_views: 2,
             sweep_slanted: true,
+            min_neighbours: 0,
             plates: 48,
             motion_threshold: crate::plates::MOTION_THRESHOLD,
         }

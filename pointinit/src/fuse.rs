@@ -44,6 +44,45 @@ pub fn unproject(camera: &Camera, p: DVec2, z: f64) -> DVec3 {
         .inverse_apply(DVec3::new(n.x * z, n.y * z, z))
 }
 
+/// Which of the points `xyz` have at least `min_neighbours` other points within `radius`:
+/// a dense surface keeps every point, a lone wrong depth (a false stereo match) does not.
+/// With `radius ≤ 0` or `min_neighbours` 0 every point is kept.
+pub fn supported(xyz: &[DVec3], radius: f64, min_neighbours: usize) -> Vec<bool> {
+    if min_neighbours == 0 || radius.is_nan() || radius <= 0.0 {
+        return vec![true; xyz.len()];
+    }
+    let cell = |p: DVec3| (p / radius).floor().as_i64vec3().to_array();
+    let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
+    for (i, p) in xyz.iter().enumerate() {
+        grid.entry(cell(*p)).or_default().push(i);
+    }
+    let r2 = radius * radius;
+    xyz.iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let [x, y, z] = cell(*p);
+            let mut count = 0;
+            for dx in -1..=1 {
+                for dy in -1..=1 {
+                    for dz in -1..=1 {
+                        let Some(cell) = grid.get(&[x + dx, y + dy, z + dz]) else {
+                            continue;
+                        };
+                        count += cell
+                            .iter()
+                            .filter(|&&j| j != i && xyz[j].distance_squared(*p) <= r2)
+                            .count();
+                        if count >= min_neighbours {
+                            return true;
+                        }
+                    }
+                }
+            }
+            false
+        })
+        .collect()
+}
+
 /// Average the points of each `voxel`-sized cube (xyz, colour and time); `voxel ≤ 0`
 /// keeps every point. The output is ordered by voxel, so it does not depend on hash order.
 pub fn voxel_downsample(points: &[FusedPoint], voxel: f64) -> Vec<FusedPoint> {
@@ -217,6 +256,29 @@ mod tests {
     use super::*;
     use calib::test_support::looking_at;
     use shared_types::Intrinsics;
+
+    #[test]
+    fn lone_points_are_dropped_and_a_surface_is_kept() {
+        // A 20 × 20 grid 1 cm apart, two lone points, and a pair of points close together.
+        let mut xyz: Vec<DVec3> = (0..400)
+            .map(|i| DVec3::new((i % 20) as f64 * 0.01, (i / 20) as f64 * 0.01, 0.0))
+            .collect();
+        xyz.extend([
+            DVec3::new(0.1, 0.1, 0.5),
+            DVec3::new(-0.3, 0.0, 0.0),
+            DVec3::new(1.0, 1.0, 1.0),
+            DVec3::new(1.0, 1.0, 1.005),
+        ]);
+        let count = |keep: Vec<bool>| keep.iter().filter(|k| **k).count();
+        let keep = supported(&xyz, 0.025, 4);
+        assert!(
+            keep[..400].iter().all(|k| *k) && !keep[400..].iter().any(|k| *k),
+            "the grid's corners have 5 neighbours within 2.5 cm"
+        );
+        assert_eq!(count(supported(&xyz, 0.025, 0)), 404);
+        assert_eq!(count(supported(&xyz, 0.0, 4)), 404);
+        assert_eq!(count(supported(&xyz, 0.025, 1)), 402);
+    }
 
     fn cam(eye: DVec3) -> Camera {
         looking_at(

@@ -68,6 +68,9 @@ pub struct InitReport {
     /// no plates, the repetition test decided).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub plates: Option<PlatesReport>,
+    /// Swept points dropped for having fewer than `min_neighbours` neighbours.
+    #[serde(default)]
+    pub isolated: usize,
     /// Points before downsampling (from the source), after voxel downsampling, written.
     pub points_before: usize,
     pub points_after_voxel: usize,

@@ -23,6 +23,10 @@ use crate::statics::{self, StaticCounts};
 use crate::views::{View, load_views};
 use crate::{moment_maps, moments, sweep};
 
+/// Radius (× the voxel edge) within which a swept point needs `[init] min_neighbours`
+/// other points.
+const ISOLATION_RADIUS: f64 = 3.0;
+
 /// Run the init stage: write `<out_dir>/points.ply` and report what was done.
 pub fn run_init(
     inputs: &InitInputs,
@@ -102,7 +106,7 @@ pub fn run_init(
             (None, Some(d)) => Some((UsedSource::Npy, d.clone())),
             (None, None) => {
                 let next = if triangulate {
-                    "triangulating moments"
+                    "sweeping moments"
                 } else {
                     "using the sparse COLMAP points"
                 };
@@ -187,7 +191,10 @@ pub fn run_init(
     let chosen = &inputs.moments[..inputs.moments.len().min(config.moments)];
     let mut timed = Vec::new();
     let mut timed_source = None;
-    if used.is_none() && config.source == Source::Sweep {
+    // Without point maps the dense sweep comes first (`auto` too): on the simulated demo
+    // it beats COLMAP's triangulated points by 1.8 dB held out (docs/init.md).
+    let sweep = config.source == Source::Sweep || (config.source == Source::Auto && triangulate);
+    if used.is_none() && sweep {
         let points;
         (sweeps, points) = sweep_moments(chosen, &inputs.cameras, config, progress)?;
         if points.is_empty() {
@@ -233,23 +240,22 @@ pub fn run_init(
                 }
             }
         }
-        // Wide baselines or no COLMAP: too few points to train from. The plane sweep
-        // needs only the known cameras.
-        if config.source == Source::Auto && timed.len() < config.min_points && !chosen.is_empty() {
-            fall(format!(
-                "{} triangulated points (fewer than min_points = {}); adding the plane sweep's",
-                timed.len(),
-                config.min_points
-            ));
-            let points;
-            (sweeps, points) = sweep_moments(chosen, &inputs.cameras, config, progress)?;
-            if !points.is_empty() {
-                timed.extend(points);
-                timed_source = Some(UsedSource::Swept);
-            }
-        }
     }
     let mut plates_report = None;
+    let mut isolated = 0;
+    if timed_source == Some(UsedSource::Swept) {
+        // A swept depth with no neighbours is a false match: left in, it would start a
+        // large Gaussian (scales come from neighbour distances) floating in mid-air.
+        let xyz: Vec<DVec3> = timed.iter().map(|p| p.xyz).collect();
+        let keep = fuse::supported(&xyz, ISOLATION_RADIUS * voxel, config.min_neighbours);
+        let before = timed.len();
+        timed = timed
+            .into_iter()
+            .zip(keep)
+            .filter_map(|(p, k)| k.then_some(p))
+            .collect();
+        isolated = before - timed.len();
+    }
     if let Some(source) = timed_source {
         let tags = plate_tags(inputs, config, &timed, chosen, progress)?;
         let (pts, counts) = split_moments(
@@ -338,6 +344,7 @@ pub fn run_init(
         sweeps,
         statics,
         plates: plates_report,
+        isolated,
         points_before,
         points_after_voxel,
         points_written: kept.len(),

@@ -85,7 +85,7 @@ fn swept_points_lie_on_the_true_surfaces_and_moving_ones_on_the_moving_objects()
     assert!(on_mask.len() >= 200, "{} of {}", on_mask.len(), later.len());
     assert!(median(on_mask) < 0.015);
 
-    // `auto` without COLMAP: triangulation gives nothing, so the sweep's points are used.
+    // `auto` sweeps first: it needs no COLMAP (none here), and triangulation is not tried.
     let auto = InitConfig {
         moments: 1,
         colmap: Some(c.dir.join("no-such-colmap")),
@@ -95,9 +95,13 @@ fn swept_points_lie_on_the_true_surfaces_and_moving_ones_on_the_moving_objects()
     assert_eq!(report.source, UsedSource::Swept, "{report:#?}");
     assert_eq!(report.sweeps.len(), 1);
     assert!(
-        report.fallbacks.iter().any(|f| f.contains("plane sweep")),
+        report
+            .fallbacks
+            .iter()
+            .any(|f| f.contains("sweeping moments")),
         "{:?}",
         report.fallbacks
     );
+    assert!(report.moments.is_empty(), "{:?}", report.moments);
     assert!(report.points_written > 20_000, "{}", report.points_written);
 }
