@@ -26,6 +26,9 @@ use images::{error_heat_map, rgb8_from, side_by_side, write_atomic, write_png};
 /// Grids written per set (first, middle and last frame).
 pub const GRIDS_PER_SET: usize = 3;
 
+/// Views evaluated together at least: their LPIPS pairs go through the network at once.
+const LPIPS_VIEWS: usize = 4;
+
 /// What `metrics.json` says about LPIPS when no network was given: why, and how to get one.
 pub const LPIPS_SKIPPED: &str = "skipped: no LPIPS weights installed (run scripts/setup.sh, or set LPIPS_WEIGHTS to the weights file)";
 
@@ -336,7 +339,9 @@ pub fn evaluate(
     for set in &sets {
         let wanted_grids = grid_indices(set.views.len());
         let mut frames = Vec::with_capacity(set.views.len());
-        let batch = backend.preferred_batch().max(1);
+        // At least a few views at a time, so that LPIPS takes their pairs through its
+        // layers together even where the renderer draws one view at a time.
+        let batch = backend.preferred_batch().max(LPIPS_VIEWS);
         for (chunk_index, chunk) in set.views.chunks(batch).enumerate() {
             let first = chunk_index * batch;
             let label = |i: usize| format!("{} view {i} ({})", set.name, set.views[i].camera.name);

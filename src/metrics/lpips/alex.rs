@@ -15,15 +15,18 @@
 //!    averaged over the pixels;
 //! 4. the distance is the sum of the five taps' averages.
 //!
-//! Both images of a pair go through the network independently; the layers are in `conv`.
+//! Each image goes through the network on its own; a batch of same-sized images goes
+//! through each layer together (the layers are in `conv`).
 
 use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
 
-use super::LpipsError;
+use std::collections::BTreeMap;
+
 use super::conv::{Conv2d, FeatureMap, max_pool_3x3_s2};
 use super::weights::{Tensor, read_tensors};
+use super::{ImagePair, LpipsError, check_pair};
 
 /// LPIPS's input shift, per RGB channel, applied to images in `[-1, 1]`.
 pub const SHIFT: [f32; 3] = [-0.030, -0.088, -0.188];
@@ -40,6 +43,10 @@ pub const LAYERS: [(usize, usize, usize, usize, usize); 5] = [
     (3, 1, 1, 384, 256),
     (3, 1, 1, 256, 256),
 ];
+
+/// Pixels (both images of every pair) a batch takes through the network at once: eight
+/// 640×480 images share each layer's weights, and a batch's feature maps stay near 150 MB.
+pub const BATCH_PIXELS: usize = 8 * 640 * 480;
 
 /// The smallest image side the network accepts: below it the second max-pool has no
 /// output (31 → 7 after the first convolution → 3 → 3 → 1).
@@ -86,15 +93,14 @@ impl AlexLpips {
         let mut linear = Vec::with_capacity(LAYERS.len());
         for (i, &(size, stride, padding, cin, cout)) in LAYERS.iter().enumerate() {
             let [kernel, bias, lin] = tensor_names(i);
-            convs.push(Conv2d {
+            convs.push(Conv2d::new(
                 size,
                 stride,
                 padding,
-                in_channels: cin,
-                out_channels: cout,
-                kernel: take(&kernel, &[size, size, cin, cout])?,
-                bias: take(&bias, &[cout])?,
-            });
+                (cin, cout),
+                take(&kernel, &[size, size, cin, cout])?,
+                take(&bias, &[cout])?,
+            ));
             linear.push(take(&lin, &[1, 1, cout, 1])?);
         }
         Ok(Self {
@@ -109,53 +115,6 @@ impl AlexLpips {
         &self.path
     }
 
-    /// The five taps (ReLU outputs) of an interleaved RGB image in `[0, 1]`.
-    pub fn features(
-        &self,
-        rgb: &[f32],
-        width: usize,
-        height: usize,
-    ) -> Result<Vec<FeatureMap>, LpipsError> {
-        let too_small = || LpipsError::TooSmall {
-            width,
-            height,
-            min: MIN_SIDE,
-        };
-        if width < MIN_SIDE || height < MIN_SIDE {
-            return Err(too_small());
-        }
-        let data = rgb
-            .chunks_exact(3)
-            .flat_map(|px| (0..3).map(move |c| ((2.0 * px[c] - 1.0) - SHIFT[c]) / SCALE[c]))
-            .collect();
-        let mut x = FeatureMap {
-            height,
-            width,
-            channels: 3,
-            data,
-        };
-        let mut taps = Vec::with_capacity(self.convs.len());
-        for (i, conv) in self.convs.iter().enumerate() {
-            let tap = conv.forward_relu(&x).ok_or_else(too_small)?;
-            x = if i < 2 {
-                max_pool_3x3_s2(&tap).ok_or_else(too_small)?
-            } else {
-                tap.clone()
-            };
-            taps.push(tap);
-        }
-        Ok(taps)
-    }
-
-    /// LPIPS between two sets of taps of same-sized images.
-    pub fn distance_of_features(&self, a: &[FeatureMap], b: &[FeatureMap]) -> f64 {
-        a.iter()
-            .zip(b)
-            .zip(&self.linear)
-            .map(|((fa, fb), w)| tap_distance(fa, fb, w))
-            .sum()
-    }
-
     /// LPIPS distance of two interleaved RGB images in `[0, 1]` (`width × height`).
     pub fn distance(
         &self,
@@ -164,12 +123,110 @@ impl AlexLpips {
         width: usize,
         height: usize,
     ) -> Result<f64, LpipsError> {
-        let (fa, fb) = rayon::join(
-            || self.features(a, width, height),
-            || self.features(b, width, height),
-        );
-        Ok(self.distance_of_features(&fa?, &fb?))
+        let pair = ImagePair {
+            a,
+            b,
+            width,
+            height,
+        };
+        let mut distances = self.distances(&[pair]);
+        distances.pop().unwrap_or(Ok(0.0))
     }
+
+    /// The distance of each pair, in order. Pairs of one size go through the network
+    /// together, in batches of up to [`BATCH_PIXELS`].
+    pub fn distances(&self, pairs: &[ImagePair]) -> Vec<Result<f64, LpipsError>> {
+        let mut results: Vec<Option<Result<f64, LpipsError>>> = pairs
+            .iter()
+            .map(|p| {
+                check_pair(p)
+                    .and_then(|()| too_small(p.width, p.height))
+                    .err()
+            })
+            .map(|e| e.map(Err))
+            .collect();
+        let mut sizes: BTreeMap<(usize, usize), Vec<usize>> = BTreeMap::new();
+        for (k, p) in pairs.iter().enumerate() {
+            if results[k].is_none() {
+                sizes.entry((p.width, p.height)).or_default().push(k);
+            }
+        }
+        for ((width, height), members) in sizes {
+            let per_batch = (BATCH_PIXELS / (2 * width * height)).max(1);
+            for batch in members.chunks(per_batch) {
+                let images: Vec<[&[f32]; 2]> =
+                    batch.iter().map(|&k| [pairs[k].a, pairs[k].b]).collect();
+                let distances = self.same_size_distances(&images, width, height);
+                for (&k, d) in batch.iter().zip(distances) {
+                    results[k] = Some(d.ok_or(LpipsError::TooSmall {
+                        width,
+                        height,
+                        min: MIN_SIDE,
+                    }));
+                }
+            }
+        }
+        results.into_iter().flatten().collect()
+    }
+
+    /// LPIPS of pairs of `width × height` images: all of them go through each layer
+    /// together (one layer's weights serve every image), and each tap is compared as it
+    /// comes. `None` when the images are too small for the network.
+    fn same_size_distances(
+        &self,
+        pairs: &[[&[f32]; 2]],
+        width: usize,
+        height: usize,
+    ) -> Vec<Option<f64>> {
+        let input = |rgb: &[f32]| FeatureMap {
+            height,
+            width,
+            channels: 3,
+            data: rgb
+                .chunks_exact(3)
+                .flat_map(|px| (0..3).map(move |c| ((2.0 * px[c] - 1.0) - SHIFT[c]) / SCALE[c]))
+                .collect(),
+        };
+        let mut x: Vec<FeatureMap> = pairs.par_iter().flatten().map(|rgb| input(rgb)).collect();
+        let mut totals = vec![0.0f64; pairs.len()];
+        for (i, (conv, weights)) in self.convs.iter().zip(&self.linear).enumerate() {
+            let Some(taps) = conv.forward_relu_batch(&x) else {
+                return vec![None; pairs.len()];
+            };
+            let terms: Vec<f64> = taps
+                .par_chunks_exact(2)
+                .map(|ab| tap_distance(&ab[0], &ab[1], weights))
+                .collect();
+            for (total, term) in totals.iter_mut().zip(terms) {
+                *total += term;
+            }
+            x = if i < 2 {
+                match taps
+                    .par_iter()
+                    .map(max_pool_3x3_s2)
+                    .collect::<Option<Vec<_>>>()
+                {
+                    Some(pooled) => pooled,
+                    None => return vec![None; pairs.len()],
+                }
+            } else {
+                taps
+            };
+        }
+        totals.into_iter().map(Some).collect()
+    }
+}
+
+/// `TooSmall` when either side is under [`MIN_SIDE`].
+fn too_small(width: usize, height: usize) -> Result<(), LpipsError> {
+    if width < MIN_SIDE || height < MIN_SIDE {
+        return Err(LpipsError::TooSmall {
+            width,
+            height,
+            min: MIN_SIDE,
+        });
+    }
+    Ok(())
 }
 
 /// One tap's term: the pixel mean of `Σ_c w_c (â_c − b̂_c)²` with `â`, `b̂` the

@@ -1,7 +1,9 @@
 //! The layers of LPIPS's AlexNet on channels-last (`H×W×C`, row-major) `f32` feature maps:
 //! a 2D convolution with bias and ReLU ([`Conv2d`]) and the 3×3 stride-2 max-pool.
 //!
-//! The convolution is im2col + GEMM: the output positions are cut into tiles; for each
+//! Stride-1 layers with 3×3 and 5×5 kernels run by Winograd's minimal filtering
+//! (`winograd`); the others (AlexNet's 11×11 stride-4 first layer) by im2col + GEMM:
+//! the output positions are cut into tiles; for each
 //! tile the receptive fields are copied into rows of `kh·kw·C_in` values (in the kernel's
 //! HWIO order, zeros where the padding is) and multiplied by the kernel seen as a
 //! `(kh·kw·C_in) × C_out` matrix (`matrixmultiply::sgemm`). Tiles run in parallel on
@@ -9,6 +11,8 @@
 //! convolution beside it in the tests is the reference.
 
 use rayon::prelude::*;
+
+use super::winograd::WinogradConv;
 
 /// A channels-last feature map: `data[(y·width + x)·channels + c]`.
 #[derive(Clone, Debug, PartialEq)]
@@ -35,15 +39,20 @@ impl FeatureMap {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Conv2d {
     /// Kernel side (height = width).
-    pub size: usize,
-    pub stride: usize,
-    pub padding: usize,
-    pub in_channels: usize,
-    pub out_channels: usize,
+    size: usize,
+    stride: usize,
+    padding: usize,
+    in_channels: usize,
+    out_channels: usize,
     /// HWIO: `kernel[((ky·size + kx)·in + i)·out + o]`, i.e. a `(size²·in) × out` matrix.
-    pub kernel: Vec<f32>,
-    pub bias: Vec<f32>,
+    kernel: Vec<f32>,
+    bias: Vec<f32>,
+    /// The kernel in the Winograd domain, for the layers that run that way.
+    winograd: Option<WinogradConv>,
 }
+
+/// Kernel sides that run by Winograd when the stride is 1.
+const WINOGRAD_SIDES: [usize; 2] = [3, 5];
 
 /// Output positions per GEMM tile: a tile's im2col rows (≤ 256 × 1728 values for AlexNet)
 /// stay within a core's cache, and a 640×360 image still has tiles for every core.
@@ -56,7 +65,7 @@ pub fn output_side(input: usize, size: usize, stride: usize, padding: usize) -> 
 }
 
 /// `c = a · b` for row-major `a` (`m×k`), `b` (`k×n`) and `c` (`m×n`).
-fn matmul(a: &[f32], b: &[f32], c: &mut [f32], m: usize, k: usize, n: usize) {
+pub(super) fn matmul(a: &[f32], b: &[f32], c: &mut [f32], m: usize, k: usize, n: usize) {
     assert!(a.len() >= m * k && b.len() >= k * n && c.len() >= m * n);
     if m == 0 || n == 0 {
         return;
@@ -88,14 +97,58 @@ fn matmul(a: &[f32], b: &[f32], c: &mut [f32], m: usize, k: usize, n: usize) {
 }
 
 impl Conv2d {
+    /// A layer from its kernel (HWIO, `size × size × in × out`) and bias (`out`). Panics
+    /// when their lengths do not match the shape.
+    pub fn new(
+        size: usize,
+        stride: usize,
+        padding: usize,
+        (in_channels, out_channels): (usize, usize),
+        kernel: Vec<f32>,
+        bias: Vec<f32>,
+    ) -> Self {
+        assert_eq!(
+            kernel.len(),
+            size * size * in_channels * out_channels,
+            "kernel size"
+        );
+        assert_eq!(bias.len(), out_channels, "bias size");
+        let winograd = (stride == 1 && WINOGRAD_SIDES.contains(&size))
+            .then(|| WinogradConv::new(&kernel, size, padding, in_channels, out_channels));
+        Self {
+            size,
+            stride,
+            padding,
+            in_channels,
+            out_channels,
+            kernel,
+            bias,
+            winograd,
+        }
+    }
+
+    /// The convolution of `input` followed by ReLU. `None` when the (padded) input is
+    /// smaller than the kernel. Panics if `input.channels` is not the layer's.
+    #[cfg(test)]
+    pub fn forward_relu(&self, input: &FeatureMap) -> Option<FeatureMap> {
+        self.forward_relu_batch(std::slice::from_ref(input))?.pop()
+    }
+
+    /// [`Self::forward_relu`] of each of `inputs`, which must all be of one size.
+    pub fn forward_relu_batch(&self, inputs: &[FeatureMap]) -> Option<Vec<FeatureMap>> {
+        match &self.winograd {
+            Some(winograd) => winograd.forward_relu_batch(inputs, &self.bias),
+            None => inputs.par_iter().map(|x| self.im2col_relu(x)).collect(),
+        }
+    }
+
     /// Rows of the kernel matrix: values in one receptive field.
     fn field(&self) -> usize {
         self.size * self.size * self.in_channels
     }
 
-    /// The convolution of `input` followed by ReLU. `None` when the (padded) input is
-    /// smaller than the kernel. Panics if `input.channels != self.in_channels`.
-    pub fn forward_relu(&self, input: &FeatureMap) -> Option<FeatureMap> {
+    /// [`Self::forward_relu`] by im2col + GEMM, whatever the layer.
+    fn im2col_relu(&self, input: &FeatureMap) -> Option<FeatureMap> {
         assert_eq!(input.channels, self.in_channels, "channels of a conv input");
         let out_h = output_side(input.height, self.size, self.stride, self.padding)?;
         let out_w = output_side(input.width, self.size, self.stride, self.padding)?;
@@ -235,55 +288,111 @@ mod tests {
         out
     }
 
+    /// Both ways of computing `conv` agree with the `f64` definition: within `tolerance`
+    /// of the sum of the absolute terms (what rounding scales with).
+    fn check_against_reference(conv: &Conv2d, input: &FeatureMap, tolerance: f64) {
+        let reference = conv_reference(conv, input);
+        let scale = reference_scale(conv, input);
+        for (way, out) in [
+            ("forward", conv.forward_relu(input).unwrap()),
+            ("im2col", conv.im2col_relu(input).unwrap()),
+        ] {
+            assert_eq!(out.data.len(), reference.len());
+            let worst = out
+                .data
+                .iter()
+                .zip(&reference)
+                .map(|(f, r)| (*f as f64 - r).abs() / scale)
+                .fold(0.0, f64::max);
+            assert!(
+                worst < tolerance,
+                "{way} {0}x{0} s{1} p{2}, {3}→{4} channels on {5}×{6}: error {worst:e} of the terms",
+                conv.size,
+                conv.stride,
+                conv.padding,
+                conv.in_channels,
+                conv.out_channels,
+                input.height,
+                input.width,
+            );
+        }
+    }
+
+    /// The largest sum of absolute terms over the outputs: the bias plus every kernel
+    /// weight times the input value it meets (a bound on any partial sum).
+    fn reference_scale(conv: &Conv2d, input: &FeatureMap) -> f64 {
+        let weights: f64 =
+            conv.kernel.iter().map(|w| w.abs() as f64).sum::<f64>() / conv.out_channels as f64;
+        let biggest = input.data.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
+        1.0 + weights * biggest
+    }
+
+    fn random_layer(
+        rng: &mut ChaCha8Rng,
+        (size, stride, padding): (usize, usize, usize),
+        (ci, co): (usize, usize),
+        (h, w): (usize, usize),
+    ) -> (Conv2d, FeatureMap) {
+        let conv = Conv2d::new(
+            size,
+            stride,
+            padding,
+            (ci, co),
+            random(rng, size * size * ci * co),
+            random(rng, co),
+        );
+        let input = FeatureMap {
+            height: h,
+            width: w,
+            channels: ci,
+            data: random(rng, h * w * ci),
+        };
+        (conv, input)
+    }
+
     #[test]
     fn convolution_matches_the_f64_definition() {
         let mut rng = ChaCha8Rng::seed_from_u64(7);
-        // Stride 4 with padding (AlexNet's first layer, smaller), stride 1 with padding,
-        // and an image wide enough for several GEMM tiles.
-        for (size, stride, padding, ci, co, h, w) in [
-            (11, 4, 2, 3, 8, 37, 41),
-            (5, 1, 2, 6, 10, 9, 13),
-            (3, 1, 1, 4, 5, 20, 30),
-            (3, 1, 0, 2, 3, 3, 3),
+        // Stride 4 with padding (AlexNet's first layer, smaller); stride 1 with 5×5 and
+        // 3×3 kernels (Winograd) on sides that are and are not multiples of the tile,
+        // images with several bands of tiles, a 1×1 output, many input channels.
+        for (layer, channels, side) in [
+            ((11, 4, 2), (3, 8), (37, 41)),
+            ((5, 1, 2), (6, 10), (9, 13)),
+            ((5, 1, 2), (64, 24), (23, 30)),
+            ((3, 1, 1), (4, 5), (20, 30)),
+            ((3, 1, 1), (4, 3), (61, 7)),
+            ((3, 1, 0), (2, 3), (3, 3)),
+            ((3, 1, 1), (384, 16), (9, 11)),
         ] {
-            let conv = Conv2d {
-                size,
-                stride,
-                padding,
-                in_channels: ci,
-                out_channels: co,
-                kernel: random(&mut rng, size * size * ci * co),
-                bias: random(&mut rng, co),
-            };
-            let input = FeatureMap {
-                height: h,
-                width: w,
-                channels: ci,
-                data: random(&mut rng, h * w * ci),
-            };
-            let fast = conv.forward_relu(&input).unwrap();
-            let reference = conv_reference(&conv, &input);
-            assert_eq!(fast.data.len(), reference.len());
-            for (i, (f, r)) in fast.data.iter().zip(&reference).enumerate() {
-                assert!(
-                    (*f as f64 - r).abs() < 1e-4 * (1.0 + r.abs()),
-                    "{size}x{size} s{stride} p{padding}: value {i}: {f} vs {r}"
-                );
+            let (conv, input) = random_layer(&mut rng, layer, channels, side);
+            check_against_reference(&conv, &input, 2e-6);
+        }
+    }
+
+    #[test]
+    fn a_batch_gives_what_each_input_gives_alone() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        for (layer, channels, side) in [
+            ((11, 4, 2), (3, 4), (40, 37)),
+            ((5, 1, 2), (8, 6), (19, 26)),
+            ((3, 1, 1), (5, 7), (9, 70)),
+        ] {
+            let (conv, first) = random_layer(&mut rng, layer, channels, side);
+            let inputs: Vec<FeatureMap> = std::iter::once(first)
+                .chain((0..4).map(|_| random_layer(&mut rng, layer, channels, side).1))
+                .collect();
+            let batch = conv.forward_relu_batch(&inputs).unwrap();
+            assert_eq!(batch.len(), inputs.len());
+            for (input, out) in inputs.iter().zip(&batch) {
+                assert_eq!(out, &conv.forward_relu(input).unwrap());
             }
         }
     }
 
     #[test]
     fn a_kernel_larger_than_the_padded_input_gives_nothing() {
-        let conv = Conv2d {
-            size: 11,
-            stride: 4,
-            padding: 2,
-            in_channels: 1,
-            out_channels: 1,
-            kernel: vec![0.0; 121],
-            bias: vec![0.0],
-        };
+        let conv = Conv2d::new(11, 4, 2, (1, 1), vec![0.0; 121], vec![0.0]);
         let tiny = FeatureMap {
             height: 6,
             width: 20,
@@ -291,6 +400,14 @@ mod tests {
             data: vec![0.0; 120],
         };
         assert!(conv.forward_relu(&tiny).is_none());
+        let winograd = Conv2d::new(5, 1, 0, (1, 1), vec![0.0; 25], vec![0.0]);
+        let thin = FeatureMap {
+            height: 4,
+            width: 20,
+            channels: 1,
+            data: vec![0.0; 80],
+        };
+        assert!(winograd.forward_relu(&thin).is_none());
     }
 
     #[test]

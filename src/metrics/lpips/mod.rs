@@ -13,12 +13,11 @@ mod alex;
 mod conv;
 mod onnx;
 pub mod weights;
+mod winograd;
 
 use std::path::{Path, PathBuf};
 
-use rayon::prelude::*;
-
-pub use alex::{AlexLpips, MIN_SIDE};
+pub use alex::{AlexLpips, BATCH_PIXELS, MIN_SIDE};
 pub use onnx::OnnxLpips;
 pub use weights::{INSTALL_HINT, WEIGHTS_ENV, WEIGHTS_FILE, find_weights, weight_locations};
 
@@ -134,30 +133,44 @@ impl Lpips {
         width: usize,
         height: usize,
     ) -> Result<f64, LpipsError> {
-        let expected = 3 * width * height;
-        if a.len() != expected || b.len() != expected || expected == 0 {
-            return Err(LpipsError::ImageSize {
-                width,
-                height,
-                expected,
-                got_a: a.len(),
-                got_b: b.len(),
-            });
-        }
         match self {
             Self::Alex(net) => net.distance(a, b, width, height),
-            Self::Onnx(net) => net.distance(a, b, width, height),
+            Self::Onnx(net) => {
+                check_pair(&ImagePair {
+                    a,
+                    b,
+                    width,
+                    height,
+                })?;
+                net.distance(a, b, width, height)
+            }
         }
     }
 
-    /// The distance of each pair, in order. The native network runs the pairs in
-    /// parallel (each also splits its layers over the cores); an ONNX model runs them one
-    /// after another.
+    /// The distance of each pair, in order. The native network takes same-sized pairs
+    /// through its layers together; an ONNX model runs them one after another.
     pub fn distances(&self, pairs: &[ImagePair]) -> Vec<Result<f64, LpipsError>> {
-        let one = |p: &ImagePair| self.distance(p.a, p.b, p.width, p.height);
         match self {
-            Self::Alex(_) => pairs.par_iter().map(one).collect(),
-            Self::Onnx(_) => pairs.iter().map(one).collect(),
+            Self::Alex(net) => net.distances(pairs),
+            Self::Onnx(_) => pairs
+                .iter()
+                .map(|p| self.distance(p.a, p.b, p.width, p.height))
+                .collect(),
         }
     }
+}
+
+/// `ImageSize` unless both images hold `width × height` RGB values (and that is not 0).
+fn check_pair(pair: &ImagePair) -> Result<(), LpipsError> {
+    let expected = 3 * pair.width * pair.height;
+    if pair.a.len() != expected || pair.b.len() != expected || expected == 0 {
+        return Err(LpipsError::ImageSize {
+            width: pair.width,
+            height: pair.height,
+            expected,
+            got_a: pair.a.len(),
+            got_b: pair.b.len(),
+        });
+    }
+    Ok(())
 }
