@@ -3,7 +3,7 @@
 //! loss + backward + Adam + log) on the analytic scene of the trainer tests at 128×96.
 //! Run: `cargo bench -p splat4d --bench train`.
 
-#[path = "../tests/train_scene/mod.rs"]
+#[path = "../tests/integration/train_scene/mod.rs"]
 mod train_scene;
 
 use criterion::{Criterion, criterion_group, criterion_main};

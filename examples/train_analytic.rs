@@ -2,7 +2,7 @@
 //! iterations/s, peak memory and Gaussian count (the numbers in BENCHMARKS.md "Training").
 //! Run: `cargo run --release -p splat4d --example train_analytic -- [iterations] [width]`.
 
-#[path = "../tests/train_scene/mod.rs"]
+#[path = "../tests/integration/train_scene/mod.rs"]
 mod train_scene;
 
 use splat4d::CpuBackend;

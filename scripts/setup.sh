@@ -16,7 +16,7 @@ PACKAGES=(
   libopencv-dev colmap
   # wgpu on machines without a GPU (lavapipe)
   mesa-vulkan-drivers libvulkan1
-  # browser viewer test (tests/viewer_browser.rs): headless Chromium, WebGL on SwiftShader
+  # browser viewer test (tests/integration/viewer_browser.rs): headless Chromium, WebGL on SwiftShader
   chromium
   # text of the plots `pipeline bench tradeoff` draws
   fonts-dejavu-core

@@ -6,6 +6,12 @@ bash scripts/setup.sh
 # A one-off CI build gains nothing from incremental artefacts; they only take disk.
 if [ "${CI:-}" = true ]; then export CARGO_INCREMENTAL=0; fi
 status=0
+# A whole run (no arguments) checks the formatting and the lints first: `-D warnings`
+# makes any clippy warning, the workspace's `[workspace.lints]` included, a failure.
+if [ $# -eq 0 ]; then
+  cargo fmt --all --check || { echo "cargo fmt --check: run 'cargo fmt --all'" >&2; status=1; }
+  cargo clippy --workspace --all-targets -- -D warnings || status=$?
+fi
 if cargo nextest --version >/dev/null 2>&1; then
   cargo nextest run --workspace --no-fail-fast "$@" || status=$?
 else
@@ -14,7 +20,7 @@ fi
 # Live capture through nokhwa is a feature (`--features nokhwa`): compile it and run the
 # tests that change with it (its format/error mapping, the recorder, `pipeline record`).
 if [ $# -eq 0 ]; then
-  cargo test -p rig --features nokhwa --lib --test record_live --no-fail-fast || status=$?
-  cargo test -p pipeline --features nokhwa --test cli --no-fail-fast record || status=$?
+  cargo test -p rig --features nokhwa --lib --test integration --no-fail-fast record_live:: || status=$?
+  cargo test -p pipeline --features nokhwa --test integration --no-fail-fast cli::record || status=$?
 fi
 exit "$status"

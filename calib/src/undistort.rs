@@ -379,6 +379,7 @@ impl UndistortMap {
         let src_mat = unsafe {
             Mat::new_rows_cols_with_data_unsafe(h, w, typ, src.as_ptr() as *mut c_void, step)?
         };
+        // SAFETY: as above; `dst` is borrowed mutably for the Mat's whole life.
         let mut dst_mat = unsafe {
             Mat::new_rows_cols_with_data_unsafe(h, w, typ, dst.as_mut_ptr() as *mut c_void, step)?
         };

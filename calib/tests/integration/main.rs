@@ -1,0 +1,16 @@
+//! Integration tests of calib, as one test binary: each file here is a module, so
+//! the dependencies are linked once, not once per file. One file's tests:
+//! `cargo nextest run -p calib FILE::`.
+
+mod common;
+
+mod colmap_failures;
+mod colmap_model_io;
+mod import;
+mod opencv_models;
+mod opencv_rational_calibration;
+mod pose2sim_import;
+mod solve_synthetic;
+mod strecha_real;
+mod undistort_points;
+mod undistort_render;

@@ -1,0 +1,27 @@
+//! Integration tests of the pipeline, as one test binary: each file here is a module, so
+//! the dependencies are linked once, not once per file. One file's tests:
+//! `cargo nextest run -p pipeline FILE::`.
+
+#[path = "../../../tests/integration/browser/mod.rs"]
+mod browser;
+mod common;
+
+mod bench;
+mod bench_tradeoff;
+mod cli;
+mod decay_demo;
+mod demo_quality;
+mod end_to_end;
+mod eval_moving;
+mod heldout_real;
+mod init_accuracy;
+mod known_lenses;
+mod layout_errors;
+mod panoptic_capture;
+mod real_calibrations;
+mod render_backend;
+mod runner;
+mod stage_graph;
+mod train_demo;
+mod train_stage;
+mod viewer_demo;

@@ -1,0 +1,17 @@
+//! Integration tests of rig, as one test binary: each file here is a module, so
+//! the dependencies are linked once, not once per file. One file's tests:
+//! `cargo nextest run -p rig FILE::`.
+
+mod common;
+mod sync_support;
+
+mod frames_files;
+mod ingest_files;
+mod ingest_images;
+mod ingest_record;
+mod record_live;
+mod sim;
+mod sync_audio;
+mod sync_bench;
+mod sync_files;
+mod video_mp4;

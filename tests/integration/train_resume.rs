@@ -1,0 +1,270 @@
+//! Interrupt/resume gives a bit-identical model; the NaN guard stops with a clear error and
+//! keeps the last good checkpoint; bad inputs are typed errors.
+
+use crate::train_scene;
+
+use splat4d::CpuBackend;
+use splat4d::Gaussians;
+use splat4d::NoProgress;
+use splat4d::train::{NoHooks, TrainConfig, TrainError, TrainHooks, train};
+
+fn config(iterations: u64) -> TrainConfig {
+    let mut c = TrainConfig {
+        iterations,
+        checkpoint_every: 10,
+        batch_size: 2,
+        seed: 7,
+        ..Default::default()
+    };
+    c.degree_every = 8;
+    c.densify.from_iteration = 5;
+    c.densify.every = 10;
+    c.densify.opacity_reset_every = 15;
+    c.densify.grad_threshold = 2e-5;
+    c.densify.max_world_size = 10.0;
+    c
+}
+
+#[test]
+fn resumed_run_is_bit_identical_to_a_straight_run() {
+    let data = train_scene::dataset(32, 24);
+    let init = train_scene::points(12, 9, &[0.0, 1.0]);
+    let straight = tempfile::tempdir().unwrap();
+    train(
+        &CpuBackend,
+        &config(40),
+        &data,
+        &init,
+        straight.path(),
+        false,
+        &mut NoHooks,
+        &NoProgress,
+    )
+    .unwrap();
+
+    let a = std::fs::read(straight.path().join("model.bin")).unwrap();
+    let log = std::fs::read_to_string(straight.path().join("log.csv")).unwrap();
+    let counts: Vec<&str> = log
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(5).unwrap())
+        .collect();
+    assert_ne!(
+        counts[0], counts[39],
+        "the run densifies/prunes, so resume must carry that state"
+    );
+
+    // Interrupted after 17 iterations (stop request: checkpoint 17), then resumed.
+    let resumed = tempfile::tempdir().unwrap();
+    let e = train(
+        &CpuBackend,
+        &config(40),
+        &data,
+        &init,
+        resumed.path(),
+        false,
+        &mut StopAt(17),
+        &NoProgress,
+    )
+    .unwrap_err();
+    assert!(
+        matches!(e, TrainError::Interrupted { iteration: 17, .. }),
+        "{e}"
+    );
+    assert!(!resumed.path().join("model.bin").exists());
+    let s = train(
+        &CpuBackend,
+        &config(40),
+        &data,
+        &init,
+        resumed.path(),
+        true,
+        &mut NoHooks,
+        &NoProgress,
+    )
+    .unwrap();
+    assert_eq!(s.started_at, 17);
+    let b = std::fs::read(resumed.path().join("model.bin")).unwrap();
+    assert_eq!(a, b, "resumed model differs from the straight run");
+    let log_b = std::fs::read_to_string(resumed.path().join("log.csv")).unwrap();
+    assert_eq!(
+        log_b.lines().count(),
+        41,
+        "one header + one row per iteration"
+    );
+
+    // Killed hard after 25 (only the periodic checkpoint 20 survives): same result.
+    let killed = tempfile::tempdir().unwrap();
+    let e = train(
+        &CpuBackend,
+        &config(40),
+        &data,
+        &init,
+        killed.path(),
+        false,
+        &mut StopAt(25),
+        &NoProgress,
+    )
+    .unwrap_err();
+    assert!(matches!(e, TrainError::Interrupted { iteration: 25, .. }));
+    let ckpt = killed.path().join("ckpt");
+    std::fs::remove_file(ckpt.join("000025.bin")).unwrap();
+    std::fs::remove_file(ckpt.join("000025.state")).unwrap();
+    let s = train(
+        &CpuBackend,
+        &config(40),
+        &data,
+        &init,
+        killed.path(),
+        true,
+        &mut NoHooks,
+        &NoProgress,
+    )
+    .unwrap();
+    assert_eq!(s.started_at, 20);
+    assert_eq!(a, std::fs::read(killed.path().join("model.bin")).unwrap());
+}
+
+struct StopAt(u64);
+impl TrainHooks for StopAt {
+    fn stop_requested(&mut self, iteration: u64) -> bool {
+        iteration == self.0
+    }
+}
+
+/// Poisons the model at one iteration, as a diverging run would.
+struct Poison(u64);
+impl TrainHooks for Poison {
+    fn after_step(&mut self, iteration: u64, model: &mut Gaussians<f32>) {
+        if iteration == self.0 {
+            model.means[3][0] = f32::NAN;
+        }
+    }
+}
+
+#[test]
+fn nan_guard_stops_and_keeps_the_last_good_checkpoint() {
+    let data = train_scene::dataset(32, 24);
+    let init = train_scene::points(12, 9, &[0.0, 1.0]);
+    let dir = tempfile::tempdir().unwrap();
+    let err = train(
+        &CpuBackend,
+        &config(30),
+        &data,
+        &init,
+        dir.path(),
+        false,
+        &mut Poison(13),
+        &NoProgress,
+    )
+    .unwrap_err();
+    let msg = err.to_string();
+    match err {
+        TrainError::NonFinite {
+            iteration,
+            last_checkpoint,
+            ..
+        } => {
+            assert_eq!(iteration, 13);
+            let ckpt = last_checkpoint.expect("checkpoint 10 was written");
+            assert!(ckpt.ends_with("000010.bin"));
+            let good = splat4d::load_model(&ckpt).unwrap();
+            assert!(good.means.iter().flatten().all(|v| v.is_finite()));
+        }
+        other => panic!("expected NonFinite, got {other}"),
+    }
+    assert!(
+        msg.contains("iteration 13") && msg.contains("learning rate"),
+        "{msg}"
+    );
+    assert!(
+        !dir.path().join("model.bin").exists(),
+        "no model may be written after divergence"
+    );
+}
+
+#[test]
+fn mismatched_image_and_bad_config_are_errors() {
+    let mut data = train_scene::dataset(32, 24);
+    let init = train_scene::points(4, 3, &[0.0]);
+    let dir = tempfile::tempdir().unwrap();
+    let bad = TrainConfig {
+        batch_size: 0,
+        ..config(5)
+    };
+    assert!(matches!(
+        train(
+            &CpuBackend,
+            &bad,
+            &data,
+            &init,
+            dir.path(),
+            false,
+            &mut NoHooks,
+            &NoProgress
+        ),
+        Err(TrainError::Config(_))
+    ));
+    data.views[3].image.width = 16;
+    let e = train(
+        &CpuBackend,
+        &config(5),
+        &data,
+        &init,
+        dir.path(),
+        false,
+        &mut NoHooks,
+        &NoProgress,
+    )
+    .unwrap_err();
+    assert!(matches!(e, TrainError::ImageSize { index: 3, .. }), "{e}");
+}
+
+#[test]
+fn config_section_rejects_unknown_keys_and_fills_defaults() {
+    let c: TrainConfig =
+        serde_json::from_str(r#"{"iterations": 5, "densify": {"every": 50}}"#).unwrap();
+    assert_eq!(c.iterations, 5);
+    assert_eq!(c.densify.every, 50);
+    assert_eq!(c.batch_size, TrainConfig::default().batch_size);
+    assert!(serde_json::from_str::<TrainConfig>(r#"{"iteratons": 5}"#).is_err());
+}
+
+#[test]
+fn corrupt_checkpoint_state_is_a_clear_error() {
+    let data = train_scene::dataset(32, 24);
+    let init = train_scene::points(6, 5, &[0.0]);
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = config(10);
+    c.densify.enabled = false;
+    train(
+        &CpuBackend,
+        &c,
+        &data,
+        &init,
+        dir.path(),
+        false,
+        &mut NoHooks,
+        &NoProgress,
+    )
+    .unwrap();
+    let state = dir.path().join("ckpt/000010.state");
+    let bytes = std::fs::read(&state).unwrap();
+    std::fs::write(&state, &bytes[..bytes.len() - 5]).unwrap();
+    c.iterations = 12;
+    let e = train(
+        &CpuBackend,
+        &c,
+        &data,
+        &init,
+        dir.path(),
+        true,
+        &mut NoHooks,
+        &NoProgress,
+    )
+    .unwrap_err();
+    assert!(
+        e.to_string().contains("000010.state") && e.to_string().contains("delete it"),
+        "{e}"
+    );
+}
