@@ -74,6 +74,11 @@ pub struct ExportOptions {
     pub viewer_max_frames: usize,
     /// Playback rate of the viewer in frames per second.
     pub viewer_fps: f64,
+    /// The colour the model was trained on (`[train] background`): the viewer draws it
+    /// behind the splats, as render and eval do. Not a setting: the export stage takes it
+    /// from the training record.
+    #[serde(skip)]
+    pub background: [f32; 3],
 }
 
 impl Default for ExportOptions {
@@ -88,6 +93,7 @@ impl Default for ExportOptions {
             viewer_bundle: None,
             viewer_max_frames: 120,
             viewer_fps: 15.0,
+            background: [0.0; 3],
         }
     }
 }
@@ -324,13 +330,14 @@ pub fn export_all(
             progress.advance(1);
         }
         let scene = viewer::ViewerScene {
-            version: 2,
+            version: 3,
             frames,
             rows: order.len(),
             cameras: viewer_cameras,
             start_camera: 0,
             fps: opts.viewer_fps,
             duration: bake::colour_period(model),
+            background: opts.background,
             space: viewer::ViewerSpaceJson {
                 centre: space.centre.to_array(),
                 rotation: space.rotation.to_array(),

@@ -273,7 +273,8 @@ pub struct ViewerSpaceJson {
 /// `scene.json`: what the page loads.
 #[derive(Clone, Debug, Serialize)]
 pub struct ViewerScene {
-    /// Layout version of this file (2: training cameras, one row order for all frames).
+    /// Layout version of this file (2: training cameras, one row order for all frames;
+    /// 3: the background).
     pub version: u32,
     pub frames: Vec<ViewerFrame>,
     /// Rows (32 bytes each) of every frame file.
@@ -286,6 +287,8 @@ pub struct ViewerScene {
     /// Model time span of the sequence, `[0, duration]` (the `.splatv` plays it as
     /// `[0, 1]`).
     pub duration: f64,
+    /// RGB in `[0, 1]` the page draws behind the splats: the training background.
+    pub background: [f32; 3],
     /// World → viewer space.
     pub space: ViewerSpaceJson,
 }

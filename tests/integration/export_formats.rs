@@ -302,6 +302,7 @@ fn viewer_export_copies_the_bundle_and_writes_equal_size_frames() {
         splatv: false,
         viewer_bundle: Some(bundle),
         viewer_max_frames: 3,
+        background: [0.25, 0.5, 0.75],
         ..Default::default()
     };
     let times = splat4d::export::even_times(&m, 7);
@@ -317,6 +318,14 @@ fn viewer_export_copies_the_bundle_and_writes_equal_size_frames() {
     assert_eq!(ts, vec![times[0], times[3], times[6]]);
     let rows = scene["rows"].as_u64().unwrap() as usize;
     assert!(rows > 0 && rows <= m.len());
+    // The page draws the training background behind the splats.
+    let background: Vec<f64> = scene["background"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert_eq!(background, opts.background.map(f64::from).to_vec());
     for f in frames {
         // One size and one row order for all frames; rows a frame does not draw are
         // transparent.

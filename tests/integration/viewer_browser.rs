@@ -275,10 +275,14 @@ fn viewer_shows_what_the_engine_renders_at_training_cameras_and_plays_the_splatv
     let dir = tempfile::tempdir().unwrap();
     let (model, cameras) = demo_like_scene();
     let times = even_times(&model, 25);
+    // Trained on a colour (`[train] background`): the page must draw it behind the
+    // splats as the engine does. A blue unlike the scene, so that lost coverage shows.
+    let background = [0.15, 0.45, 0.85];
     let opts = ExportOptions {
         frames: false,
         model4d: false,
         viewer_bundle: Some(browser.bundle.clone()),
+        background,
         ..Default::default()
     };
     export_all(&model, &cameras, &times, dir.path(), &opts, &NoProgress).unwrap();
@@ -355,10 +359,10 @@ fn viewer_shows_what_the_engine_renders_at_training_cameras_and_plays_the_splatv
     let key_times = [0, mid, last].map(|f| times[f]);
     let cam0_renders: Vec<image::RgbImage> = key_times
         .iter()
-        .map(|&t| engine_render(&model, &cameras.cameras[0], t))
+        .map(|&t| engine_render(&model, &cameras.cameras[0], t, background))
         .collect();
     for ((what, _, _, cam, t), (_, png)) in cases.iter().zip(&shots) {
-        let engine = engine_render(&model, &cameras.cameras[*cam], *t);
+        let engine = engine_render(&model, &cameras.cameras[*cam], *t, background);
         let shot = image::open(png).expect("screenshot PNG").to_rgb8();
         let db = psnr(&shot, &engine);
         keep(

@@ -6,9 +6,11 @@
 /// splats of a trained model (small opacity × temporal weight, thousands per pixel) lose
 /// their share: on the demo model the same splats came out 44 dB from the engine's render
 /// of them in 8 bits, 51 dB in half floats. Here they add up in half floats and the result
-/// is rounded once. `null` when the browser cannot render to half floats (then gsplat
-/// draws to the canvas directly).
-export function floatTarget(gl) {
+/// is rounded once, over `background` (RGB in [0, 1], the colour the model was trained on:
+/// colour + (1 − coverage) · background, as the engine composites). `null` when the
+/// browser cannot render to half floats (then gsplat draws to the canvas directly, and the
+/// page's background shows through).
+export function floatTarget(gl, background) {
   if (!gl.getExtension("EXT_color_buffer_float") && !gl.getExtension("EXT_color_buffer_half_float")) {
     console.warn("no float render targets: splats blend in 8 bits (darker, speckled)");
     return null;
@@ -29,8 +31,12 @@ void main() {
   gl.attachShader(program, compile(gl.FRAGMENT_SHADER, `#version 300 es
 precision highp float;
 uniform sampler2D image;
+uniform vec3 background;
 out vec4 colour;
-void main() { colour = clamp(texelFetch(image, ivec2(gl_FragCoord.xy), 0), 0.0, 1.0); }`));
+void main() {
+  vec4 c = clamp(texelFetch(image, ivec2(gl_FragCoord.xy), 0), 0.0, 1.0);
+  colour = vec4(clamp(c.rgb + (1.0 - c.a) * background, 0.0, 1.0), 1.0);
+}`));
   gl.linkProgram(program);
   if (!gl.getProgramParameter(program, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(program));
   const UNIT = 7;
@@ -58,7 +64,8 @@ void main() { colour = clamp(texelFetch(image, ivec2(gl_FragCoord.xy), 0), 0.0, 
       }
       gl.bindFramebuffer(gl.FRAMEBUFFER, fbo);
     },
-    /// Show what was drawn (premultiplied colour and alpha, as gsplat leaves them).
+    /// Show what was drawn (premultiplied colour and alpha, as gsplat leaves them) over
+    /// the background.
     end() {
       gl.bindFramebuffer(gl.FRAMEBUFFER, null);
       gl.viewport(0, 0, size[0], size[1]);
@@ -69,6 +76,7 @@ void main() { colour = clamp(texelFetch(image, ivec2(gl_FragCoord.xy), 0), 0.0, 
       gl.activeTexture(gl.TEXTURE0 + UNIT);
       gl.bindTexture(gl.TEXTURE_2D, texture);
       gl.uniform1i(gl.getUniformLocation(program, "image"), UNIT);
+      gl.uniform3fv(gl.getUniformLocation(program, "background"), background);
       gl.bindVertexArray(vao);
       gl.drawArrays(gl.TRIANGLES, 0, 3);
       gl.bindVertexArray(null);

@@ -85,13 +85,17 @@ async function main() {
   const fps = sceneInfo.fps || 15;
 
   const canvas = $("canvas");
+  // The colour the model was trained on, behind the splats (as render and eval draw it).
+  const background = (sceneInfo.background || [0, 0, 0]).map((v) => Math.min(1, Math.max(0, v)));
+  const bg255 = background.map((v) => Math.round(255 * v));
+  canvas.style.background = `rgb(${bg255[0]}, ${bg255[1]}, ${bg255[2]})`;
   // ?stock=1: gsplat as published (its culling and low-pass, 8-bit blending), to compare.
   const stock = params.get("stock") === "1";
   if (!stock) patchGsplat();
   // No shader passes: gsplat's default fade-in pass shrinks the splats while it runs.
   const renderer = new SPLAT.WebGLRenderer(canvas, []);
   const gl = renderer.gl;
-  const target = stock || params.get("float") === "0" ? null : floatTarget(gl);
+  const target = stock || params.get("float") === "0" ? null : floatTarget(gl, background);
   const scene = new SPLAT.Scene();
   const camera = new SPLAT.Camera();
   camera.data.near = 0.01; // the engine's near plane (gsplat: 0.1)

@@ -15,9 +15,18 @@ use crate::stage_context::StageContext;
 /// `[export]` settings: the exporter's own (time steps, which files, viewer options).
 pub type ExportSettings = ExportOptions;
 
-/// The `export` stage.
-pub fn run(ctx: &StageContext, options: &ExportSettings) -> anyhow::Result<()> {
+/// The `export` stage; `background` is `[train] background` (the viewer draws it behind
+/// the splats).
+pub fn run(
+    ctx: &StageContext,
+    options: &ExportSettings,
+    background: [f32; 3],
+) -> anyhow::Result<()> {
     let model = load_trained_model(&ctx.capture.work_dir())?;
+    let options = &ExportOptions {
+        background,
+        ..options.clone()
+    };
     let cameras_file = ctx.stage_dir("poses").join("cameras.json");
     let poses = PosesFile::read(&cameras_file)?;
     let index = FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;

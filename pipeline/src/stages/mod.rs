@@ -136,7 +136,13 @@ pub fn pipeline() -> Pipeline {
             StageDef::new("export", "PLY / .splatv exports and a browser viewer")
                 .after(&["frames", "poses", "train"])
                 .outputs(&["export.json"])
-                .run(|ctx, config| export::run(ctx, &config.export)),
+                .run(|ctx, config| {
+                    let background = crate::engine_inputs::trained_background(
+                        &ctx.capture.work_dir(),
+                        config.train.background,
+                    )?;
+                    export::run(ctx, &config.export, background)
+                }),
         ],
     }
 }

@@ -116,7 +116,12 @@ fn viewer_matches_the_engine_on_the_trained_demo() {
     let mut table = Vec::new();
     let mut fixed_last = None;
     for ((stem, _, cam, frame), (_, png)) in cases.iter().zip(&shots) {
-        let engine = engine_render(&model, &cameras.cameras[*cam], times[*frame]);
+        let engine = engine_render(
+            &model,
+            &cameras.cameras[*cam],
+            times[*frame],
+            options.background,
+        );
         let shot = image::open(png).unwrap().to_rgb8();
         let db = psnr(&shot, &engine);
         table.push(format!(

@@ -193,9 +193,18 @@ fn respond(mut stream: TcpStream, root: &Path) -> std::io::Result<()> {
 
 /// The engine's render of `model` from `camera` at model time `t` (CPU backend, black
 /// background), as 8-bit RGB.
-pub fn engine_render(model: &Gaussians<f32>, camera: &Camera, t: f64) -> image::RgbImage {
+pub fn engine_render(
+    model: &Gaussians<f32>,
+    camera: &Camera,
+    t: f64,
+    background: [f32; 3],
+) -> image::RgbImage {
+    let options = RenderOptions {
+        background,
+        ..RenderOptions::default()
+    };
     let r = splat4d::CpuBackend
-        .render(model, camera, t as f32, &RenderOptions::default())
+        .render(model, camera, t as f32, &options)
         .expect("engine render");
     let px = r
         .rgb
