@@ -122,6 +122,7 @@ impl CaptureConfig {
             message: message.trim_end().to_string(),
         };
         let table: toml::Table = toml::from_str(text).map_err(|e| invalid(e.to_string()))?;
+        crate::ranges::check(&table).map_err(invalid)?;
         let config = match table
             .get("train")
             .and_then(|t| t.as_table())

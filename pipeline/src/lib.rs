@@ -29,6 +29,7 @@ pub mod manifest;
 pub mod masks;
 pub mod partial_dir;
 pub mod presets;
+pub mod ranges;
 pub mod report;
 pub mod runner;
 pub mod simulate;
