@@ -20,7 +20,8 @@ fi
 # Live capture through nokhwa is a feature (`--features nokhwa`): compile it and run the
 # tests that change with it (its format/error mapping, the recorder, `pipeline record`).
 if [ $# -eq 0 ]; then
-  cargo test -p rig --features nokhwa --lib --test integration --no-fail-fast record_live:: || status=$?
+  cargo test -p rig --features nokhwa --lib --no-fail-fast || status=$?
+  cargo test -p rig --features nokhwa --test integration --no-fail-fast record_live:: || status=$?
   cargo test -p pipeline --features nokhwa --test integration --no-fail-fast cli::record || status=$?
 fi
 exit "$status"
