@@ -11,6 +11,7 @@
 
 mod alex;
 mod conv;
+mod maps;
 mod onnx;
 pub mod weights;
 mod winograd;

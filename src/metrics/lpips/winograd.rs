@@ -19,7 +19,7 @@
 use nalgebra::DMatrix;
 use rayon::prelude::*;
 
-use super::conv::{FeatureMap, matmul};
+use super::maps::{FeatureMap, matmul, output_side};
 
 /// The finite interpolation points, in the order they are taken: small magnitudes first
 /// keep the transforms' entries, and so the `f32` rounding, small.
@@ -225,8 +225,8 @@ impl WinogradConv {
             );
         }
         let Transform { m, r, .. } = self.transform;
-        let out_h = super::conv::output_side(first.height, r, 1, self.padding)?;
-        let out_w = super::conv::output_side(first.width, r, 1, self.padding)?;
+        let out_h = output_side(first.height, r, 1, self.padding)?;
+        let out_w = output_side(first.width, r, 1, self.padding)?;
         let n = self.out_channels;
         let (tiles_y, tiles_x) = (out_h.div_ceil(m), out_w.div_ceil(m));
         let mut outputs: Vec<Vec<f32>> = inputs
