@@ -15,6 +15,7 @@ use ffmpeg_next as ffmpeg;
 use serde::{Deserialize, Serialize};
 
 use crate::media;
+use crate::rotation::Rotation;
 use crate::source::{FileSource, PixelLayout, SourceError, decode_err, init_ffmpeg};
 use shared_types::progress::Progress;
 
@@ -180,6 +181,10 @@ pub struct VideoInfo {
     pub width: u32,
     /// Height in pixels.
     pub height: u32,
+    /// Degrees clockwise a player turns the stored frames by (a phone's display matrix);
+    /// `width` and `height` are the displayed size, and frames are decoded turned.
+    #[serde(default)]
+    pub rotation: Rotation,
     /// Frames per second from the median frame interval.
     pub fps: f64,
     /// True when frame intervals vary by more than 5 % (besides isolated gaps).
@@ -334,8 +339,10 @@ fn is_video(path: &Path) -> std::io::Result<bool> {
 /// Timestamps and stream facts of one file, from the demuxer.
 struct FileProbe {
     codec: String,
+    /// Displayed size (stored size turned by `rotation`).
     width: u32,
     height: u32,
+    rotation: Rotation,
     /// Presentation times (seconds, the file's own clock), sorted.
     times: Vec<f64>,
     /// End of the last frame (seconds, file clock).
@@ -346,7 +353,7 @@ struct FileProbe {
 fn probe_file(path: &Path) -> Result<FileProbe, SourceError> {
     init_ffmpeg();
     let mut input = ffmpeg::format::input(&path).map_err(decode_err(path))?;
-    let (index, time_base, codec, width, height, rate) = {
+    let (index, time_base, codec, (width, height), rotation, rate) = {
         let stream = input
             .streams()
             .best(Type::Video)
@@ -360,12 +367,13 @@ fn probe_file(path: &Path) -> Result<FileProbe, SourceError> {
             ffmpeg::codec::context::Context::from_parameters(params).map_err(decode_err(path))?;
         let codec = ctx.id().name().to_string();
         let video = ctx.decoder().video().map_err(decode_err(path))?;
+        let rotation = Rotation::of_stream(&stream);
         (
             stream.index(),
             f64::from(stream.time_base()),
             codec,
-            video.width(),
-            video.height(),
+            rotation.turn_size((video.width(), video.height())),
+            rotation,
             stream.avg_frame_rate(),
         )
     };
@@ -416,6 +424,7 @@ fn probe_file(path: &Path) -> Result<FileProbe, SourceError> {
         codec,
         width,
         height,
+        rotation,
         times,
         end,
         audio,
@@ -527,6 +536,7 @@ pub fn probe_camera(
             codec: first.codec,
             width: first.width,
             height: first.height,
+            rotation: first.rotation,
             fps: 1.0 / interval,
             variable_frame_rate,
             frame_count: timestamps.len(),
@@ -588,6 +598,7 @@ fn probe_images(
             codec: first.codec,
             width: first.width,
             height: first.height,
+            rotation: Rotation::None,
             fps,
             variable_frame_rate: false,
             frame_count: timestamps.len(),

@@ -7,6 +7,7 @@ pub mod frames;
 pub mod ingest;
 pub mod media;
 pub mod record;
+pub mod rotation;
 pub mod sim;
 pub mod source;
 pub mod sync;

@@ -7,6 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::rotation::Rotation;
 use ffmpeg::format::Pixel;
 use ffmpeg::media::Type;
 use ffmpeg::software::scaling;
@@ -125,6 +126,8 @@ struct OpenChapter {
     time_base: f64,
     decoder: ffmpeg::decoder::Video,
     scaler: Option<Scaler>,
+    /// How the player turns this file's frames; they are delivered turned.
+    rotation: Rotation,
     eof_sent: bool,
     offset: f64,
 }
@@ -167,7 +170,9 @@ impl FileSource {
         };
         source.open_next()?;
         if let Some(c) = &source.current {
-            let native = (c.decoder.width(), c.decoder.height());
+            let native = c
+                .rotation
+                .turn_size((c.decoder.width(), c.decoder.height()));
             source.size = out_size.unwrap_or(native);
         }
         Ok(source)
@@ -203,6 +208,7 @@ impl FileSource {
             ..Default::default()
         });
         let decoder = ctx.decoder().video().map_err(decode_err(&path))?;
+        let rotation = Rotation::of_stream(&stream);
         self.current = Some(OpenChapter {
             path,
             input,
@@ -210,6 +216,7 @@ impl FileSource {
             time_base,
             decoder,
             scaler: None,
+            rotation,
             eof_sent: false,
             offset,
         });
@@ -221,7 +228,10 @@ impl FileSource {
         let Some(ch) = self.current.as_mut() else {
             return Ok(());
         };
-        let (w, h) = out_size.unwrap_or((decoded.width(), decoded.height()));
+        // Scaled to the requested (displayed) size as stored, then turned as displayed.
+        let stored = (decoded.width(), decoded.height());
+        let (w, h) = out_size.unwrap_or(ch.rotation.turn_size(stored));
+        let (sw, sh) = ch.rotation.turn_size((w, h));
         let pixel = match layout {
             PixelLayout::Rgb8 => Pixel::RGB24,
             PixelLayout::Gray8 => Pixel::GRAY8,
@@ -241,8 +251,8 @@ impl FileSource {
                     decoded.width(),
                     decoded.height(),
                     pixel,
-                    w,
-                    h,
+                    sw,
+                    sh,
                     scaling::Flags::AREA,
                 )
                 .map_err(decode_err(&ch.path))?,
@@ -254,12 +264,15 @@ impl FileSource {
                 .run(decoded, &mut out)
                 .map_err(decode_err(&ch.path))?;
         }
-        let row = w as usize * layout.channels();
+        let row = sw as usize * layout.channels();
         let stride = out.stride(0);
         let plane = out.data(0);
-        let mut data = Vec::with_capacity(row * h as usize);
-        for y in 0..h as usize {
+        let mut data = Vec::with_capacity(row * sh as usize);
+        for y in 0..sh as usize {
             data.extend_from_slice(&plane[y * stride..y * stride + row]);
+        }
+        if ch.rotation != Rotation::None {
+            data = ch.rotation.apply(&data, (sw, sh), layout.channels());
         }
         let pts = decoded.timestamp().or(decoded.pts()).unwrap_or(0);
         let timestamp = ch.offset + pts as f64 * ch.time_base;

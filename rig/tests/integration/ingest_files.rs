@@ -178,6 +178,93 @@ fn transport_streams_and_unnamed_containers_are_videos() {
     assert_eq!(files, [other.join("take")]);
 }
 
+/// A phone's display matrix (portrait, upside down) turns the frames as a player shows
+/// them: the size in `streams.json` is the displayed one, and every decoded frame equals
+/// what FFmpeg's own command line (which applies the matrix) decodes, at full size and
+/// resized.
+#[test]
+fn rotated_phone_videos_come_out_as_displayed() {
+    use rig::rotation::Rotation;
+    use rig::source::{CameraSource, PixelLayout};
+    if !ffmpeg_available() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    // Lossless 4:4:4, so the two decoders differ only by rounding.
+    let stored = dir.path().join("stored.mp4");
+    let s = stored.to_string_lossy().to_string();
+    ffmpeg(&[
+        "-f",
+        "lavfi",
+        "-i",
+        "testsrc2=size=96x48:rate=10",
+        "-t",
+        "0.5",
+        "-c:v",
+        "libx264",
+        "-qp",
+        "0",
+        "-pix_fmt",
+        "yuv444p",
+        &s,
+    ]);
+    // `rotate` is how FFmpeg writes a display matrix; a player turns the frame by the
+    // opposite angle (FFmpeg's convention, checked against its command line below).
+    for (tag, rotation) in [
+        ("90", Rotation::Clockwise270),
+        ("180", Rotation::Half),
+        ("270", Rotation::Clockwise90),
+    ] {
+        let cam = dir.path().join(format!("cam{tag}"));
+        std::fs::create_dir_all(&cam).unwrap();
+        let file = cam.join("phone.mp4");
+        let f = file.to_string_lossy().to_string();
+        let meta = format!("rotate={tag}");
+        ffmpeg(&["-i", &s, "-c", "copy", "-metadata:s:v:0", &meta, &f]);
+        let streams = ingest(
+            &[("cam0".into(), cam.clone())],
+            &IngestOptions::default(),
+            &NoProgress,
+        )
+        .unwrap();
+        let v = &streams.cameras[0].video;
+        assert_eq!(v.rotation, rotation, "rotate={tag}");
+        let displayed = rotation.turn_size((96, 48));
+        assert_eq!((v.width, v.height), displayed, "rotate={tag}");
+        for out_size in [None, Some((displayed.0 / 2, displayed.1 / 2))] {
+            let mut source = streams.cameras[0]
+                .open(PixelLayout::Rgb8, out_size)
+                .unwrap();
+            let frame = source.next_frame().unwrap().unwrap();
+            let (w, h) = out_size.unwrap_or(displayed);
+            assert_eq!((frame.width, frame.height), (w, h), "rotate={tag}");
+            let scale = format!("scale={w}:{h}:flags=area");
+            let out = std::process::Command::new("ffmpeg")
+                .args(["-v", "error", "-i", &f, "-frames:v", "1", "-vf", &scale])
+                .args(["-f", "rawvideo", "-pix_fmt", "rgb24", "-"])
+                .output()
+                .unwrap();
+            assert!(
+                out.status.success(),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            assert_eq!(out.stdout.len(), frame.data.len(), "rotate={tag}");
+            let mean_diff = frame
+                .data
+                .iter()
+                .zip(&out.stdout)
+                .map(|(a, b)| f64::from(a.abs_diff(*b)))
+                .sum::<f64>()
+                / frame.data.len() as f64;
+            assert!(
+                mean_diff < 3.0,
+                "rotate={tag}, size {w}×{h}: mean difference {mean_diff} from ffmpeg's frame"
+            );
+        }
+    }
+}
+
 #[test]
 fn variable_frame_rate_and_dropped_frames_keep_exact_timestamps() {
     if !ffmpeg_available() {
