@@ -156,6 +156,7 @@ mod tests {
                         .collect(),
                 })
                 .collect(),
+            warnings: Vec::new(),
         }
     }
 

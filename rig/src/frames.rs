@@ -56,6 +56,10 @@ pub struct FramesIndex {
     pub cameras: Vec<CameraImages>,
     /// Output frames in order.
     pub frames: Vec<AlignedFrame>,
+    /// What the user should know about the timeline: cameras that film together for only
+    /// part of their recordings, frames far from their nominal time.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
 }
 
 /// A camera's written images.
@@ -98,11 +102,15 @@ pub struct View {
 pub enum FramesError {
     /// The cameras' recordings do not overlap on the common timeline.
     #[error(
-        "the cameras do not overlap in time (latest start {start:.3} s, earliest end {end:.3} s); check sync.json offsets or trim less"
+        "the cameras never film at the same time: {last_start} starts at {start:.3} s (common timeline), after {first_end} has stopped at {end:.3} s; check the offsets in work/sync/sync.json (a wrong audio match, or [sync] manual_offsets), or [frames] start_s"
     )]
     NoOverlap {
-        /// Latest start.
+        /// The camera that starts last.
+        last_start: String,
+        /// Latest start (with `start_s`).
         start: f64,
+        /// The camera that ends first.
+        first_end: String,
         /// Earliest end.
         end: f64,
     },
@@ -214,10 +222,26 @@ pub fn plan(
         .unwrap_or(30.0);
     let first = |c: &crate::sync::CameraSync| c.timestamps[0];
     let last = |c: &crate::sync::CameraSync| c.timestamps[c.timestamps.len() - 1];
-    let start = sync.cameras.iter().map(first).fold(f64::MIN, f64::max) + config.start_s.max(0.0);
-    let end = sync.cameras.iter().map(last).fold(f64::MAX, f64::min);
+    let starter = sync
+        .cameras
+        .iter()
+        .max_by(|a, b| first(a).total_cmp(&first(b)));
+    let ender = sync
+        .cameras
+        .iter()
+        .min_by(|a, b| last(a).total_cmp(&last(b)));
+    let (Some(starter), Some(ender)) = (starter, ender) else {
+        return Err(FramesError::Mismatch("no cameras".into()));
+    };
+    let start = first(starter) + config.start_s.max(0.0);
+    let end = last(ender);
     if end < start {
-        return Err(FramesError::NoOverlap { start, end });
+        return Err(FramesError::NoOverlap {
+            last_start: starter.name.clone(),
+            start,
+            first_end: ender.name.clone(),
+            end,
+        });
     }
     let mut count = ((end - start) * fps + 1e-9).floor() as usize + 1;
     if let Some(m) = config.max_frames {
@@ -239,7 +263,7 @@ pub fn plan(
             }
         })
         .collect();
-    let frames = (0..count)
+    let frames: Vec<AlignedFrame> = (0..count)
         .map(|index| {
             let time_s = start + index as f64 / fps;
             let views = sync
@@ -262,12 +286,58 @@ pub fn plan(
             }
         })
         .collect();
+    let mut warnings = overlap_warnings(sync, (start, end), (&starter.name, &ender.name));
+    warnings.extend(residual_warnings(sync, &frames, fps));
     Ok(FramesIndex {
         fps,
         start_s: start,
         cameras,
         frames,
+        warnings,
     })
+}
+
+/// A camera whose recording the common span `(start, end)` cuts by more than a quarter
+/// (and a second): cameras started or stopped far apart.
+fn overlap_warnings(
+    sync: &SyncResult,
+    (start, end): (f64, f64),
+    (starter, ender): (&str, &str),
+) -> Vec<String> {
+    let span = end - start;
+    sync.cameras
+        .iter()
+        .filter_map(|c| {
+            let own = c.timestamps[c.timestamps.len() - 1] - c.timestamps[0];
+            (own - span > (0.25 * own).max(1.0)).then(|| {
+                format!(
+                    "{} films for {own:.1} s, but all cameras film together for only {span:.1} s ({starter} starts last, {ender} stops first): the rest of {} is left out; start and stop the cameras closer together, or check the offsets in sync.json",
+                    c.name, c.name
+                )
+            })
+        })
+        .collect()
+}
+
+/// A camera whose nearest frame is more than half an output frame from the output time
+/// for over a tenth of the frames (a variable frame rate well below the output rate, or
+/// dropped frames).
+fn residual_warnings(sync: &SyncResult, frames: &[AlignedFrame], fps: f64) -> Vec<String> {
+    let half = 0.5 / fps + 1e-6;
+    sync.cameras
+        .iter()
+        .enumerate()
+        .filter_map(|(c, cam)| {
+            let far = frames.iter().filter(|f| f.views[c].residual_s.abs() > half).count();
+            (far * 10 > frames.len()).then(|| {
+                format!(
+                    "{}: {far} of {} output frames use a frame more than half a frame from their time (a variable frame rate below {fps:.2} fps, or dropped frames); training uses each frame's own timestamp, but motion there is sampled coarser — set [frames] fps lower to match",
+                    cam.name,
+                    frames.len()
+                )
+            })
+        })
+        .collect()
 }
 
 /// Plans the timeline, decodes every camera and writes `out_dir/<camera>/NNNNNN.png` and

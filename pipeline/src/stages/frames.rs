@@ -27,6 +27,9 @@ pub fn run(
         index.frames.len(),
         index.fps
     );
+    for w in &index.warnings {
+        tracing::warn!("{w}");
+    }
     if !heldout.is_empty() {
         let (train, held) = split_frames(&index, heldout)?;
         train.write_json(&ctx.output("frames.json"))?;
