@@ -1,9 +1,5 @@
-//! The decay's settings and what it shares with a trainer: the `[decay]` section
-//! ([`DecayConfig`] and its enums), the per-step statistics, and [`DeviceDecay`], the state a
-//! device trainer borrows. It depends on nothing of the trainer, so the trainer can name
-//! these types without a module cycle.
+//! The decay's settings: the `[decay]` section ([`DecayConfig`] and its enums).
 
-use super::mlp::{Mlp, MlpAdam};
 use serde::{Deserialize, Serialize};
 
 /// Which decay runs.
@@ -184,31 +180,4 @@ impl DecayConfig {
             ("neural (paper inputs)".into(), with(Neural, Frustum, Paper)),
         ]
     }
-}
-
-/// What the decay did in the last step (for logs and tests).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct StepStats {
-    /// 1-based optimiser step.
-    pub iteration: u64,
-    /// Gaussians visible in at least one view of the batch, and the rest.
-    pub visible: usize,
-    pub invisible: usize,
-    /// Smallest, mean and largest factor applied to the stored opacities.
-    pub min_factor: f64,
-    pub mean_factor: f64,
-    pub max_factor: f64,
-}
-
-/// The neural decay's settings and f_θ's state, lent to a trainer that runs the decay on
-/// its device ([`crate::train::TrainHooks::device_decay`]) instead of calling `opacity_factor`,
-/// `factor_gradient` and `after_step` for it. The trainer keeps f_θ and its moments on the
-/// device and writes them back here at its host syncs (checkpoints, a stop, the end), and
-/// reports every decayed step in `last` and `skipped_updates`.
-pub struct DeviceDecay<'a> {
-    pub config: &'a DecayConfig,
-    pub mlp: &'a mut Mlp<f32>,
-    pub adam: &'a mut MlpAdam,
-    pub last: &'a mut Option<StepStats>,
-    pub skipped_updates: &'a mut u64,
 }

@@ -16,25 +16,23 @@
 //! The other variants only multiply the stored opacity after each step (`constant`: c;
 //! `pow`/`exp`: hand-tuned functions of o, see [`variants`]); with visibility on,
 //! invisible Gaussians get β instead. Nothing here runs at evaluation/render time.
-//! On the GPU backend the neural variant runs on the device (`render::gpu::GpuDecay`,
-//! lent through [`TrainHooks::device_decay`] as a [`DeviceDecay`]).
+//! On the GPU backend the neural variant runs on the device ([`gpu::GpuDecay`], lent
+//! through [`TrainHooks::device_decay`] as a [`DeviceDecay`]).
 //! Full description: docs/decay.md.
 
 pub mod config;
+pub mod gpu;
 pub mod inputs;
 pub mod mlp;
 pub mod report;
 pub mod variants;
 pub mod visibility;
 
-pub use config::{
-    DecayConfig, DecayConfigError, DecayInputs, DecayVariant, DeviceDecay, StepStats,
-    VisibilityMode,
-};
+pub use config::{DecayConfig, DecayConfigError, DecayInputs, DecayVariant, VisibilityMode};
 
 use crate::math::numerics::sigmoid;
 use crate::model::Gaussians;
-use crate::train::{ModelAccess, TrainHooks, View};
+use crate::train::{DeviceDecay, ModelAccess, StepStats, TrainHooks, View};
 use mlp::{Mlp, MlpAdam, MlpCache};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -15,14 +15,15 @@
 //! (32 more bytes read back: the step's statistics, reported to the hooks), and f_θ's
 //! state returns to the hooks at the host syncs.
 
-use crate::decay::config::StepStats;
+use crate::decay::gpu::GpuDecay;
 use crate::model::Gaussians;
 use crate::render::RenderError;
-use crate::render::gpu::{GpuAdam, GpuBackend, GpuDecay, GpuImage, GpuStats, TrainView};
+use crate::render::gpu::GpuBackend;
 use crate::train::densify::DensifyStats;
+use crate::train::gpu::{GpuAdam, GpuImage, GpuStats, GpuTraining, TrainView};
 use crate::train::optim::{Adam, GroupRates};
 use crate::train::step::{BatchLoss, Stepper};
-use crate::train::{Dataset, TrainConfig, TrainError, TrainHooks};
+use crate::train::{Dataset, StepStats, TrainConfig, TrainError, TrainHooks};
 
 /// The whole iteration on the GPU with the training state resident there.
 pub(crate) struct DeviceStep<'a> {

@@ -11,6 +11,7 @@ pub mod checkpoint;
 pub mod dataset;
 pub mod densify;
 mod device_step;
+pub mod gpu;
 pub mod log;
 pub mod loss;
 pub mod optim;
@@ -22,10 +23,12 @@ pub use background::Background;
 pub use dataset::{Dataset, FrameSource, ImageLoadError, ImageU8, View};
 pub use step::ModelAccess;
 
+use crate::decay::config::DecayConfig;
+use crate::decay::gpu::GpuDecay;
+use crate::decay::mlp::{Mlp, MlpAdam};
 use crate::metrics::{mse, psnr_from_mse};
 use crate::model::init::{InitOptions, SeedError, gaussians_from_points};
 use crate::model::{ColourDegrees, Gaussians};
-use crate::render::gpu::GpuDecay;
 use crate::render::{RenderBackend, RenderError, RenderOptions};
 use crate::train::densify::{DensifyConfig, DensifyStats, densify_and_prune, reset_opacity};
 use crate::train::device_step::DeviceStep;
@@ -233,11 +236,11 @@ pub trait TrainHooks {
     /// The 4C4D neural decay's settings and f_θ's state, when these hooks are that decay
     /// and a trainer may run it on its device. The GPU trainer then runs the decay's
     /// whole step on the device (τ, visibility, factor gradient, f_θ's Adam, the
-    /// write-back; see `render::gpu::GpuDecay`) and calls neither `opacity_factor` nor
+    /// write-back; see `decay::gpu::GpuDecay`) and calls neither `opacity_factor` nor
     /// `factor_gradient`; `after_step` still comes, with the host model as of the last sync
     /// (the decay then has nothing to do in it). f_θ's state comes back at host syncs, so
     /// `save_state` sees it current. Other trainers ignore this and use the methods above.
-    fn device_decay(&mut self) -> Option<crate::decay::config::DeviceDecay<'_>> {
+    fn device_decay(&mut self) -> Option<DeviceDecay<'_>> {
         None
     }
 }
@@ -249,6 +252,36 @@ impl TrainHooks for NoHooks {
     fn model_access(&self) -> ModelAccess {
         ModelAccess::None
     }
+}
+
+/// The neural decay's settings and f_θ's state, lent to a trainer that runs the decay on
+/// its device ([`TrainHooks::device_decay`]) instead of calling `opacity_factor`,
+/// `factor_gradient` and `after_step` for it. The trainer keeps f_θ and its moments on the
+/// device and writes them back here at its host syncs (checkpoints, a stop, the end), and
+/// reports every decayed step in `last` and `skipped_updates`. It belongs to the hooks'
+/// seam, like [`TrainHooks`]: the decay (`decay::DecayHooks`) lends it, the trainer's
+/// device step (`device_step`, with `decay::gpu::GpuDecay`) uses it.
+pub struct DeviceDecay<'a> {
+    pub config: &'a DecayConfig,
+    pub mlp: &'a mut Mlp<f32>,
+    pub adam: &'a mut MlpAdam,
+    pub last: &'a mut Option<StepStats>,
+    pub skipped_updates: &'a mut u64,
+}
+
+/// What the decay did in the last step (for logs and tests): recorded by the decay's host
+/// hooks, or by the trainer's device step through [`DeviceDecay::last`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepStats {
+    /// 1-based optimiser step.
+    pub iteration: u64,
+    /// Gaussians visible in at least one view of the batch, and the rest.
+    pub visible: usize,
+    pub invisible: usize,
+    /// Smallest, mean and largest factor applied to the stored opacities.
+    pub min_factor: f64,
+    pub mean_factor: f64,
+    pub max_factor: f64,
 }
 
 /// Outcome of a finished run.

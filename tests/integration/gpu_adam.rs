@@ -12,7 +12,8 @@ use crate::common;
 
 use common::{Rng, SceneSpec, random_scene};
 use splat4d::render::RenderError;
-use splat4d::render::gpu::{GpuAdam, GpuBackend};
+use splat4d::render::gpu::GpuBackend;
+use splat4d::train::gpu::GpuAdam;
 use splat4d::train::optim::{Adam, LearningRates, ParamBuffers};
 use splat4d::{Gaussians, Gradients};
 

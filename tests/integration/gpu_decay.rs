@@ -1,4 +1,4 @@
-//! The neural decay's f_θ on the device (`render::gpu::GpuDecay`) against the host's
+//! The neural decay's f_θ on the device (`decay::gpu::GpuDecay`) against the host's
 //! `Mlp` in f64: τ of every Gaussian and the weight gradient dL/dθ from dL/dτ, for both
 //! input layouts, several workgroups and a partial last one; and the hard cases (zero
 //! upstream, huge inputs, τ saturated at the ends of its range). Runs on lavapipe; without
@@ -8,11 +8,12 @@ use crate::common;
 
 use common::{Rng, SceneSpec, random_scene};
 use splat4d::Gaussians;
+use splat4d::decay::gpu::GpuDecay;
 use splat4d::decay::inputs::input_rows;
 use splat4d::decay::mlp::{Mlp, MlpAdam};
 use splat4d::decay::variants::decayed_logit;
 use splat4d::decay::{DecayConfig, DecayInputs};
-use splat4d::render::gpu::{GpuBackend, GpuDecay};
+use splat4d::render::gpu::GpuBackend;
 
 fn gpu() -> Option<&'static GpuBackend> {
     common::gpu("GPU neural decay test")

@@ -8,12 +8,12 @@
 use crate::common;
 use crate::train_scene;
 
-use splat4d::decay::{DecayConfig, DecayHooks, DeviceDecay, StepStats};
+use splat4d::decay::{DecayConfig, DecayHooks};
 use splat4d::render::RenderBackend;
 use splat4d::render::gpu::GpuBackend;
 use splat4d::train::{
-    Dataset, ModelAccess, NoHooks, TrainConfig, TrainError, TrainHooks, TrainSummary, View,
-    evaluate_psnr, train,
+    Dataset, DeviceDecay, ModelAccess, NoHooks, StepStats, TrainConfig, TrainError, TrainHooks,
+    TrainSummary, View, evaluate_psnr, train,
 };
 use splat4d::{CpuBackend, Gaussians, NoProgress, load_model};
 use std::path::Path;

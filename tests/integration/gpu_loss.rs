@@ -24,6 +24,7 @@ use crate::common;
 use common::Rng;
 use splat4d::render::RenderError;
 use splat4d::render::gpu::GpuBackend;
+use splat4d::train::gpu::GpuTraining;
 use splat4d::train::loss::{LossValue, image_loss};
 
 /// Largest accepted gradient error, relative to the gradient's scale.

@@ -53,7 +53,7 @@ impl TrainHooks for StageHooks<'_> {
     fn model_access(&self) -> ModelAccess {
         self.inner.model_access()
     }
-    fn device_decay(&mut self) -> Option<splat4d::decay::DeviceDecay<'_>> {
+    fn device_decay(&mut self) -> Option<splat4d::train::DeviceDecay<'_>> {
         self.inner.device_decay()
     }
 }

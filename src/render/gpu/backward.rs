@@ -10,8 +10,8 @@
 //! floats anywhere, so the result is the same on every run, and it adds the per-tile
 //! terms in the order the CPU backward does.
 
-use super::kernels::{storage, storage_init};
-use super::{GpuBackend, GpuFrame, read_buffer};
+use super::compute::{read_buffer, storage, storage_init};
+use super::{GpuBackend, GpuFrame};
 use crate::model::Gaussians;
 use crate::render::{Gradients, ImageGradients, RenderError, Rendered, check_backward_inputs};
 use std::sync::Arc;
@@ -19,7 +19,7 @@ use std::sync::Arc;
 /// Bytes of one (tile, Gaussian) gradient record: three vec4 (`partials` in the shaders).
 const PARTIAL_BYTES: u64 = 48;
 /// Floats of one Gaussian's non-colour gradients (five vec4, like the uploaded params).
-pub(super) const PARAM_FLOATS: usize = 20;
+pub(crate) const PARAM_FLOATS: usize = 20;
 
 /// [`crate::render::RenderBackend::backward`] of the GPU backend.
 pub(super) fn backward(
@@ -109,7 +109,7 @@ fn run(
 
 /// Record both kernels of `state`'s backward from `upstream` (RGB, alpha and depth planes
 /// of the image gradient) into `out_params` (five vec4 per Gaussian) and `out_colours`.
-pub(super) fn encode(
+pub(crate) fn encode(
     backend: &GpuBackend,
     state: &GpuFrame,
     upstream: &wgpu::Buffer,

@@ -1,7 +1,9 @@
 //! Finding a GPU: a wgpu device on a hardware adapter (or, only when asked, a software
-//! one such as Mesa's lavapipe, which is slower than the CPU engine and serves for tests).
+//! one such as Mesa's lavapipe, which is slower than the CPU engine and serves for tests),
+//! and the pipelines other owners build for it ([`Gpu::pipelines`]).
 
-use std::sync::Arc;
+use std::any::Any;
+use std::sync::{Arc, Mutex, PoisonError};
 
 /// Which adapters may be used.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -43,6 +45,9 @@ pub struct Gpu {
     pub queue: wgpu::Queue,
     pub info: wgpu::AdapterInfo,
     pub limits: wgpu::Limits,
+    /// Pipelines built for this device by owners other than the renderer, one set per
+    /// type ([`Gpu::pipelines`]).
+    pipelines: Mutex<Vec<Arc<dyn Any + Send + Sync>>>,
 }
 
 impl Gpu {
@@ -89,7 +94,27 @@ impl Gpu {
             queue,
             info,
             limits,
+            pipelines: Mutex::new(Vec::new()),
         }))
+    }
+
+    /// The pipelines of type `T` for this device: built by `build` on the first call,
+    /// shared afterwards. The trainer's and the decay's kernels are built this way, by
+    /// their owners, once per device.
+    pub fn pipelines<T: Any + Send + Sync>(
+        &self,
+        build: impl FnOnce(&wgpu::Device) -> T,
+    ) -> Arc<T> {
+        let mut built = self
+            .pipelines
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        if let Some(found) = built.iter().find_map(|p| p.clone().downcast::<T>().ok()) {
+            return found;
+        }
+        let new = Arc::new(build(&self.device));
+        built.push(new.clone());
+        new
     }
 
     /// The adapter in words, e.g. `NVIDIA H100 (Vulkan, DiscreteGpu)`.

@@ -16,30 +16,25 @@
 //! `preprocess_backward` per Gaussian (colour, projection and slicing backward). The
 //! gradients are of the model as uploaded by the render.
 //!
-//! For a training step on the device: [`GpuBackend::image_loss`] (the L1 + D-SSIM loss and
-//! its image gradient, [`loss`]) and [`GpuAdam`] (Adam with the model and its moments
-//! resident, [`adam`]), chained with render and backward into one iteration by
-//! [`GpuAdam::train_step`] ([`step`]), which can also gather the densification statistics
-//! on the device ([`GpuStats`]) and run the 4C4D neural decay there ([`GpuDecay`]: f_θ
-//! forward, visibility, factor gradient, f_θ's Adam and the opacity write-back;
-//! [`GpuAdam::train_step_decayed`]). `train::train` runs its iterations this way when given
-//! this backend (see `train::device_step`).
+//! This module renders and differentiates, nothing else: forward, backward, scan and sort,
+//! the device ([`device`]) and the kernel toolkit ([`compute`]) every owner of WGSL
+//! kernels builds with. It imports nothing of the trainer or the decay. The training step
+//! on the device (loss, Adam, densification statistics) is `train::gpu`, the neural
+//! decay's device side `decay::gpu`; each builds its own pipelines. What they use of the
+//! renderer is `pub(crate)`: the device and its error scope and read-back
+//! (`GpuBackend::checked`, `GpuBackend::read_back`), the model's upload layout
+//! (`pack_params`, `ModelBuffers`), rendering a model already on the device without
+//! reading its images back (`GpuBackend::render_uploaded`), and a frame's device buffers
+//! and backward (`GpuFrame`, `encode_backward`).
 
-mod adam;
 mod backward;
-mod decay;
+pub mod compute;
 mod device;
 mod kernels;
-mod loss;
 mod sort;
-mod stats;
-mod step;
 
-pub use adam::GpuAdam;
-pub use decay::{DecayOutcome, GpuDecay};
+pub(crate) use backward::{PARAM_FLOATS, encode as encode_backward};
 pub use device::{AdapterPolicy, Gpu, GpuError};
-pub use stats::GpuStats;
-pub use step::{GpuImage, StepResult, TrainView};
 
 use super::{
     Gradients, ImageGradients, RenderBackend, RenderError, RenderStats, Rendered, ViewRequest,
@@ -47,7 +42,8 @@ use super::{
 };
 use crate::math::project::PinholeCamera;
 use crate::model::Gaussians;
-use kernels::{Kernels, storage, storage_init, uniform};
+use compute::{read_buffer, storage, storage_init, uniform};
+use kernels::Kernels;
 use sort::{Scan, SortBuffers, encode_sort};
 use std::sync::Arc;
 
@@ -58,41 +54,41 @@ const SPLAT_BYTES: u64 = 64;
 
 /// The GPU backend: an open device and the compiled kernels.
 pub struct GpuBackend {
-    gpu: Arc<Gpu>,
+    pub(crate) gpu: Arc<Gpu>,
     kernels: Kernels,
 }
 
 /// The model as uploaded for one batch, shared by its frames.
-struct ModelBuffers {
+pub(crate) struct ModelBuffers {
     /// Five vec4 per Gaussian (`params` in `shaders/preprocess.wgsl`).
-    params: wgpu::Buffer,
-    colours: wgpu::Buffer,
+    pub(crate) params: wgpu::Buffer,
+    pub(crate) colours: wgpu::Buffer,
     /// Ones, bound where a view has no opacity factor.
-    ones: wgpu::Buffer,
-    count: usize,
-    colour_len: usize,
+    pub(crate) ones: wgpu::Buffer,
+    pub(crate) count: usize,
+    pub(crate) colour_len: usize,
 }
 
 /// What a GPU frame keeps on the device for its backward pass: the forward's projected
 /// splats, tile counts and their scan, the sorted entries, tile ranges and per-pixel
 /// final transmittance / last contributor, so the backward neither re-projects for the
 /// sort nor sorts again.
-struct GpuFrame {
+pub(crate) struct GpuFrame {
     /// The device that holds these buffers.
     gpu: Arc<Gpu>,
     model: Arc<ModelBuffers>,
     uniform: ViewUniform,
     view: wgpu::Buffer,
     factor: Option<wgpu::Buffer>,
-    buffers: ViewBuffers,
+    pub(crate) buffers: ViewBuffers,
     /// (tile, splat) entries of this view.
     pairs: u32,
 }
 
 /// Per-view device buffers the forward fills and the backward reads.
-struct ViewBuffers {
+pub(crate) struct ViewBuffers {
     /// The rendered image (interleaved RGB), for a loss on the device.
-    rgb: wgpu::Buffer,
+    pub(crate) rgb: wgpu::Buffer,
     /// One `Splat` per Gaussian.
     splats: wgpu::Buffer,
     /// Tiles touched per Gaussian (0 when culled).
@@ -106,36 +102,36 @@ struct ViewBuffers {
     /// Per pixel: final transmittance bits and last contributing entry + 1.
     pixels: wgpu::Buffer,
     /// Screen radius per Gaussian (0 when culled), for densification statistics.
-    radii: wgpu::Buffer,
+    pub(crate) radii: wgpu::Buffer,
 }
 
 /// The per-view constants (`View` in `shaders/common.wgsl`).
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct ViewUniform {
-    rot: [[f32; 4]; 3],
-    trans: [f32; 4],
+pub(crate) struct ViewUniform {
+    pub(crate) rot: [[f32; 4]; 3],
+    pub(crate) trans: [f32; 4],
     centre: [f32; 4],
-    focal: [f32; 4],
+    pub(crate) focal: [f32; 4],
     background: [f32; 4],
-    width: u32,
-    height: u32,
+    pub(crate) width: u32,
+    pub(crate) height: u32,
     tiles_x: u32,
     tiles_y: u32,
     count: u32,
     ns_active: u32,
     nt_active: u32,
     ns_capacity: u32,
-    t: f32,
+    pub(crate) t: f32,
     period: f32,
     near: f32,
     colour_stride: u32,
 }
 
 /// One view, checked and ready to encode.
-struct Prepared {
-    uniform: ViewUniform,
-    factor: Option<wgpu::Buffer>,
+pub(crate) struct Prepared {
+    pub(crate) uniform: ViewUniform,
+    pub(crate) factor: Option<wgpu::Buffer>,
 }
 
 impl GpuBackend {
@@ -166,8 +162,8 @@ impl GpuBackend {
         self.gpu.info.device_type == wgpu::DeviceType::Cpu
     }
 
-    /// Wait until the device has finished all submitted work (e.g. [`GpuAdam::step`],
-    /// which returns once its work is submitted).
+    /// Wait until the device has finished all submitted work (e.g. a training step's,
+    /// `train::gpu::GpuAdam::step`, which returns once its work is submitted).
     pub fn wait(&self) -> Result<(), RenderError> {
         self.gpu
             .device
@@ -181,7 +177,7 @@ impl GpuBackend {
         self.gpu.limits.max_storage_buffer_binding_size
     }
 
-    fn too_large(&self, what: &str, bytes: u64) -> Result<(), RenderError> {
+    pub(crate) fn too_large(&self, what: &str, bytes: u64) -> Result<(), RenderError> {
         let limit = self.max_binding();
         if bytes > limit {
             return Err(RenderError::Gpu(format!(
@@ -195,7 +191,10 @@ impl GpuBackend {
 
     /// Run `f` inside a validation error scope; a wgpu validation error becomes a
     /// [`RenderError::Gpu`] instead of a panic.
-    fn checked<T>(&self, f: impl FnOnce() -> Result<T, RenderError>) -> Result<T, RenderError> {
+    pub(crate) fn checked<T>(
+        &self,
+        f: impl FnOnce() -> Result<T, RenderError>,
+    ) -> Result<T, RenderError> {
         let scope = self
             .gpu
             .device
@@ -208,7 +207,7 @@ impl GpuBackend {
     }
 
     /// Submit `encoder` and read `bytes` of `staging` back as `u32` words.
-    fn read_back(
+    pub(crate) fn read_back(
         &self,
         encoder: wgpu::CommandEncoder,
         staging: &wgpu::Buffer,
@@ -240,7 +239,7 @@ impl GpuBackend {
         Ok(words)
     }
 
-    fn prepare(
+    pub(crate) fn prepare(
         &self,
         model: &Gaussians<f32>,
         view: &ViewRequest<'_>,
@@ -373,7 +372,7 @@ impl GpuBackend {
     /// Render `views` of a model already on the device. Without `read_images` the frames'
     /// images and radii stay on the device (their host vectors are empty): a training step
     /// reads only its loss.
-    fn render_uploaded(
+    pub(crate) fn render_uploaded(
         &self,
         uploaded: Arc<ModelBuffers>,
         views: &[ViewRequest<'_>],
@@ -642,7 +641,7 @@ impl GpuBackend {
 
 /// The model's non-colour parameters as uploaded: five vec4 per Gaussian (mean,
 /// log-scales, left and right rotation, opacity logit and padding).
-fn pack_params(model: &Gaussians<f32>) -> Vec<[f32; 4]> {
+pub(crate) fn pack_params(model: &Gaussians<f32>) -> Vec<[f32; 4]> {
     let n = model.len();
     let mut params: Vec<[f32; 4]> = Vec::with_capacity(5 * n);
     for i in 0..n {
@@ -655,14 +654,4 @@ fn pack_params(model: &Gaussians<f32>) -> Vec<[f32; 4]> {
         ]);
     }
     params
-}
-
-/// A buffer the host can map and read, of at least 4 bytes.
-fn read_buffer(device: &wgpu::Device, bytes: u64) -> wgpu::Buffer {
-    device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("read-back"),
-        size: bytes.max(4),
-        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    })
 }

@@ -1,5 +1,7 @@
-// Shared by every kernel of the GPU renderer: the per-view constants, the projected splat
-// record, and the 1D index of a (possibly 2D) dispatch of 256-wide workgroups.
+// Shared by every WGSL kernel (the renderer's, the training step's in src/train/gpu and the
+// decay's in src/decay/gpu; `render::gpu::compute::shader` prepends it): the per-view
+// constants, the projected splat record, and the 1D index of a (possibly 2D) dispatch of
+// 256-wide workgroups.
 
 const WG: u32 = 256u;
 const TILE: u32 = 16u;

@@ -1,5 +1,6 @@
-// Per-Gaussian constants and guards shared by `preprocess` and `preprocess_backward`, as
-// in src/math/numerics.rs and the stage modules of src/math.
+// Per-Gaussian constants and guards shared by `preprocess`, `preprocess_backward` and the
+// decay's kernels (src/decay/gpu/shaders), as in src/math/numerics.rs and the stage modules
+// of src/math.
 
 const TEMPORAL_CUTOFF: f32 = 0.05;
 const MIN_TIME_VARIANCE: f32 = 1e-30;

@@ -9,13 +9,13 @@
 //! host, see `train::device_step`).
 
 use super::adam::GpuAdam;
-use super::decay::{DecayOutcome, GpuDecay, RESULT_BYTES};
-use super::kernels::{storage, storage_init, uniform};
 use super::loss::{LossPass, pack_bytes, unpack};
 use super::stats::GpuStats;
-use super::{GpuBackend, GpuFrame, ModelBuffers, read_buffer};
 use crate::Camera;
+use crate::decay::gpu::{DecayOutcome, GpuDecay, RESULT_BYTES};
 use crate::model::Gaussians;
+use crate::render::gpu::compute::{read_buffer, storage, storage_init, uniform};
+use crate::render::gpu::{GpuBackend, GpuFrame, ModelBuffers, PARAM_FLOATS, encode_backward};
 use crate::render::{RenderError, RenderOptions, Rendered, ViewRequest};
 use crate::train::dataset::ImageU8;
 use crate::train::loss::LossValue;
@@ -35,7 +35,7 @@ pub struct TrainView<'a> {
     pub camera: &'a Camera,
     /// Model time of the view.
     pub t: f32,
-    /// The view's image, uploaded with [`GpuBackend::upload_image`].
+    /// The view's image, uploaded with [`GpuTraining::upload_image`](super::GpuTraining).
     pub target: &'a GpuImage,
 }
 
@@ -47,26 +47,24 @@ pub struct StepResult {
     pub decay: Option<DecayOutcome>,
 }
 
-impl GpuBackend {
-    /// Upload a training image once (as bytes).
-    pub fn upload_image(&self, image: &ImageU8) -> Result<GpuImage, RenderError> {
-        let expected = 3 * image.width as u64 * image.height as u64;
-        if image.data.len() as u64 != expected {
-            return Err(RenderError::ImageLength {
-                what: "training image",
-                expected,
-                got: image.data.len(),
-            });
-        }
-        self.too_large("the training image", image.data.len() as u64)?;
-        self.checked(|| {
-            Ok(GpuImage {
-                packed: storage_init(&self.gpu.device, &pack_bytes(&image.data), "target"),
-                width: image.width,
-                height: image.height,
-            })
-        })
+/// Upload a training image once (as bytes): [`GpuTraining::upload_image`](super::GpuTraining).
+pub(super) fn upload_image(backend: &GpuBackend, image: &ImageU8) -> Result<GpuImage, RenderError> {
+    let expected = 3 * image.width as u64 * image.height as u64;
+    if image.data.len() as u64 != expected {
+        return Err(RenderError::ImageLength {
+            what: "training image",
+            expected,
+            got: image.data.len(),
+        });
     }
+    backend.too_large("the training image", image.data.len() as u64)?;
+    backend.checked(|| {
+        Ok(GpuImage {
+            packed: storage_init(&backend.gpu.device, &pack_bytes(&image.data), "target"),
+            width: image.width,
+            height: image.height,
+        })
+    })
 }
 
 impl GpuAdam {
@@ -215,13 +213,13 @@ impl GpuAdam {
         decay: Option<&GpuDecay>,
     ) -> Result<(Vec<LossValue>, Vec<u32>), RenderError> {
         let device = &backend.gpu.device;
-        let k = &backend.kernels;
+        let k = &self.kernels;
         let scale = 1.0 / views.len() as f32;
         let loss_bytes = 16 * views.len() as u64;
         let decay_bytes = if decay.is_some() { RESULT_BYTES } else { 0 };
         let staging = read_buffer(device, loss_bytes + decay_bytes);
         let mut enc = device.create_command_encoder(&Default::default());
-        let param_words = (super::backward::PARAM_FLOATS * self.count) as u32;
+        let param_words = (PARAM_FLOATS * self.count) as u32;
         let colour_words = self.colour_len as u32;
         // Later views' gradients, added into the batch's.
         let part_params = storage(device, 4 * param_words as u64, "view gradients");
@@ -261,7 +259,7 @@ impl GpuAdam {
             // Culled Gaussians get no record: start from zeros.
             enc.clear_buffer(out_params, 0, None);
             enc.clear_buffer(out_colours, 0, None);
-            super::backward::encode(backend, state, &upstream, out_params, out_colours, &mut enc);
+            encode_backward(backend, state, &upstream, out_params, out_colours, &mut enc);
             if let Some(d) = decay {
                 d.encode_gather(backend, &mut enc, v, &self.params.params, out_params);
             }
@@ -287,7 +285,7 @@ impl GpuAdam {
             // f_θ's step reads the pre-step model: before the Gaussians' Adam.
             d.encode_mlp_step(backend, &mut enc, &self.params.params);
         }
-        self.encode_step(backend, rates, &mut enc);
+        self.encode_step(rates, &mut enc);
         if let Some(d) = decay {
             d.encode_apply(backend, &mut enc, &self.params.params, &staging, loss_bytes);
         }

@@ -1,6 +1,7 @@
 //! The 4C4D neural decay on the device (`shaders/decay_mlp.wgsl`, `decay_view.wgsl`,
-//! `decay_apply.wgsl`), for the trainer's GPU step: f_θ's weights and Adam moments stay
-//! resident, and a step adds to [`GpuAdam::train_step_decayed`](super::GpuAdam)'s
+//! `decay_apply.wgsl`, pipelines in [`kernels`]), for the trainer's GPU step: f_θ's
+//! weights and Adam moments stay resident, and a step adds to
+//! [`GpuAdam::train_step_decayed`](crate::train::gpu::GpuAdam::train_step_decayed)'s
 //! submissions:
 //!
 //! 1. before the render: the inputs' z-scoring statistics (two-pass, workgroup trees then
@@ -16,13 +17,20 @@
 //!
 //! Per step 32 bytes come back (statistics and the skipped flag). The host's f_θ and its
 //! Adam state are brought up to date by [`GpuDecay::download`] at host syncs.
+//!
+//! It renders nothing and trains no Gaussian: the trainer's step (`train::gpu`) calls it
+//! between its own passes. It builds its own pipelines with the renderer's toolkit
+//! (`render::gpu::compute`) and names nothing of the trainer.
 
-use super::kernels::{Kernel, WG, storage, storage_init, uniform};
-use super::{Gpu, GpuBackend, ViewUniform, pack_params, read_buffer};
+mod kernels;
+
 use crate::decay::config::{DecayConfig, DecayInputs, DecayVariant, VisibilityMode};
 use crate::decay::mlp::{Mlp, MlpAdam};
 use crate::model::Gaussians;
 use crate::render::RenderError;
+use crate::render::gpu::compute::{Kernel, WG, read_buffer, storage, storage_init, uniform};
+use crate::render::gpu::{Gpu, GpuBackend, ViewUniform, pack_params};
+use kernels::DecayKernels;
 use std::sync::Arc;
 
 /// Widest layer the kernels hold (inputs included).
@@ -35,7 +43,7 @@ const MAX_PARAMS: usize = 3072;
 /// chunk's two kernels: at most 65536 × (inputs + hidden + deltas) floats, 36 MB by default).
 const CHUNK_ROWS: usize = 65536;
 /// Bytes of the per-step result: statistics (4 words), the skipped flag and padding.
-pub(super) const RESULT_BYTES: u64 = 32;
+pub(crate) const RESULT_BYTES: u64 = 32;
 
 /// `MlpParams` in `shaders/decay_mlp.wgsl`.
 #[repr(C)]
@@ -132,6 +140,8 @@ struct Scratch {
 /// f_θ and its Adam state resident on the GPU.
 pub struct GpuDecay {
     gpu: Arc<Gpu>,
+    /// The decay's pipelines on this device.
+    kernels: Arc<DecayKernels>,
     config: DecayConfig,
     dims: Vec<usize>,
     n_params: usize,
@@ -180,11 +190,13 @@ impl GpuDecay {
                 adam.v.len()
             )));
         }
+        let kernels = DecayKernels::of(backend);
         backend.checked(|| {
             let mut moments = adam.m.clone();
             moments.extend_from_slice(&adam.v);
             Ok(Self {
                 gpu: backend.gpu.clone(),
+                kernels,
                 config: config.clone(),
                 dims,
                 n_params: n,
@@ -478,7 +490,7 @@ impl GpuDecay {
         enc: &mut wgpu::CommandEncoder,
         params: &wgpu::Buffer,
     ) {
-        let k = &backend.kernels;
+        let k = &self.kernels;
         let Some(s) = self.scratch.as_ref() else {
             return;
         };
@@ -508,7 +520,7 @@ impl GpuDecay {
         params: &wgpu::Buffer,
         step: bool,
     ) {
-        let k = &backend.kernels;
+        let k = &self.kernels;
         let Some(s) = self.scratch.as_ref() else {
             return;
         };
@@ -540,7 +552,7 @@ impl GpuDecay {
     /// Before a decayed step's render: the inputs' statistics, τ, and per view (`views`,
     /// the renderer's view constants) visibility, factor and "seen". Submitted at once;
     /// returns the views' factor buffers to render with.
-    pub(super) fn begin_step(
+    pub(crate) fn begin_step(
         &mut self,
         backend: &GpuBackend,
         params: &wgpu::Buffer,
@@ -549,7 +561,7 @@ impl GpuDecay {
     ) -> Result<Vec<wgpu::Buffer>, RenderError> {
         self.same_device(backend)?;
         let device = &backend.gpu.device;
-        let k = &backend.kernels;
+        let k = self.kernels.clone();
         let mode = match self.config.visibility {
             VisibilityMode::Off => 0,
             VisibilityMode::NearPlane => 1,
@@ -604,7 +616,7 @@ impl GpuDecay {
     }
 
     /// After view `v`'s backward into `view_grads`: add its dL/dτ where it was visible.
-    pub(super) fn encode_gather(
+    pub(crate) fn encode_gather(
         &self,
         backend: &GpuBackend,
         enc: &mut wgpu::CommandEncoder,
@@ -619,7 +631,7 @@ impl GpuDecay {
             return;
         };
         let device = &backend.gpu.device;
-        let k = &backend.kernels;
+        let k = &self.kernels;
         let u = uniform(
             device,
             &ViewDecayUniform {
@@ -647,7 +659,7 @@ impl GpuDecay {
 
     /// After the last view's gather and before the Gaussians' Adam: f_θ's gradient and
     /// Adam step (on the pre-step model in `params`).
-    pub(super) fn encode_mlp_step(
+    pub(crate) fn encode_mlp_step(
         &self,
         backend: &GpuBackend,
         enc: &mut wgpu::CommandEncoder,
@@ -658,7 +670,7 @@ impl GpuDecay {
 
     /// After the Gaussians' Adam: the write-back into `params` and the step's statistics,
     /// copied with the skipped flag into `staging` at `offset` ([`RESULT_BYTES`]).
-    pub(super) fn encode_apply(
+    pub(crate) fn encode_apply(
         &self,
         backend: &GpuBackend,
         enc: &mut wgpu::CommandEncoder,
@@ -670,7 +682,7 @@ impl GpuDecay {
             return;
         };
         let device = &backend.gpu.device;
-        let k = &backend.kernels;
+        let k = &self.kernels;
         let beta = self.config.beta;
         let u = uniform(
             device,
@@ -699,7 +711,7 @@ impl GpuDecay {
     }
 
     /// Read a step's [`RESULT_BYTES`] and count f_θ's step.
-    pub(super) fn finish_step(&mut self, words: &[u32]) -> DecayOutcome {
+    pub(crate) fn finish_step(&mut self, words: &[u32]) -> DecayOutcome {
         let o = outcome(words);
         if o.stepped {
             self.step += 1;

@@ -4,10 +4,10 @@
 //! submission of two dispatches with the step's scheduled rates as uniforms and no
 //! read-back; it computes what `train::optim::Adam::step` does, in the same f32 order.
 
-use super::backward::PARAM_FLOATS;
-use super::kernels::{storage, uniform};
-use super::{Gpu, GpuBackend, pack_params, read_buffer};
+use super::kernels::TrainKernels;
 use crate::model::Gaussians;
+use crate::render::gpu::compute::{read_buffer, storage, uniform};
+use crate::render::gpu::{Gpu, GpuBackend, PARAM_FLOATS, pack_params};
 use crate::render::{Gradients, RenderError};
 use crate::train::optim::{Adam, BETA1, BETA2, EPSILON, GroupRates, ParamBuffers};
 use std::sync::Arc;
@@ -50,6 +50,8 @@ impl Packed {
 /// Adam with the model and its moments resident on the GPU.
 pub struct GpuAdam {
     pub(super) gpu: Arc<Gpu>,
+    /// The training step's pipelines on this device.
+    pub(super) kernels: Arc<TrainKernels>,
     pub(super) count: usize,
     pub(super) colour_len: usize,
     /// Colour values per Gaussian (`3 × coefficients`).
@@ -76,9 +78,11 @@ impl GpuAdam {
         )?;
         let device = &backend.gpu.device;
         let colour_len = model.colours.len();
+        let kernels = TrainKernels::of(backend);
         let adam = backend.checked(|| {
             Ok(Self {
                 gpu: backend.gpu.clone(),
+                kernels,
                 count,
                 colour_len,
                 colour_stride: 3 * model.coeffs_per_channel(),
@@ -245,7 +249,7 @@ impl GpuAdam {
         self.same_device(backend)?;
         backend.checked(|| {
             let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-            self.encode_step(backend, rates, &mut enc);
+            self.encode_step(rates, &mut enc);
             self.gpu.queue.submit([enc.finish()]);
             Ok(())
         })?;
@@ -254,14 +258,9 @@ impl GpuAdam {
     }
 
     /// Record the next step (the caller counts it with `stepped` once submitted).
-    pub(super) fn encode_step(
-        &self,
-        backend: &GpuBackend,
-        rates: &GroupRates,
-        enc: &mut wgpu::CommandEncoder,
-    ) {
+    pub(super) fn encode_step(&self, rates: &GroupRates, enc: &mut wgpu::CommandEncoder) {
         let device = &self.gpu.device;
-        let k = &backend.kernels;
+        let k = &self.kernels;
         let t = (self.step + 1).min(i32::MAX as u64) as i32;
         let base = AdamUniform {
             count: 0,

@@ -8,10 +8,11 @@
 //! limits the CPU's f32 path on flat images.
 //! A target may be uploaded as bytes and converted on the device (`shaders/unpack.wgsl`).
 
-use super::kernels::{Kernels, WG, grid, storage, storage_init, uniform};
-use super::{GpuBackend, read_buffer};
+use super::kernels::TrainKernels;
 use crate::metrics::ssim::{C1, C2, RADIUS, SIGMA};
 use crate::render::RenderError;
+use crate::render::gpu::GpuBackend;
+use crate::render::gpu::compute::{WG, grid, read_buffer, storage, storage_init, uniform};
 use crate::train::loss::LossValue;
 
 /// The loss constants (`LossParams` in `shaders/loss.wgsl`).
@@ -67,7 +68,7 @@ impl LossPass {
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         device: &wgpu::Device,
-        kernels: &Kernels,
+        kernels: &TrainKernels,
         (width, height): (u32, u32),
         rendered: &wgpu::Buffer,
         target: &wgpu::Buffer,
@@ -115,7 +116,7 @@ impl LossPass {
     }
 
     /// Record the passes.
-    pub fn encode(&self, kernels: &Kernels, pass: &mut wgpu::ComputePass<'_>) {
+    pub fn encode(&self, kernels: &TrainKernels, pass: &mut wgpu::ComputePass<'_>) {
         for k in [
             &kernels.ssim_blur_h,
             &kernels.ssim_pixel,
@@ -161,7 +162,7 @@ pub(super) fn pack_bytes(bytes: &[u8]) -> Vec<u32> {
 /// Record the conversion of `count` packed bytes to floats in [0, 1]; the float buffer.
 pub(super) fn unpack(
     device: &wgpu::Device,
-    k: &Kernels,
+    k: &TrainKernels,
     enc: &mut wgpu::CommandEncoder,
     packed: &wgpu::Buffer,
     count: u32,
@@ -175,149 +176,112 @@ pub(super) fn unpack(
 }
 
 /// A target image as the host has it.
-enum Target<'a> {
+pub(super) enum Target<'a> {
     Floats(&'a [f32]),
     Bytes(&'a [u8]),
 }
 
-impl GpuBackend {
-    /// [`crate::train::loss::image_loss`] on the GPU for `rendered` against `target`
-    /// (interleaved RGB, `width × height`, values in `[0, 1]`): the loss, and
-    /// `d(total)/d(rendered)` written into `grad` when given.
-    pub fn image_loss(
-        &self,
-        rendered: &[f32],
-        target: &[f32],
-        (width, height): (u32, u32),
-        lambda_ssim: f64,
-        grad: Option<&mut [f32]>,
-    ) -> Result<LossValue, RenderError> {
-        self.loss(
+/// [`super::GpuTraining::image_loss`] of either kind of target.
+pub(super) fn loss(
+    backend: &GpuBackend,
+    rendered: &[f32],
+    target: Target<'_>,
+    (width, height): (u32, u32),
+    lambda_ssim: f64,
+    grad: Option<&mut [f32]>,
+) -> Result<LossValue, RenderError> {
+    let count = 3 * width as u64 * height as u64;
+    let length = |what, got: usize| {
+        if got as u64 == count {
+            Ok(())
+        } else {
+            Err(RenderError::ImageLength {
+                what,
+                expected: count,
+                got,
+            })
+        }
+    };
+    length("rendered image", rendered.len())?;
+    match target {
+        Target::Floats(t) => length("target image", t.len())?,
+        Target::Bytes(t) => length("target image", t.len())?,
+    }
+    if let Some(g) = grad.as_deref() {
+        length("loss gradient", g.len())?;
+    }
+    if count == 0 {
+        // As on the CPU: nothing to compare, SSIM 1.
+        return Ok(LossValue {
+            total: 0.0,
+            l1: 0.0,
+            ssim: 1.0,
+            mse: 0.0,
+        });
+    }
+    // The largest buffer: five partials per value.
+    backend.too_large("the loss's partials", 20 * count)?;
+    let kernels = TrainKernels::of(backend);
+    let out = backend.checked(|| {
+        loss_checked(
+            backend,
+            &kernels,
             rendered,
-            Target::Floats(target),
+            target,
             (width, height),
             lambda_ssim,
-            grad,
+            grad.is_some(),
         )
+    })?;
+    let (value, g) = out;
+    if let Some(dst) = grad {
+        dst.copy_from_slice(&g);
     }
+    Ok(value)
+}
 
-    /// [`GpuBackend::image_loss`] of a target given as bytes (`value / 255`, as
-    /// `ImageU8::to_f32_into` converts), uploaded as bytes and converted on the device.
-    pub fn image_loss_bytes(
-        &self,
-        rendered: &[f32],
-        target: &[u8],
-        (width, height): (u32, u32),
-        lambda_ssim: f64,
-        grad: Option<&mut [f32]>,
-    ) -> Result<LossValue, RenderError> {
-        self.loss(
-            rendered,
-            Target::Bytes(target),
-            (width, height),
-            lambda_ssim,
-            grad,
-        )
+fn loss_checked(
+    backend: &GpuBackend,
+    k: &TrainKernels,
+    rendered: &[f32],
+    target: Target<'_>,
+    size: (u32, u32),
+    lambda_ssim: f64,
+    want_grad: bool,
+) -> Result<(LossValue, Vec<f32>), RenderError> {
+    let device = &backend.gpu.device;
+    let rendered_buf = storage_init(device, rendered, "rendered image");
+    let count = rendered.len() as u32;
+    let mut enc = device.create_command_encoder(&Default::default());
+    let target_buf = match target {
+        Target::Floats(t) => storage_init(device, t, "target image"),
+        Target::Bytes(t) => {
+            let packed = storage_init(device, &pack_bytes(t), "target bytes");
+            unpack(device, k, &mut enc, &packed, count)
+        }
+    };
+    let loss = LossPass::new(
+        device,
+        k,
+        size,
+        &rendered_buf,
+        &target_buf,
+        lambda_ssim,
+        1.0,
+        None,
+    );
+    {
+        let mut pass = enc.begin_compute_pass(&Default::default());
+        loss.encode(k, &mut pass);
     }
-
-    fn loss(
-        &self,
-        rendered: &[f32],
-        target: Target<'_>,
-        (width, height): (u32, u32),
-        lambda_ssim: f64,
-        grad: Option<&mut [f32]>,
-    ) -> Result<LossValue, RenderError> {
-        let count = 3 * width as u64 * height as u64;
-        let length = |what, got: usize| {
-            if got as u64 == count {
-                Ok(())
-            } else {
-                Err(RenderError::ImageLength {
-                    what,
-                    expected: count,
-                    got,
-                })
-            }
-        };
-        length("rendered image", rendered.len())?;
-        match target {
-            Target::Floats(t) => length("target image", t.len())?,
-            Target::Bytes(t) => length("target image", t.len())?,
-        }
-        if let Some(g) = grad.as_deref() {
-            length("loss gradient", g.len())?;
-        }
-        if count == 0 {
-            // As on the CPU: nothing to compare, SSIM 1.
-            return Ok(LossValue {
-                total: 0.0,
-                l1: 0.0,
-                ssim: 1.0,
-                mse: 0.0,
-            });
-        }
-        // The largest buffer: five partials per value.
-        self.too_large("the loss's partials", 20 * count)?;
-        let out = self.checked(|| {
-            self.loss_checked(
-                rendered,
-                target,
-                (width, height),
-                lambda_ssim,
-                grad.is_some(),
-            )
-        })?;
-        let (value, g) = out;
-        if let Some(dst) = grad {
-            dst.copy_from_slice(&g);
-        }
-        Ok(value)
+    let grad_bytes = if want_grad { 4 * count as u64 } else { 0 };
+    let staging = read_buffer(device, 16 + grad_bytes);
+    enc.copy_buffer_to_buffer(&loss.sums, loss.total_offset(), &staging, 0, 16);
+    if want_grad {
+        enc.copy_buffer_to_buffer(&loss.grad, 0, &staging, 16, grad_bytes);
     }
-
-    fn loss_checked(
-        &self,
-        rendered: &[f32],
-        target: Target<'_>,
-        size: (u32, u32),
-        lambda_ssim: f64,
-        want_grad: bool,
-    ) -> Result<(LossValue, Vec<f32>), RenderError> {
-        let device = &self.gpu.device;
-        let k = &self.kernels;
-        let rendered_buf = storage_init(device, rendered, "rendered image");
-        let count = rendered.len() as u32;
-        let mut enc = device.create_command_encoder(&Default::default());
-        let target_buf = match target {
-            Target::Floats(t) => storage_init(device, t, "target image"),
-            Target::Bytes(t) => {
-                let packed = storage_init(device, &pack_bytes(t), "target bytes");
-                unpack(device, k, &mut enc, &packed, count)
-            }
-        };
-        let loss = LossPass::new(
-            device,
-            k,
-            size,
-            &rendered_buf,
-            &target_buf,
-            lambda_ssim,
-            1.0,
-            None,
-        );
-        {
-            let mut pass = enc.begin_compute_pass(&Default::default());
-            loss.encode(k, &mut pass);
-        }
-        let grad_bytes = if want_grad { 4 * count as u64 } else { 0 };
-        let staging = read_buffer(device, 16 + grad_bytes);
-        enc.copy_buffer_to_buffer(&loss.sums, loss.total_offset(), &staging, 0, 16);
-        if want_grad {
-            enc.copy_buffer_to_buffer(&loss.grad, 0, &staging, 16, grad_bytes);
-        }
-        let words = self.read_back(enc, &staging, 16 + grad_bytes)?;
-        let floats: &[f32] = bytemuck::cast_slice(&words);
-        let total = [floats[0], floats[1], floats[2], floats[3]];
-        Ok((loss.value(total, lambda_ssim), floats[4..].to_vec()))
-    }
+    let words = backend.read_back(enc, &staging, 16 + grad_bytes)?;
+    let floats: &[f32] = bytemuck::cast_slice(&words);
+    let total = [floats[0], floats[1], floats[2], floats[3]];
+    Ok((loss.value(total, lambda_ssim), floats[4..].to_vec()))
 }

@@ -3,9 +3,10 @@
 //! added view by view inside [`GpuAdam::train_step_decayed`](super::GpuAdam) so a
 //! training step reads nothing back for them; the host reads them when it densifies.
 
-use super::kernels::{storage, uniform};
-use super::{Gpu, GpuBackend, read_buffer};
+use super::kernels::TrainKernels;
 use crate::render::RenderError;
+use crate::render::gpu::compute::{read_buffer, storage, uniform};
+use crate::render::gpu::{Gpu, GpuBackend};
 use crate::train::densify::DensifyStats;
 use std::sync::Arc;
 
@@ -21,6 +22,7 @@ struct StatsUniform {
 /// [`DensifyStats`] resident on the GPU.
 pub struct GpuStats {
     gpu: Arc<Gpu>,
+    kernels: Arc<TrainKernels>,
     count: usize,
     grad_sum: wgpu::Buffer,
     seen: wgpu::Buffer,
@@ -41,9 +43,11 @@ impl GpuStats {
         }
         backend.too_large("the densification statistics", 4 * n as u64)?;
         let device = &backend.gpu.device;
+        let kernels = TrainKernels::of(backend);
         backend.checked(|| {
             let s = Self {
                 gpu: backend.gpu.clone(),
+                kernels,
                 count: n,
                 grad_sum: storage(device, 4 * n as u64, "gradient norm sums"),
                 seen: storage(device, 4 * n as u64, "views seen"),
@@ -116,7 +120,7 @@ impl GpuStats {
             return;
         }
         let device = &backend.gpu.device;
-        let k = &backend.kernels;
+        let k = &self.kernels;
         let u = uniform(
             device,
             &StatsUniform {
