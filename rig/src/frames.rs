@@ -114,6 +114,12 @@ pub enum FramesError {
         /// Earliest end.
         end: f64,
     },
+    /// The timeline's times or rate are not finite, or would make an absurd number of
+    /// frames (a damaged or hand-edited streams.json / sync.json).
+    #[error(
+        "the common timeline cannot be planned: {0}; rerun ingest and sync (`pipeline run CAPTURE --from ingest --force`), or set [frames] fps"
+    )]
+    Timeline(String),
     /// streams.json and sync.json disagree.
     #[error("sync.json does not match streams.json ({0}); rerun sync")]
     Mismatch(String),
@@ -194,6 +200,10 @@ fn nearest(times: &[f64], t: f64) -> usize {
     }
 }
 
+/// Most output frames a timeline may have (nine hours at 60 fps): more means a damaged
+/// time or rate, not a capture.
+pub const MAX_FRAMES: usize = 2_000_000;
+
 /// Plans the output timeline (no decoding): which frame of each camera goes where.
 pub fn plan(
     streams: &Streams,
@@ -235,6 +245,18 @@ pub fn plan(
     };
     let start = first(starter) + config.start_s.max(0.0);
     let end = last(ender);
+    if !(start.is_finite() && end.is_finite()) {
+        return Err(FramesError::Timeline(format!(
+            "the cameras' times run from {start} to {end} s"
+        )));
+    }
+    let frames_f = (end - start) * fps;
+    if frames_f > MAX_FRAMES as f64 {
+        return Err(FramesError::Timeline(format!(
+            "{:.3} s at {fps} fps would be {frames_f:.3e} frames, over {MAX_FRAMES}",
+            end - start
+        )));
+    }
     if end < start {
         return Err(FramesError::NoOverlap {
             last_start: starter.name.clone(),

@@ -6,10 +6,14 @@
 //! - [`progress`]: the [`Progress`] sink every long task reports through;
 //! - [`atomic`]: the one way to write a file that a reader never sees half-written;
 //! - [`ply`]: the one binary PLY codec (a table of named scalar columns);
-//! - [`points`]: point clouds with colour and optional time (`points.ply`).
+//! - [`points`]: point clouds with colour and optional time (`points.ply`);
+//! - `fuzz` (feature `fuzz`, for tests): damaged files and an allocation meter for the
+//!   readers' fuzz tests.
 
 pub mod atomic;
 pub mod camera;
+#[cfg(any(test, feature = "fuzz"))]
+pub mod fuzz;
 pub mod ply;
 pub mod points;
 pub mod progress;

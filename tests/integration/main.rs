@@ -7,6 +7,9 @@ mod common;
 mod eval_support;
 mod train_scene;
 
+#[global_allocator]
+static ALLOC: shared_types::fuzz::PeakAlloc = shared_types::fuzz::PeakAlloc;
+
 mod decay_gradients;
 mod decay_resume;
 mod decay_variants;
@@ -15,6 +18,7 @@ mod eval_lpips;
 mod eval_report;
 mod eval_timing;
 mod export_formats;
+mod fuzz_readers;
 mod gpu_adam;
 mod gpu_backward;
 mod gpu_decay;

@@ -4,8 +4,12 @@
 
 mod common;
 
+#[global_allocator]
+static ALLOC: shared_types::fuzz::PeakAlloc = shared_types::fuzz::PeakAlloc;
+
 mod colmap_failures;
 mod colmap_model_io;
+mod fuzz_readers;
 mod import;
 mod opencv_models;
 mod opencv_rational_calibration;

@@ -6,6 +6,9 @@
 mod browser;
 mod common;
 
+#[global_allocator]
+static ALLOC: shared_types::fuzz::PeakAlloc = shared_types::fuzz::PeakAlloc;
+
 mod bench;
 mod bench_tradeoff;
 mod cli;
@@ -13,6 +16,7 @@ mod decay_demo;
 mod demo_quality;
 mod end_to_end;
 mod eval_moving;
+mod fuzz_config;
 mod heldout_real;
 mod init_accuracy;
 mod known_lenses;

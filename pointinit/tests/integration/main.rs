@@ -4,7 +4,11 @@
 
 mod common;
 
+#[global_allocator]
+static ALLOC: shared_types::fuzz::PeakAlloc = shared_types::fuzz::PeakAlloc;
+
 mod fallback;
+mod fuzz_readers;
 mod onnx;
 mod plates;
 mod pointmaps;

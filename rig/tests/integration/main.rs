@@ -5,7 +5,11 @@
 mod common;
 mod sync_support;
 
+#[global_allocator]
+static ALLOC: shared_types::fuzz::PeakAlloc = shared_types::fuzz::PeakAlloc;
+
 mod frames_files;
+mod fuzz_readers;
 mod ingest_files;
 mod ingest_images;
 mod ingest_record;
