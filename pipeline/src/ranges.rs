@@ -165,6 +165,7 @@ pub const RANGES: &[(&str, Range)] = &[
     ("eval.train_views", COUNT),
     ("export.steps", SOME),
     ("export.min_opacity", within(0.0, 1.0)),
+    ("export.gltf_every", COUNT),
     ("export.viewer_max_frames", SOME),
     ("export.viewer_fps", FPS),
 ];

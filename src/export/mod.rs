@@ -1,10 +1,12 @@
 //! Exports of a trained 4D model for people and other tools (docs/export.md):
-//! per-timestep 3DGS PLY frames (SuperSplat, Brush), the native 4D model as PLY, a
-//! `.splatv` for web playback and a self-contained browser viewer. [`export_all`] writes
+//! per-timestep 3DGS PLY frames (SuperSplat, Brush), glTF with `KHR_gaussian_splatting`
+//! (three.js, Babylon.js, PlayCanvas, CesiumJS), the native 4D model as PLY, a `.splatv`
+//! for web playback and a self-contained browser viewer. [`export_all`] writes
 //! them all; the submodules hold one format each. Every file is written to a temporary
 //! name and renamed when complete.
 
 pub mod bake;
+pub mod gltf;
 pub mod ply3d;
 pub mod ply4d;
 pub mod splatv;
@@ -61,6 +63,11 @@ pub struct ExportOptions {
     pub min_opacity: f64,
     /// Write `frames/NNNN.ply`.
     pub frames: bool,
+    /// Write glTF (`KHR_gaussian_splatting`): `scene.glb` at the middle export time, or
+    /// with `gltf_every = k` every k-th export time as `gltf/NNNN.glb`.
+    pub gltf: bool,
+    /// Every how many export times a `.glb` is written (0: only `scene.glb`).
+    pub gltf_every: usize,
     /// Write `model4d.ply`.
     pub model4d: bool,
     /// Write `scene.splatv`.
@@ -87,6 +94,8 @@ impl Default for ExportOptions {
             steps: None,
             min_opacity: 1.0 / 255.0,
             frames: true,
+            gltf: true,
+            gltf_every: 0,
             model4d: true,
             splatv: true,
             viewer: true,
@@ -114,6 +123,8 @@ pub struct FrameReport {
 pub struct ExportReport {
     pub gaussians: usize,
     pub frames: Vec<FrameReport>,
+    /// The `.glb` files, with their model times.
+    pub gltf: Vec<(PathBuf, f64)>,
     pub model4d: Option<PathBuf>,
     pub splatv: Option<PathBuf>,
     /// Splats in the `.splatv` (fully transparent ones are left out).
@@ -138,6 +149,7 @@ impl ExportReport {
                     ..f.clone()
                 })
                 .collect(),
+            gltf: self.gltf.iter().map(|(p, t)| (rel(p), *t)).collect(),
             model4d: self.model4d.as_ref().map(rel),
             splatv: self.splatv.as_ref().map(rel),
             viewer_index: self.viewer_index.as_ref().map(rel),
@@ -160,6 +172,25 @@ pub fn even_times(model: &Gaussians<f32>, count: usize) -> Vec<f64> {
         0 => Vec::new(),
         1 => vec![0.5 * d],
         n => (0..n).map(|k| d * k as f64 / (n - 1) as f64).collect(),
+    }
+}
+
+/// The `.glb` files [`export_all`] writes (path relative to the export folder, model
+/// time): `scene.glb` at the middle of `times`, or every `gltf_every`-th time.
+fn gltf_files(times: &[f64], opts: &ExportOptions) -> Vec<(String, f64)> {
+    match (opts.gltf, opts.gltf_every) {
+        (false, _) => Vec::new(),
+        (true, 0) => times
+            .get(times.len() / 2)
+            .map(|&t| ("scene.glb".to_string(), t))
+            .into_iter()
+            .collect(),
+        (true, k) => times
+            .iter()
+            .enumerate()
+            .step_by(k)
+            .map(|(i, &t)| (format!("gltf/{i:04}.glb"), t))
+            .collect(),
     }
 }
 
@@ -193,7 +224,7 @@ pub fn export_all(
     model
         .check_consistent()
         .map_err(ExportError::InconsistentModel)?;
-    if times.is_empty() && (opts.frames || opts.viewer) {
+    if times.is_empty() && (opts.frames || opts.viewer || opts.gltf) {
         return Err(ExportError::NoTimes);
     }
     // Fail early, before any long work, when the viewer cannot be built.
@@ -223,12 +254,18 @@ pub fn export_all(
         Vec::new()
     };
     let frames_total = if opts.frames { times.len() } else { 0 };
-    let total = frames_total + viewer_times.len() + opts.model4d as usize + opts.splatv as usize;
+    let gltf_files = gltf_files(times, opts);
+    let total = frames_total
+        + gltf_files.len()
+        + viewer_times.len()
+        + opts.model4d as usize
+        + opts.splatv as usize;
     progress.start(total as u64, "files");
     let view = colour_viewpoint(cameras);
     let mut report = ExportReport {
         gaussians: model.len(),
         frames: Vec::new(),
+        gltf: Vec::new(),
         model4d: None,
         splatv: None,
         splatv_splats: 0,
@@ -268,6 +305,12 @@ pub fn export_all(
             });
             progress.advance(1);
         }
+    }
+    for (name, t) in gltf_files {
+        let p = out_dir.join(name);
+        gltf::write_glb(&bake_frame(model, t, opts.min_opacity), &p)?;
+        report.gltf.push((p, t));
+        progress.advance(1);
     }
     if let Some(bundle) = bundle {
         let dir = out_dir.join("viewer");

@@ -1,5 +1,5 @@
-//! Fuzzed readers of the engine's files: the model file (`model.bin`), the 4D model PLY
-//! and the per-time-step 3DGS PLY. Damaged copies of valid files (`shared_types::fuzz`)
+//! Fuzzed readers of the engine's files: the model file (`model.bin`), the 4D model PLY,
+//! the per-time-step 3DGS PLY and glTF time step. Damaged copies of valid files (`shared_types::fuzz`)
 //! must give an error or a model, never a panic, an abort or an allocation a damaged
 //! count asked for. `PROPTEST_CASES` sets the number of cases.
 
@@ -8,6 +8,7 @@ use crate::common::{SceneSpec, random_scene};
 use proptest::prelude::*;
 use shared_types::fuzz::{damaged, within_budget};
 use splat4d::export::bake::bake_frame;
+use splat4d::export::gltf::{encode_glb, read_glb};
 use splat4d::export::ply3d::{read_frame_ply, write_frame_ply};
 use splat4d::export::ply4d::{read_model_ply, write_model_ply};
 use splat4d::model::Gaussians;
@@ -69,5 +70,10 @@ proptest! {
         write_frame_ply(&bake_frame(&model(), 0.5, 0.0), p).unwrap()
     }))) {
         read_as("frame.ply", &bytes, read_frame_ply)?;
+    }
+
+    #[test]
+    fn gltf_time_step(bytes in damaged(encode_glb(&bake_frame(&model(), 0.5, 0.0)))) {
+        within_budget(|| read_glb(&bytes, std::path::Path::new("step.glb")))?;
     }
 }

@@ -131,6 +131,7 @@ fn train_stops_cleanly_resumes_identically_and_exports() {
         .map(|f| f["path"].as_str().unwrap())
         .collect();
     paths.extend(["model4d", "splatv"].map(|k| report[k].as_str().unwrap()));
+    paths.push(report["gltf"][0][0].as_str().unwrap());
     assert_eq!(
         paths,
         [
@@ -138,7 +139,8 @@ fn train_stops_cleanly_resumes_identically_and_exports() {
             "frames/0001.ply",
             "frames/0002.ply",
             "model4d.ply",
-            "scene.splatv"
+            "scene.splatv",
+            "scene.glb"
         ]
     );
     for p in paths {
