@@ -123,7 +123,7 @@ pub fn read_pair_npz(path: &Path, names: &OutputNames) -> Result<PairMaps, NpyEr
     let mut archive = npyz::npz::NpzArchive::open(path).map_err(io)?;
     let found = archive.array_names().collect::<Vec<_>>().join(", ");
     let get = |name: &str, required: bool| -> Result<Option<Array>, NpyError> {
-        let file = archive.by_name(name).map_err(io)?;
+        let file = unpanicked(path, || archive.by_name(name))?.map_err(io)?;
         match file {
             Some(f) => array_from(f, path).map(Some),
             None if required => Err(NpyError::MissingArray {
@@ -179,11 +179,21 @@ pub fn read_npy(path: &Path) -> Result<Array, NpyError> {
         path: path.into(),
         source,
     })?;
-    let file = npyz::NpyFile::new(&bytes[..]).map_err(|e| NpyError::Format {
-        path: path.into(),
-        reason: format!("not an .npy file ({e})"),
-    })?;
+    let file =
+        unpanicked(path, || npyz::NpyFile::new(&bytes[..]))?.map_err(|e| NpyError::Format {
+            path: path.into(),
+            reason: format!("not an .npy file ({e})"),
+        })?;
     array_from(file, path)
+}
+
+/// `f`, a call into npyz, with its panics made errors: it multiplies a header's shape
+/// unchecked, so a damaged header overflows (fuzz_readers found it).
+fn unpanicked<T>(path: &Path, f: impl FnOnce() -> T) -> Result<T, NpyError> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).map_err(|_| NpyError::Format {
+        path: path.into(),
+        reason: "the array header is damaged (its shape overflows)".into(),
+    })
 }
 
 fn array_from<R: std::io::Read>(file: npyz::NpyFile<R>, path: &Path) -> Result<Array, NpyError> {

@@ -28,6 +28,17 @@ const NASTY_NUMBERS: [&str; 12] = [
     "1.7976931348623157e308",
 ];
 
+/// The proptest settings of a fuzz test: proptest's case count (`PROPTEST_CASES`, 256 by
+/// default) times `scale`, and no regression files written beside the sources.
+pub fn config(scale: u32) -> ProptestConfig {
+    let default = ProptestConfig::default();
+    ProptestConfig {
+        cases: default.cases * scale,
+        failure_persistence: None,
+        ..default
+    }
+}
+
 /// One change to a file.
 #[derive(Clone, Debug)]
 pub enum Mutation {

@@ -13,14 +13,12 @@
 use super::bake::{Frame3d, SH_COEFFS, Splat3d};
 use super::{ExportError, write_atomic};
 use crate::math::numerics::{logit, sigmoid};
+use crate::math::sh::SH_C0;
 use serde_json::{Value, json};
 use std::path::Path;
 
 /// The extension's name, also the prefix of its attribute names.
 pub const EXTENSION: &str = "KHR_gaussian_splatting";
-
-/// `Y_0^0`, the DC basis function's constant.
-const SH_C0: f32 = 0.282_094_8;
 
 /// Sign of each 3DGS SH basis function under `(x, y, z) → (x, −y, −z)`.
 const SH_SIGNS: [f32; SH_COEFFS] = [
@@ -134,7 +132,7 @@ pub fn encode_glb(frame: &Frame3d) -> Vec<u8> {
         "COLOR_0".into(),
         "VEC4",
         flat(&|s| {
-            let rgb = s.sh[0].map(|c| (0.5 + SH_C0 * c).clamp(0.0, 1.0));
+            let rgb = s.sh[0].map(|c| (0.5 + SH_C0 as f32 * c).clamp(0.0, 1.0));
             vec![rgb[0], rgb[1], rgb[2], sigmoid(s.opacity_logit)]
         }),
         false,

@@ -6,7 +6,7 @@
 use crate::common::{SceneSpec, random_scene};
 
 use proptest::prelude::*;
-use shared_types::fuzz::{damaged, within_budget};
+use shared_types::fuzz::{self, damaged, within_budget};
 use splat4d::export::bake::bake_frame;
 use splat4d::export::gltf::{encode_glb, read_glb};
 use splat4d::export::ply3d::{read_frame_ply, write_frame_ply};
@@ -45,15 +45,8 @@ fn read_as<T>(
     within_budget(|| read(&path))
 }
 
-fn config() -> ProptestConfig {
-    ProptestConfig {
-        failure_persistence: None,
-        ..ProptestConfig::default()
-    }
-}
-
 proptest! {
-    #![proptest_config(config())]
+    #![proptest_config(fuzz::config(1))]
 
     #[test]
     fn model_file(bytes in damaged(written(|p| save_model(&model(), p).unwrap()))) {

@@ -9,7 +9,7 @@ use calib::colmap::ColmapModel;
 use calib::import::{import_calibration, import_lenses};
 use calib::poses::PosesFile;
 use proptest::prelude::*;
-use shared_types::fuzz::{damaged, within_budget};
+use shared_types::fuzz::{self, damaged, within_budget};
 
 fn fixture(relative: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -19,13 +19,6 @@ fn fixture(relative: &str) -> PathBuf {
 
 fn read(relative: &str) -> Vec<u8> {
     std::fs::read(fixture(relative)).unwrap()
-}
-
-fn config() -> ProptestConfig {
-    ProptestConfig {
-        failure_persistence: None,
-        ..ProptestConfig::default()
-    }
 }
 
 /// A COLMAP model folder (binary or text) with `file` replaced by `bytes`, read back.
@@ -57,7 +50,7 @@ fn calibration_with(name: &str, bytes: &[u8]) -> Result<(), TestCaseError> {
 }
 
 proptest! {
-    #![proptest_config(config())]
+    #![proptest_config(fuzz::config(1))]
 
     #[test]
     fn colmap_binary_cameras(bytes in damaged(read("colmap/tiny/bin/cameras.bin"))) {

@@ -7,7 +7,7 @@ use std::path::Path;
 
 use pipeline::config::CaptureConfig;
 use proptest::prelude::*;
-use shared_types::fuzz::{damaged, within_budget};
+use shared_types::fuzz::{self, damaged, within_budget};
 
 fn fixture(name: &str) -> Vec<u8> {
     std::fs::read(
@@ -23,15 +23,8 @@ fn parse(bytes: &[u8]) -> Result<(), TestCaseError> {
     within_budget(|| CaptureConfig::parse(&text, Path::new("capture.toml")))
 }
 
-fn config() -> ProptestConfig {
-    ProptestConfig {
-        failure_persistence: None,
-        ..ProptestConfig::default()
-    }
-}
-
 proptest! {
-    #![proptest_config(config())]
+    #![proptest_config(fuzz::config(1))]
 
     #[test]
     fn demo_capture_toml(bytes in damaged(fixture("demo-capture.toml"))) {

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use pointinit::npy::{self, OutputNames, PairMaps, PointMap};
 use proptest::prelude::*;
 use shared_types::PointCloud;
-use shared_types::fuzz::{damaged, within_budget};
+use shared_types::fuzz::{self, damaged, within_budget};
 use shared_types::points::{read_points_ply, write_points_ply};
 
 fn maps() -> PairMaps {
@@ -90,15 +90,8 @@ fn cloud_file(with_time: bool) -> Vec<u8> {
     std::fs::read(&path).unwrap()
 }
 
-fn config() -> ProptestConfig {
-    ProptestConfig {
-        failure_persistence: None,
-        ..ProptestConfig::default()
-    }
-}
-
 proptest! {
-    #![proptest_config(config())]
+    #![proptest_config(fuzz::config(1))]
 
     #[test]
     fn npy_files(

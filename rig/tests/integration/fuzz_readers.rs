@@ -11,7 +11,7 @@ use rig::frames::{FramesConfig, FramesIndex, plan};
 use rig::ingest::{AudioInfo, CameraStream, Chapter, SourceKind, Streams, VideoInfo};
 use rig::rotation::Rotation;
 use rig::sync::{CameraSync, SyncMethod, SyncResult};
-use shared_types::fuzz::{damaged_json, within_budget};
+use shared_types::fuzz::{self, damaged_json, within_budget};
 
 const CAMERAS: usize = 2;
 const FRAMES: usize = 12;
@@ -66,16 +66,6 @@ fn sync() -> SyncResult {
     }
 }
 
-/// Four times proptest's case count (`PROPTEST_CASES`): these cases take a millisecond.
-fn config() -> ProptestConfig {
-    let default = ProptestConfig::default();
-    ProptestConfig {
-        cases: default.cases * 4,
-        failure_persistence: None,
-        ..default
-    }
-}
-
 /// `bytes` written to `name` in a fresh folder.
 fn file(name: &str, bytes: &[u8]) -> (tempfile::TempDir, PathBuf) {
     let dir = tempfile::tempdir().unwrap();
@@ -85,7 +75,7 @@ fn file(name: &str, bytes: &[u8]) -> (tempfile::TempDir, PathBuf) {
 }
 
 proptest! {
-    #![proptest_config(config())]
+    #![proptest_config(fuzz::config(4))]
 
     #[test]
     fn streams_json(bytes in damaged_json(serde_json::to_value(streams()).unwrap())) {
