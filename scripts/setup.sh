@@ -20,6 +20,9 @@ PACKAGES=(
   chromium
   # text of the plots `pipeline bench tradeoff` draws
   fonts-dejavu-core
+  # `pipeline submit` tests (pipeline/tests/integration/slurm.rs): a one-node Slurm 22.05
+  # cluster started by the test itself (no service is configured or enabled here)
+  slurmctld slurmd slurm-client munge
 )
 # The viewer's web project (viewer/) needs Node.js and npm; use any already on PATH.
 if ! command -v npm >/dev/null; then

@@ -47,6 +47,21 @@ pub enum Command {
         /// The capture directory.
         capture_dir: PathBuf,
     },
+    /// Run captures on a Slurm cluster: each stale stage of each capture becomes one
+    /// batch job, waiting for the capture's previous job (`afterok`). Up-to-date stages
+    /// are not submitted. Settings: `[cluster]` in capture.toml or
+    /// ~/.config/4c4d/cluster.toml (docs/cluster.md).
+    ///
+    /// Example: pipeline submit take01/ take02/ --to train
+    Submit(SubmitArgs),
+    /// Cancel the Slurm jobs that `pipeline submit` queued for a capture and that have not
+    /// finished.
+    ///
+    /// Example: pipeline cancel my_capture/
+    Cancel {
+        /// The capture directory.
+        capture_dir: PathBuf,
+    },
     /// Simulate a capture of a built-in scene and run every stage on it.
     ///
     /// The capture is simulated once; running the demo again on the same folder reuses it
@@ -131,6 +146,32 @@ pub struct RunArgs {
     pub backend: Option<BackendChoice>,
     /// Training preset: preview | balanced | best (overrides `[train] preset` and the
     /// iterations, resolution and Gaussian budget of capture.toml; README "Presets").
+    #[arg(long, value_enum)]
+    pub preset: Option<crate::presets::Preset>,
+}
+
+#[derive(Debug, Args)]
+pub struct SubmitArgs {
+    /// The capture directories (each holds raw/, stills/, capture.toml).
+    #[arg(required = true)]
+    pub capture_dirs: Vec<PathBuf>,
+    /// Start at this stage (earlier stages must have run).
+    #[arg(long, value_parser = PossibleValuesParser::new(pipeline().stage_names()))]
+    pub from: Option<String>,
+    /// Stop after this stage.
+    #[arg(long, value_parser = PossibleValuesParser::new(pipeline().stage_names()))]
+    pub to: Option<String>,
+    /// Submit just this stage.
+    #[arg(long, value_parser = PossibleValuesParser::new(pipeline().stage_names()), conflicts_with_all = ["from", "to"])]
+    pub only: Option<String>,
+    /// Submit the selected stages even if they are up to date (their jobs rerun them).
+    #[arg(long)]
+    pub force: bool,
+    /// Backend of the `train`, `render` and `eval` stages (overrides `[engine] backend`;
+    /// `cpu` asks for no GPU).
+    #[arg(long, value_enum)]
+    pub backend: Option<BackendChoice>,
+    /// Training preset (overrides `[train] preset`; README "Presets").
     #[arg(long, value_enum)]
     pub preset: Option<crate::presets::Preset>,
 }

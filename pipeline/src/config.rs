@@ -41,6 +41,8 @@ pub struct CaptureConfig {
     pub export: export::ExportSettings,
     /// The compute backend of the stages that render (not a stage parameter).
     pub engine: crate::engine_inputs::EngineSettings,
+    /// Where and how `pipeline submit` runs the stages on Slurm (not a stage parameter).
+    pub cluster: crate::cluster::config::ClusterSettings,
     /// The training preset applied (`[train] preset` or [`Self::with_preset`]); its values
     /// are in `train` already.
     #[serde(skip)]
@@ -164,6 +166,13 @@ impl CaptureConfig {
                 message,
             });
         }
+        let stages = crate::stages::pipeline();
+        if let Some(message) = config.cluster.problem(&stages.stage_names()) {
+            return Err(ConfigError::Invalid {
+                path: path.to_path_buf(),
+                message,
+            });
+        }
         Ok(config)
     }
 
@@ -276,6 +285,45 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("line 3"), "{err}");
+    }
+
+    #[test]
+    fn the_cluster_section_is_read_checked_and_no_stage_parameter() {
+        let text = "[cluster]\npartition = \"batch\"\ntime = \"2:00:00\"\ncpus = 8\n\
+                    setup = [\"module load cuda\"]\n[cluster.stages.train]\ngpus = 2\nmem = \"64G\"\n";
+        let c = CaptureConfig::parse(text, Path::new("c.toml")).unwrap();
+        assert_eq!(c.cluster.partition.as_deref(), Some("batch"));
+        assert_eq!(c.cluster.cpus, Some(8));
+        assert_eq!(c.cluster.stages["train"].gpus, Some(2));
+        let plain = CaptureConfig::default();
+        for stage in crate::stages::pipeline().stages {
+            assert_eq!((stage.params)(&c), (stage.params)(&plain), "{}", stage.name);
+        }
+        for (text, needle) in [
+            ("[cluster]\nqueue = \"x\"\n", "queue"),
+            (
+                "[cluster]\ntime = \"2h\"\n",
+                "[cluster] time = \"2h\" is not a Slurm time",
+            ),
+            (
+                "[cluster]\ngpus = -1\n",
+                "[cluster] gpus = -1 is out of range",
+            ),
+            (
+                "[cluster.stages.train]\nmem = \"lots\"\n",
+                "[cluster.stages.train] mem",
+            ),
+            (
+                "[cluster.stages.training]\ncpus = 2\n",
+                "no stage `training`",
+            ),
+            ("[cluster.stages.train]\nqos = \"x\"\n", "qos"),
+        ] {
+            let err = CaptureConfig::parse(text, Path::new("/x/c.toml"))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(needle) && err.contains("/x/c.toml"), "{err}");
+        }
     }
 
     #[test]

@@ -11,6 +11,8 @@
 //!   (Ctrl-C stops training cleanly).
 //! - `runner` decides what is stale and runs it, with `manifest` (`stage.json`),
 //!   `partial_dir` (outputs appear only when complete) and `lock` (one run per capture).
+//! - `cluster` runs captures on Slurm (`submit`, `cancel`, the jobs in `status`): each
+//!   stale stage one job, chained by `afterok`.
 //! - `report` shows progress, `status` prints the table, `cli` is the command line;
 //!   `simulate` and `ablation` are the `simulate`/`demo` and `bench ablation` commands,
 //!   `bench` the `bench sync` and `bench poses` commands (and their resumable results table),
@@ -18,6 +20,7 @@
 
 pub mod bench;
 pub mod cli;
+pub mod cluster;
 pub mod compare;
 pub mod config;
 pub mod engine_inputs;

@@ -6,7 +6,9 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::Parser;
 use indicatif::MultiProgress;
-use pipeline::cli::{BenchCommand, Cli, Command, MetricsArgs, RecordArgs, RenderArgs, RunArgs};
+use pipeline::cli::{
+    BenchCommand, Cli, Command, MetricsArgs, RecordArgs, RenderArgs, RunArgs, SubmitArgs,
+};
 use pipeline::partial_dir::{build_fresh, partial_path, swap_in};
 use pipeline::report::{OutputMode, Reporter};
 use pipeline::runner::{RunSummary, Selection};
@@ -56,9 +58,16 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     }
     match command {
         Command::Run(args) => run(args, reporter),
+        Command::Submit(args) => submit(args, reporter),
+        Command::Cancel { capture_dir } => cancel(&capture_dir, reporter),
         Command::Status { capture_dir } => {
             let (capture, config) = open_capture(&capture_dir)?;
-            let rows = stages::pipeline().status(&capture, &config)?;
+            let mut rows = stages::pipeline().status(&capture, &config)?;
+            if let Err(e) = pipeline::cluster::annotate_status(&mut rows, &capture) {
+                reporter.say(&format!(
+                    "the Slurm jobs of this capture are not shown: {e}"
+                ));
+            }
             if reporter.mode() == OutputMode::Json {
                 reporter.json(&rows);
             } else {
@@ -183,6 +192,7 @@ fn bench_done(
 
 fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     let (capture, mut config) = open_capture(&args.capture_dir)?;
+    pipeline::cluster::check_local_run(&capture)?;
     if let Some(b) = args.backend {
         config.engine.backend = b;
     }
@@ -202,6 +212,115 @@ fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     } else {
         ExitCode::FAILURE
     })
+}
+
+/// Submit each capture's stale stages to Slurm, one job per stage, chained by `afterok`.
+/// Every capture is tried; the command fails when one of them could not be submitted.
+fn submit(args: SubmitArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
+    let pipeline = stages::pipeline();
+    let names = pipeline.stage_names();
+    let mut run_args = Vec::new();
+    if args.force {
+        run_args.push("--force".to_string());
+    }
+    if let Some(b) = args.backend {
+        use clap::ValueEnum;
+        if let Some(value) = b.to_possible_value() {
+            run_args.extend(["--backend".to_string(), value.get_name().to_string()]);
+        }
+    }
+    if let Some(p) = args.preset {
+        run_args.extend(["--preset".to_string(), p.name().to_string()]);
+    }
+    let options = pipeline::cluster::SubmitOptions {
+        selection: Selection {
+            from: args.from,
+            to: args.to,
+            only: args.only,
+            force: args.force,
+        },
+        run_args,
+    };
+    let mut failed = 0;
+    for dir in &args.capture_dirs {
+        let outcome = open_capture(dir).and_then(|(capture, mut config)| {
+            if let Some(b) = args.backend {
+                config.engine.backend = b;
+            }
+            if let Some(p) = args.preset {
+                config = config.with_preset(p);
+            }
+            let settings = pipeline::cluster::settings_for(&config, &names)?;
+            Ok(pipeline::cluster::submit(
+                &pipeline, &capture, &config, &settings, &options,
+            )?)
+        });
+        match outcome {
+            Ok(done) => {
+                reporter.json(&serde_json::json!({"event": "submitted", "submission": done}));
+                let jobs: Vec<String> = done
+                    .jobs
+                    .iter()
+                    .map(|j| {
+                        let gpus = if j.gpus > 0 {
+                            format!(" ({} GPU)", j.gpus)
+                        } else {
+                            String::new()
+                        };
+                        format!("{} → job {}{gpus}", j.stage, j.job_id)
+                    })
+                    .collect();
+                let mut line = format!("{}: ", dir.display());
+                if jobs.is_empty() {
+                    line += "up to date, nothing submitted";
+                } else {
+                    line += &jobs.join(", ");
+                    if !done.up_to_date.is_empty() {
+                        line += &format!("; up to date: {}", done.up_to_date.join(", "));
+                    }
+                }
+                reporter.say(&line);
+            }
+            Err(e) => {
+                failed += 1;
+                let error = pipeline::error_chain(&e);
+                reporter
+                    .json(&serde_json::json!({"event": "error", "capture": dir, "error": error}));
+                eprintln!("error: {}: {error}", dir.display());
+            }
+        }
+    }
+    if failed == 0 && args.capture_dirs.len() == 1 {
+        reporter.say(&format!(
+            "`pipeline status {}` shows the jobs",
+            args.capture_dirs[0].display()
+        ));
+    }
+    Ok(if failed == 0 {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
+}
+
+/// Cancel a capture's Slurm jobs that have not finished.
+fn cancel(dir: &std::path::Path, reporter: &Reporter) -> anyhow::Result<ExitCode> {
+    let (capture, _) = open_capture(dir)?;
+    let cancelled = pipeline::cluster::cancel(&capture, std::time::Duration::from_secs(30))?;
+    reporter.json(&serde_json::json!({"event": "cancelled", "jobs": cancelled}));
+    if cancelled.is_empty() {
+        reporter.say(&format!(
+            "{}: no job of this capture is in Slurm",
+            dir.display()
+        ));
+    } else {
+        let jobs: Vec<String> = cancelled
+            .iter()
+            .map(|j| format!("{} (job {})", j.stage, j.job_id))
+            .collect();
+        reporter.say(&format!("{}: cancelled {}", dir.display(), jobs.join(", ")));
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 /// Render the trained model along a path into an MP4 file or a folder of PNGs; the

@@ -168,6 +168,8 @@ pub const RANGES: &[(&str, Range)] = &[
     ("export.gltf_every", COUNT),
     ("export.viewer_max_frames", SOME),
     ("export.viewer_fps", FPS),
+    ("cluster.cpus", SOME),
+    ("cluster.gpus", COUNT),
 ];
 
 impl Range {
@@ -199,8 +201,13 @@ impl Range {
     }
 }
 
-/// The range of the setting at dotted `key`, if it is numeric.
+/// The range of the setting at dotted `key`, if it is numeric. A per-stage cluster key
+/// (`cluster.stages.train.cpus`) has the range of its `[cluster]` key.
 pub fn range_of(key: &str) -> Option<Range> {
+    let key = match key.strip_prefix("cluster.stages.") {
+        Some(rest) => format!("cluster.{}", rest.split_once('.').map_or(rest, |(_, k)| k)),
+        None => key.to_string(),
+    };
     RANGES.iter().find(|(k, _)| *k == key).map(|(_, r)| *r)
 }
 
@@ -338,6 +345,9 @@ mod tests {
             ("render.size", "[0, 360]"),
             ("capture.cameras", "0"),
             ("init.sweep_min_score", "-2.0"),
+            ("cluster.cpus", "0"),
+            ("cluster.stages.train.cpus", "0"),
+            ("cluster.gpus", "-1"),
         ] {
             let e = CaptureConfig::parse(&setting(key, bad), path)
                 .unwrap_err()

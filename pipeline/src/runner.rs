@@ -88,6 +88,11 @@ pub enum State {
     Missing,
     Failed,
     Running,
+    /// Submitted to Slurm, waiting to start (`pipeline submit`).
+    Queued,
+    /// Its Slurm job was cancelled, or never will start because the job it waited for
+    /// failed.
+    Cancelled,
 }
 
 /// One row of `pipeline status`.
@@ -101,6 +106,9 @@ pub struct StageStatus {
     pub duration_s: Option<f64>,
     /// Why stale / failed, or notes.
     pub details: Vec<String>,
+    /// The Slurm job of the latest `pipeline submit` that runs (or ran) it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub job: Option<String>,
 }
 
 impl Pipeline {
@@ -249,6 +257,7 @@ impl Pipeline {
                 when: manifest.as_ref().map(|m| m.started),
                 duration_s: manifest.as_ref().map(|m| m.duration_s),
                 details: Vec::new(),
+                job: None,
             };
             match Self::freshness(&dir, manifest.as_ref(), &inputs, &params, stage.name) {
                 Freshness::UpToDate => {}
@@ -268,6 +277,8 @@ impl Pipeline {
                         State::Missing => "has not run",
                         State::Failed => "failed",
                         State::Running => "is running",
+                        State::Queued => "is queued",
+                        State::Cancelled => "was cancelled",
                         _ => "is stale",
                     };
                     row.details.push(format!("upstream `{up}` {what}"));

@@ -70,6 +70,9 @@ pub struct StageDef {
     pub run: Option<RunFn>,
     /// Keep the partial output folder between attempts (checkpoints for `--resume`).
     pub resumable: bool,
+    /// Trains or renders on `[engine] backend`: a GPU stage unless the backend is `cpu`
+    /// (`pipeline submit` asks Slurm for a GPU for it).
+    pub engine: bool,
 }
 
 impl StageDef {
@@ -85,6 +88,7 @@ impl StageDef {
             params: Box::new(move |config| config.section(name)),
             run: None,
             resumable: false,
+            engine: false,
         }
     }
 
@@ -138,6 +142,12 @@ impl StageDef {
 
     pub fn resumable(mut self) -> Self {
         self.resumable = true;
+        self
+    }
+
+    /// Marks a stage that runs on the engine's backend (a GPU unless it is `cpu`).
+    pub fn on_engine(mut self) -> Self {
+        self.engine = true;
         self
     }
 }

@@ -10,6 +10,8 @@ fn state_word(state: State) -> &'static str {
         State::Missing => "missing",
         State::Failed => "failed",
         State::Running => "running",
+        State::Queued => "queued",
+        State::Cancelled => "cancelled",
     }
 }
 

@@ -101,10 +101,12 @@ pub fn pipeline() -> Pipeline {
                 .params(train_params)
                 .outputs(&["model.bin", "log.csv", crate::engine_inputs::TRAIN_RECORD])
                 .resumable()
+                .on_engine()
                 .run(|ctx, config| train::run(ctx, &config.train, &config.decay, &config.engine)),
             StageDef::new("render", "render videos along camera paths")
                 .after(&["frames", "poses", "train"])
                 .output_one_of(&render::OUTPUTS)
+                .on_engine()
                 .run(|ctx, config| {
                     let background = crate::engine_inputs::trained_background(
                         &ctx.capture.work_dir(),
@@ -120,6 +122,7 @@ pub fn pipeline() -> Pipeline {
             .inputs(|c, config| eval::inputs(c, &config.eval))
             .params(with_heldout("eval"))
             .outputs(&["metrics.json", "per_frame.csv"])
+            .on_engine()
             .run(|ctx, config| {
                 let background = crate::engine_inputs::trained_background(
                     &ctx.capture.work_dir(),

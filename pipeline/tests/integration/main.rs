@@ -25,6 +25,7 @@ mod panoptic_capture;
 mod real_calibrations;
 mod render_backend;
 mod runner;
+mod slurm;
 mod stage_graph;
 mod train_demo;
 mod train_stage;

@@ -1,0 +1,655 @@
+//! `pipeline submit`, `status` and `cancel` on a real Slurm: a one-node cluster started
+//! on this machine for each test ([`Cluster`]: Debian 12's Slurm 22.05, munge with its own
+//! key and socket, every daemon in the foreground in a temporary folder), running the
+//! tiny simulated capture's stages as jobs.
+//!
+//! Without Slurm (scripts/setup.sh installs `slurmctld slurmd slurm-client munge`) or
+//! without root (slurmd runs the jobs) a test skips with a message, except under
+//! `CI=true`, where that is a failure.
+
+use crate::common;
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::os::unix::fs::PermissionsExt;
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use pipeline::cluster::jobs::Submission;
+use pipeline::manifest::Manifest;
+
+/// A one-node Slurm cluster of this machine, torn down on drop.
+struct Cluster {
+    dir: tempfile::TempDir,
+    conf: PathBuf,
+    /// munged, slurmctld, slurmd: the processes this cluster started, ended on drop.
+    daemons: Vec<(&'static str, Child)>,
+}
+
+fn in_ci() -> bool {
+    std::env::var("CI").is_ok_and(|v| v == "true" || v == "1")
+}
+
+/// Skip with a reason, or fail under CI.
+fn unavailable(reason: &str) -> Option<Cluster> {
+    if in_ci() {
+        panic!(
+            "Slurm test cluster unavailable under CI=true: {reason} (scripts/setup.sh installs slurmctld slurmd slurm-client munge)"
+        );
+    }
+    eprintln!("skipping: {reason}");
+    None
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .expect("a free local port")
+}
+
+/// `NodeName=… CPUs=… RealMemory=…` of this host, as `slurmd -C` reports it.
+fn host_node_config() -> Option<BTreeMap<String, String>> {
+    let out = Command::new("slurmd").arg("-C").output().ok()?;
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text.lines().find(|l| l.starts_with("NodeName="))?;
+    Some(
+        line.split_whitespace()
+            .filter_map(|kv| kv.split_once('='))
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect(),
+    )
+}
+
+impl Cluster {
+    /// Start munged, slurmctld and slurmd and wait for the node to be idle; `None` (with
+    /// the reason printed) when Slurm is not installed here, outside CI.
+    fn start() -> Option<Self> {
+        for program in [
+            "munged",
+            "slurmctld",
+            "slurmd",
+            "sbatch",
+            "squeue",
+            "scontrol",
+        ] {
+            if Command::new("which")
+                .arg(program)
+                .stdout(Stdio::null())
+                .status()
+                .map_or(true, |s| !s.success())
+            {
+                return unavailable(&format!("`{program}` is not installed"));
+            }
+        }
+        // SAFETY: geteuid has no preconditions.
+        if unsafe { libc::geteuid() } != 0 {
+            return unavailable("slurmd must run as root to start jobs");
+        }
+        let Some(node) = host_node_config() else {
+            return unavailable("`slurmd -C` did not describe this host");
+        };
+        let host = node.get("NodeName").cloned().unwrap_or_default();
+        let dir = tempfile::Builder::new()
+            .prefix("slurm-test")
+            .tempdir()
+            .unwrap();
+        let root = dir.path().to_path_buf();
+        // munged needs every folder above its socket to be searchable by all.
+        fs::set_permissions(&root, fs::Permissions::from_mode(0o755)).unwrap();
+        for sub in ["munge", "state", "spool", "log"] {
+            fs::create_dir_all(root.join(sub)).unwrap();
+            fs::set_permissions(root.join(sub), fs::Permissions::from_mode(0o755)).unwrap();
+        }
+        let key = root.join("munge/munge.key");
+        let mut bytes = vec![0u8; 1024];
+        fs::File::open("/dev/urandom")
+            .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut bytes))
+            .unwrap();
+        fs::write(&key, &bytes).unwrap();
+        fs::set_permissions(&key, fs::Permissions::from_mode(0o600)).unwrap();
+        let socket = root.join("munge/munge.socket");
+        // Fake GPUs for `--gres`: each needs a device file, or the node drains.
+        for i in 0..2 {
+            std::os::unix::fs::symlink("/dev/null", root.join(format!("gpu{i}"))).unwrap();
+        }
+        fs::write(
+            root.join("gres.conf"),
+            format!(
+                "NodeName={host} Name=gpu File={}\nNodeName={host} Name=gpu File={}\n",
+                root.join("gpu0").display(),
+                root.join("gpu1").display()
+            ),
+        )
+        .unwrap();
+        let get = |k: &str, default: &str| node.get(k).cloned().unwrap_or_else(|| default.into());
+        let memory: u64 = get("RealMemory", "2048").parse().unwrap_or(2048);
+        let conf = root.join("slurm.conf");
+        let r = root.display();
+        fs::write(
+            &conf,
+            format!(
+                "ClusterName=test\n\
+                 SlurmctldHost={host}(127.0.0.1)\n\
+                 SlurmctldPort={ctld}\n\
+                 SlurmdPort={slurmd}\n\
+                 AuthType=auth/munge\n\
+                 CredType=cred/munge\n\
+                 AuthInfo=socket={socket}\n\
+                 SlurmUser=root\n\
+                 SlurmdUser=root\n\
+                 StateSaveLocation={r}/state\n\
+                 SlurmdSpoolDir={r}/spool\n\
+                 SlurmctldPidFile={r}/slurmctld.pid\n\
+                 SlurmdPidFile={r}/slurmd.pid\n\
+                 SlurmctldLogFile={r}/log/slurmctld.log\n\
+                 SlurmdLogFile={r}/log/slurmd.log\n\
+                 ProctrackType=proctrack/linuxproc\n\
+                 TaskPlugin=task/none\n\
+                 SelectType=select/cons_tres\n\
+                 SelectTypeParameters=CR_Core_Memory\n\
+                 SchedulerParameters=batch_sched_delay=0\n\
+                 DefMemPerCPU=256\n\
+                 MpiDefault=none\n\
+                 ReturnToService=2\n\
+                 JobAcctGatherType=jobacct_gather/none\n\
+                 AccountingStorageType=accounting_storage/none\n\
+                 GresTypes=gpu\n\
+                 NodeName={host} NodeAddr=127.0.0.1 CPUs={cpus} Boards={boards} SocketsPerBoard={sockets} \
+                 CoresPerSocket={cores} ThreadsPerCore={threads} RealMemory={memory} Gres=gpu:2 State=UNKNOWN\n\
+                 PartitionName=test Nodes={host} Default=YES MaxTime=INFINITE State=UP\n",
+                ctld = free_port(),
+                slurmd = free_port(),
+                socket = socket.display(),
+                cpus = get("CPUs", "1"),
+                boards = get("Boards", "1"),
+                sockets = get("SocketsPerBoard", "1"),
+                cores = get("CoresPerSocket", "1"),
+                threads = get("ThreadsPerCore", "1"),
+            ),
+        )
+        .unwrap();
+        let mut cluster = Cluster {
+            dir,
+            conf,
+            daemons: Vec::new(),
+        };
+        let munge_args = [
+            "--foreground".to_string(),
+            format!("--key-file={}", key.display()),
+            format!("--socket={}", socket.display()),
+            format!("--pid-file={r}/munge/munged.pid"),
+            format!("--log-file={r}/log/munged.log"),
+            format!("--seed-file={r}/munge/munged.seed"),
+        ];
+        cluster.spawn("munged", &munge_args);
+        let start = Instant::now();
+        while !socket.exists() {
+            assert!(
+                start.elapsed() < Duration::from_secs(10),
+                "munged did not start: {}",
+                cluster.logs()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        cluster.spawn("slurmctld", &["-D".into(), "-i".into()]);
+        cluster.spawn("slurmd", &["-D".into(), "-N".into(), host.clone()]);
+        let start = Instant::now();
+        loop {
+            let out = cluster.command("sinfo").args(["-h", "-o", "%T"]).output();
+            let state = out.map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string());
+            if state.as_deref().is_ok_and(|s| s == "idle") {
+                break;
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(30),
+                "the node never became idle ({state:?}): {}",
+                cluster.logs()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        Some(cluster)
+    }
+
+    /// Start a daemon in its own session, its output in log/NAME.out.
+    fn spawn(&mut self, program: &'static str, args: &[String]) {
+        let out = fs::File::create(self.dir.path().join(format!("log/{program}.out"))).unwrap();
+        let mut command = Command::new(program);
+        command
+            .args(args)
+            .env("SLURM_CONF", &self.conf)
+            .stdin(Stdio::null())
+            .stdout(out.try_clone().unwrap())
+            .stderr(out);
+        // SAFETY: setsid is async-signal-safe; the child calls nothing else before exec.
+        unsafe {
+            command.pre_exec(|| {
+                libc::setsid();
+                Ok(())
+            });
+        }
+        let child = command
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {program}: {e}"));
+        self.daemons.push((program, child));
+    }
+
+    /// A command that talks to this cluster (and reads no user cluster file).
+    fn command(&self, program: impl AsRef<std::ffi::OsStr>) -> Command {
+        let mut command = Command::new(program);
+        command
+            .env("SLURM_CONF", &self.conf)
+            .env(
+                pipeline::cluster::config::USER_FILE_ENV,
+                self.dir.path().join("no-user-cluster.toml"),
+            )
+            .env_remove("CI");
+        command
+    }
+
+    /// `pipeline ARGS` on this cluster.
+    fn pipeline(&self, args: &[&str]) -> Output {
+        self.command(env!("CARGO_BIN_EXE_pipeline"))
+            .args(args)
+            .output()
+            .unwrap()
+    }
+
+    /// The daemons' logs, for a failure message.
+    fn logs(&self) -> String {
+        let mut text = String::new();
+        for name in [
+            "munged.out",
+            "slurmctld.out",
+            "slurmd.out",
+            "slurmctld.log",
+            "slurmd.log",
+        ] {
+            let log =
+                fs::read_to_string(self.dir.path().join("log").join(name)).unwrap_or_default();
+            let tail: Vec<&str> = log.lines().rev().take(15).collect();
+            text += &format!("\n--- {name}\n");
+            for line in tail.iter().rev() {
+                text += line;
+                text.push('\n');
+            }
+        }
+        text
+    }
+
+    /// What `scontrol show job -o ID` says.
+    fn job_record(&self, id: &str) -> String {
+        let out = self
+            .command("scontrol")
+            .args(["show", "job", "-o", id])
+            .output()
+            .unwrap();
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    }
+
+    /// Wait until no stage of the capture is queued or running in Slurm; the status rows.
+    fn wait_for_jobs(&self, capture: &Path, limit: Duration) -> Vec<serde_json::Value> {
+        let start = Instant::now();
+        loop {
+            let rows = status(self, capture);
+            let busy = rows
+                .iter()
+                .any(|r| r["state"] == "queued" || r["state"] == "running");
+            if !busy {
+                return rows;
+            }
+            assert!(
+                start.elapsed() < limit,
+                "jobs still in Slurm after {limit:?}: {rows:#?}{}",
+                self.logs()
+            );
+            std::thread::sleep(Duration::from_millis(250));
+        }
+    }
+}
+
+impl Drop for Cluster {
+    fn drop(&mut self) {
+        let _ = self
+            .command("scontrol")
+            .arg("shutdown")
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .status();
+        let start = Instant::now();
+        // slurmctld and slurmd end on `scontrol shutdown`; munged, and any daemon that
+        // did not, is ended here: only the processes this cluster started.
+        for (name, child) in self.daemons.iter_mut().rev() {
+            let grace = if *name == "munged" {
+                Duration::ZERO
+            } else {
+                Duration::from_secs(5)
+            };
+            loop {
+                if child.try_wait().ok().flatten().is_some() {
+                    break;
+                }
+                if start.elapsed() >= grace {
+                    let _ = child.kill();
+                    let _ = child.wait();
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        }
+    }
+}
+
+/// `pipeline --json status CAPTURE` rows.
+fn status(cluster: &Cluster, capture: &Path) -> Vec<serde_json::Value> {
+    let out = cluster.pipeline(&["--json", "status", capture.to_str().unwrap()]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice::<serde_json::Value>(&out.stdout)
+        .unwrap()
+        .as_array()
+        .unwrap()
+        .clone()
+}
+
+fn row<'a>(rows: &'a [serde_json::Value], stage: &str) -> &'a serde_json::Value {
+    rows.iter().find(|r| r["stage"] == stage).unwrap()
+}
+
+/// `pipeline submit ARGS`; its stdout and stderr, asserting success.
+fn submit(cluster: &Cluster, args: &[&str]) -> String {
+    let mut all = vec!["submit"];
+    all.extend_from_slice(args);
+    let out = cluster.pipeline(&all);
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        out.status.success(),
+        "submit {args:?}: {text}{}",
+        cluster.logs()
+    );
+    text
+}
+
+/// The tiny simulated capture (4 cameras, 160×120, 15 frames, its true calibration) with
+/// `settings` as capture.toml.
+fn tiny_capture(root: &Path, settings: &str) -> PathBuf {
+    let scene = rig::sim::Scene::from_file(&common::fixture("tiny.toml")).unwrap();
+    let quiet = pipeline::report::Reporter::new(pipeline::report::OutputMode::Quiet);
+    pipeline::simulate::simulate_into(&scene, root, &quiet).unwrap();
+    pipeline::simulate::write_truth_calibration(root).unwrap();
+    fs::write(root.join("capture.toml"), settings).unwrap();
+    root.to_path_buf()
+}
+
+/// Every stage cheap: clock sync, random initial points, 10 training iterations, two
+/// rendered frames; one CPU per job.
+const CHEAP: &str = "[sync]\nmethod = \"timestamps\"\n[init]\nsource = \"random\"\n\
+    [train]\niterations = 10\nbatch_size = 1\ncheckpoint_every = 0\n\
+    [train.densify]\nfrom_iteration = 4\nuntil_iteration = 8\nevery = 4\nopacity_reset_every = 0\n\
+    [render]\nframes = 2\n[eval]\nheldout_per_camera = 1\n[export]\nsteps = 1\nviewer = false\n\
+    [cluster]\ncpus = 1\n";
+
+fn copy_dir(from: &Path, to: &Path) {
+    fs::create_dir_all(to).unwrap();
+    for entry in fs::read_dir(from).unwrap() {
+        let path = entry.unwrap().path();
+        let target = to.join(path.file_name().unwrap());
+        if path.is_dir() {
+            copy_dir(&path, &target);
+        } else {
+            fs::copy(&path, &target).unwrap();
+        }
+    }
+}
+
+/// Output files that record how long a step took (they differ between any two runs).
+const TIMED: &[&str] = &["init/init.json", "train/log.csv", "export/export.json"];
+
+#[test]
+fn every_stage_runs_as_a_chained_job_and_gives_what_a_local_run_gives() {
+    let Some(cluster) = Cluster::start() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("take01");
+    // The engine stages ask for a (fake) GPU: `[engine] backend` is auto.
+    tiny_capture(&root, &format!("{CHEAP}gpus = 1\n"));
+    let pristine = tmp.path().join("pristine");
+    copy_dir(&root, &pristine);
+
+    let said = submit(&cluster, &[root.to_str().unwrap()]);
+    assert!(
+        said.contains("train → job") && said.contains("(1 GPU)"),
+        "{said}"
+    );
+    let rows = cluster.wait_for_jobs(&root, Duration::from_secs(90));
+    let names = pipeline::stages::pipeline().stage_names();
+    for name in &names {
+        assert_eq!(row(&rows, name)["state"], "done", "{rows:#?}");
+    }
+
+    // One job per stage, each waiting for the one before; each ran after it.
+    let submission = Submission::read(&root.join("work")).unwrap();
+    let stages: Vec<&str> = submission.jobs.iter().map(|j| j.stage.as_str()).collect();
+    assert_eq!(stages, names);
+    let mut previous: Option<(&str, Manifest)> = None;
+    for job in &submission.jobs {
+        assert_eq!(row(&rows, &job.stage)["job"], job.job_id.as_str());
+        let dir = root.join("work").join(&job.stage);
+        let manifest = Manifest::read(&dir).unwrap();
+        let log = dir.join(format!("slurm-{}.log", job.job_id));
+        let text = fs::read_to_string(&log).unwrap_or_else(|e| panic!("{}: {e}", log.display()));
+        assert!(text.contains(&format!("{}: done", job.stage)), "{text}");
+        let record = cluster.job_record(&job.job_id);
+        assert!(record.contains("JobState=COMPLETED"), "{record}");
+        let gpu = ["train", "render", "eval"].contains(&job.stage.as_str());
+        assert_eq!(record.contains("gpu:1"), gpu, "{}: {record}", job.stage);
+        if let Some((before, earlier)) = &previous {
+            let prev_job = submission.job_of(before).unwrap();
+            assert_eq!(job.after.as_deref(), Some(prev_job.job_id.as_str()));
+            let ended = earlier.started
+                + chrono::Duration::milliseconds((earlier.duration_s * 1000.0) as i64);
+            assert!(
+                manifest.started >= ended,
+                "{} started before {before} ended",
+                job.stage
+            );
+        }
+        previous = Some((job.stage.as_str(), manifest));
+    }
+
+    // The same capture run locally, at the same path, writes the same outputs.
+    let submitted = tmp.path().join("submitted");
+    fs::rename(&root, &submitted).unwrap();
+    fs::rename(&pristine, &root).unwrap();
+    let out = cluster.pipeline(&["--quiet", "run", root.to_str().unwrap()]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for name in &names {
+        let local = Manifest::read(&root.join("work").join(name)).unwrap();
+        let slurm = Manifest::read(&submitted.join("work").join(name)).unwrap();
+        assert_eq!(
+            local.outputs.keys().collect::<Vec<_>>(),
+            slurm.outputs.keys().collect::<Vec<_>>(),
+            "{name}"
+        );
+        for (file, record) in &local.outputs {
+            if !TIMED.contains(&format!("{name}/{file}").as_str()) {
+                assert_eq!(record.hash, slurm.outputs[file].hash, "{name}/{file}");
+            }
+        }
+        assert_eq!(local.parameters, slurm.parameters, "{name}");
+    }
+}
+
+#[test]
+fn two_captures_run_side_by_side() {
+    let Some(cluster) = Cluster::start() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    // Each job sleeps 2 s before its stage: one after the other, the two ingests would
+    // start at least 2 s apart.
+    let settings = format!("{CHEAP}setup = [\"sleep 2\"]\n");
+    let a = tiny_capture(&tmp.path().join("a"), &settings);
+    let b = tmp.path().join("b");
+    copy_dir(&a, &b);
+    submit(
+        &cluster,
+        &[a.to_str().unwrap(), b.to_str().unwrap(), "--to", "ingest"],
+    );
+    for capture in [&a, &b] {
+        let rows = cluster.wait_for_jobs(capture, Duration::from_secs(30));
+        assert_eq!(row(&rows, "ingest")["state"], "done", "{rows:#?}");
+    }
+    let started = |c: &Path| Manifest::read(&c.join("work/ingest")).unwrap().started;
+    let apart = (started(&a) - started(&b)).num_milliseconds().abs();
+    assert!(apart < 1500, "the two captures' jobs ran {apart} ms apart");
+}
+
+#[test]
+fn a_failed_stage_cancels_its_dependents_and_a_fixed_resubmit_runs_only_the_rest() {
+    let Some(cluster) = Cluster::start() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    // Without `method = "timestamps"` sync fails: the tiny scene has no clap or flash.
+    let broken = CHEAP.replace("method = \"timestamps\"", "method = \"auto\"");
+    let root = tiny_capture(&tmp.path().join("take"), &broken);
+    let dir = root.to_str().unwrap();
+    submit(&cluster, &[dir, "--to", "poses"]);
+    let rows = cluster.wait_for_jobs(&root, Duration::from_secs(30));
+    let first = Submission::read(&root.join("work")).unwrap();
+    assert_eq!(row(&rows, "ingest")["state"], "done", "{rows:#?}");
+    let sync = row(&rows, "sync");
+    assert_eq!(sync["state"], "failed", "{rows:#?}");
+    let sync_job = first.job_of("sync").unwrap().job_id.clone();
+    let details = sync["details"].to_string();
+    assert!(
+        details.contains(&format!("job {sync_job} FAILED"))
+            && details.contains(&format!("work/sync/slurm-{sync_job}.log"))
+            && details.contains("cannot synchronise"),
+        "{details}"
+    );
+    for stage in ["frames", "poses"] {
+        let r = row(&rows, stage);
+        assert_eq!(r["state"], "cancelled", "{rows:#?}");
+        assert!(
+            r["details"]
+                .to_string()
+                .contains("DependencyNeverSatisfied"),
+            "{r}"
+        );
+    }
+    assert_eq!(row(&rows, "init")["state"], "missing");
+    let table = cluster.pipeline(&["status", dir]);
+    let table = String::from_utf8_lossy(&table.stdout);
+    assert!(
+        table
+            .lines()
+            .any(|l| l.starts_with("frames") && l.contains("cancelled")),
+        "{table}"
+    );
+
+    // Fixed: only the failed stage and the stages after it are submitted again.
+    let ingest_made = Manifest::read(&root.join("work/ingest")).unwrap().started;
+    fs::write(root.join("capture.toml"), CHEAP).unwrap();
+    let said = submit(&cluster, &[dir, "--to", "poses"]);
+    assert!(said.contains("up to date: ingest"), "{said}");
+    let rows = cluster.wait_for_jobs(&root, Duration::from_secs(30));
+    let second = Submission::read(&root.join("work")).unwrap();
+    let stages: Vec<&str> = second.jobs.iter().map(|j| j.stage.as_str()).collect();
+    assert_eq!(stages, ["sync", "frames", "poses"]);
+    for stage in ["ingest", "sync", "frames", "poses"] {
+        assert_eq!(row(&rows, stage)["state"], "done", "{rows:#?}");
+    }
+    assert_eq!(
+        Manifest::read(&root.join("work/ingest")).unwrap().started,
+        ingest_made
+    );
+    // Nothing is stale up to poses: nothing is submitted.
+    let said = submit(&cluster, &[dir, "--to", "poses"]);
+    assert!(said.contains("up to date, nothing submitted"), "{said}");
+}
+
+#[test]
+fn cancel_leaves_no_job_behind_and_a_capture_with_jobs_is_not_run_twice() {
+    let Some(cluster) = Cluster::start() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tiny_capture(
+        &tmp.path().join("take"),
+        &format!("{CHEAP}setup = [\"sleep 60\"]\n"),
+    );
+    let dir = root.to_str().unwrap();
+    submit(&cluster, &[dir, "--to", "frames"]);
+    let submission = Submission::read(&root.join("work")).unwrap();
+    let ids = submission.job_ids();
+    // Wait for the first job to run.
+    let start = Instant::now();
+    while row(&status(&cluster, &root), "ingest")["state"] != "running" {
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "{}",
+            cluster.logs()
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let rows = status(&cluster, &root);
+    assert_eq!(row(&rows, "sync")["state"], "queued", "{rows:#?}");
+
+    // While its jobs are in Slurm, the capture is neither run here nor submitted again.
+    for args in [vec!["run", dir], vec!["submit", dir]] {
+        let out = cluster.pipeline(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?}");
+        assert!(
+            err.contains("has jobs in Slurm") && err.contains("pipeline cancel"),
+            "{args:?}: {err}"
+        );
+    }
+
+    let out = cluster.pipeline(&["cancel", dir]);
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{said}");
+    for id in &ids {
+        assert!(said.contains(&format!("job {id}")), "{said}");
+    }
+    let out = cluster
+        .command("squeue")
+        .args(["-h", "-t", "all", "-o", "%i|%T", "-j", &ids.join(",")])
+        .output()
+        .unwrap();
+    let queue = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(queue.lines().count(), ids.len(), "{queue}");
+    assert!(
+        queue.lines().all(|l| l.ends_with("|CANCELLED")),
+        "jobs left behind: {queue}"
+    );
+    let rows = status(&cluster, &root);
+    for stage in ["ingest", "sync", "frames"] {
+        assert_eq!(row(&rows, stage)["state"], "cancelled", "{rows:#?}");
+    }
+    // Nothing left: a second cancel finds no job, and a local run goes ahead.
+    let out = cluster.pipeline(&["cancel", dir]);
+    assert!(String::from_utf8_lossy(&out.stderr).contains("no job of this capture"));
+    let out = cluster.pipeline(&["--quiet", "run", dir, "--to", "ingest"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
