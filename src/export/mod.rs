@@ -1,7 +1,8 @@
 //! Exports of a trained 4D model for people and other tools (docs/export.md):
 //! per-timestep 3DGS PLY frames (SuperSplat, Brush), glTF with `KHR_gaussian_splatting`
 //! (three.js, Babylon.js, PlayCanvas, CesiumJS), the native 4D model as PLY, a `.splatv`
-//! for web playback and a self-contained browser viewer. [`export_all`] writes
+//! for splaTV-style players and a self-contained browser viewer that draws the native 4D
+//! model from one compact file (`web4d`). [`export_all`] writes
 //! them all; the submodules hold one format each. Every file is written to a temporary
 //! name and renamed when complete.
 
@@ -11,6 +12,7 @@ pub mod ply3d;
 pub mod ply4d;
 pub mod splatv;
 pub mod viewer;
+pub mod web4d;
 
 use crate::model::Gaussians;
 use crate::{CameraSet, Progress};
@@ -77,10 +79,6 @@ pub struct ExportOptions {
     /// The built viewer bundle; `None` = find it (see [`viewer::find_viewer_bundle`]).
     #[serde(skip)]
     pub viewer_bundle: Option<PathBuf>,
-    /// At most this many viewer frames (evenly chosen among the export times).
-    pub viewer_max_frames: usize,
-    /// Playback rate of the viewer in frames per second.
-    pub viewer_fps: f64,
     /// The colour the model was trained on (`[train] background`): the viewer draws it
     /// behind the splats, as render and eval do. Not a setting: the export stage takes it
     /// from the training record.
@@ -100,8 +98,6 @@ impl Default for ExportOptions {
             splatv: true,
             viewer: true,
             viewer_bundle: None,
-            viewer_max_frames: 120,
-            viewer_fps: 15.0,
             background: [0.0; 3],
         }
     }
@@ -195,7 +191,7 @@ fn gltf_files(times: &[f64], opts: &ExportOptions) -> Vec<(String, f64)> {
 }
 
 /// Mean camera centre: the viewpoint used to bake view-dependent colour into the
-/// single-colour formats (`.splatv`, viewer frames).
+/// single-colour `.splatv`.
 fn colour_viewpoint(cameras: &CameraSet) -> Option<[f64; 3]> {
     let n = cameras.cameras.len();
     (n > 0).then(|| {
@@ -209,9 +205,10 @@ fn colour_viewpoint(cameras: &CameraSet) -> Option<[f64; 3]> {
 }
 
 /// Write every export of `model` into `out_dir`: `frames/NNNN.ply` (one 3DGS PLY per model
-/// time in `times`), `model4d.ply`, `scene.splatv` and `viewer/` (index.html, the gsplat
-/// bundle, `frames/NNNN.splat`, `scene.json`), as selected in `opts`. `cameras` give the
-/// viewer's start view, the `.splatv` camera list and the viewpoint for baked colours.
+/// time in `times`), glTF, `model4d.ply`, `scene.splatv` and `viewer/` (the page, the
+/// whole model as `model.4dgs` for the span of `times`, `scene.json`), as selected in
+/// `opts`. `cameras` give the viewer's cameras, the `.splatv` camera list and the
+/// viewpoint of the `.splatv`'s single colour.
 pub fn export_all(
     model: &Gaussians<f32>,
     cameras: &CameraSet,
@@ -238,26 +235,11 @@ pub fn export_all(
         }
         (true, None) => Some(viewer::find_viewer_bundle()?),
     };
-    let viewer_times: Vec<(usize, f64)> = if opts.viewer {
-        let n = times.len().min(opts.viewer_max_frames.max(1));
-        (0..n)
-            .map(|k| {
-                let i = if n == 1 {
-                    0
-                } else {
-                    k * (times.len() - 1) / (n - 1)
-                };
-                (i, times[i])
-            })
-            .collect()
-    } else {
-        Vec::new()
-    };
     let frames_total = if opts.frames { times.len() } else { 0 };
     let gltf_files = gltf_files(times, opts);
     let total = frames_total
         + gltf_files.len()
-        + viewer_times.len()
+        + opts.viewer as usize
         + opts.model4d as usize
         + opts.splatv as usize;
     progress.start(total as u64, "files");
@@ -313,85 +295,17 @@ pub fn export_all(
         progress.advance(1);
     }
     if let Some(bundle) = bundle {
-        let dir = out_dir.join("viewer");
-        viewer::copy_bundle(&bundle, &dir)?;
-        let fallback = model
-            .means
-            .iter()
-            .map(|m| glam::DVec3::new(m[0] as f64, m[1] as f64, m[2] as f64))
-            .sum::<glam::DVec3>()
-            / model.len().max(1) as f64;
-        let space = viewer::ViewerSpace::from_cameras(cameras, fallback);
-        let viewer_cameras: Vec<viewer::ViewerCamera> = cameras
-            .cameras
-            .iter()
-            .map(|c| viewer::ViewerCamera::from_camera(c, &space))
-            .collect();
-        let sort_from = viewer_cameras
-            .first()
-            .map_or(glam::DVec3::new(0.0, -1.0, -4.0), |c| {
-                glam::DVec3::from_array(c.position)
-            });
-        // Pass 1: where each Gaussian first appears (for one row order of all frames);
-        // pass 2 bakes again frame by frame, so that one frame at a time is in memory.
-        let mut first_seen: Vec<Option<[f32; 3]>> = vec![None; model.len()];
-        for &(_, t) in &viewer_times {
-            for (seen, row) in
-                first_seen
-                    .iter_mut()
-                    .zip(bake::bake_rows(model, t, opts.min_opacity))
-            {
-                if seen.is_none() {
-                    *seen = row.map(|s| s.position);
-                }
-            }
-        }
-        let order = viewer::row_order(&first_seen, &space, sort_from);
-        let mut frames = Vec::new();
-        for (k, &(_, t)) in viewer_times.iter().enumerate() {
-            let rows = bake::bake_rows(model, t, opts.min_opacity);
-            let file = format!("frames/{k:04}.splat");
-            let bytes = viewer::encode_frame(model, &rows, &order, t, &space, view);
-            write_atomic(&dir.join(&file), &bytes)?;
-            let mut colours = Vec::new();
-            for (c, cam) in cameras.cameras.iter().enumerate() {
-                let name = format!("frames/{k:04}.cam{c}.rgb");
-                let eye = cam.world_to_camera.centre().to_array();
-                write_atomic(
-                    &dir.join(&name),
-                    &viewer::encode_colours(model, &rows, &order, t, eye),
-                )?;
-                colours.push(name);
-            }
-            frames.push(viewer::ViewerFrame {
-                file,
-                t,
-                seconds: model.time.seconds(t),
-                splats: rows.iter().flatten().count(),
-                colours,
-            });
-            progress.advance(1);
-        }
-        let scene = viewer::ViewerScene {
-            version: 3,
-            frames,
-            rows: order.len(),
-            cameras: viewer_cameras,
-            start_camera: 0,
-            fps: opts.viewer_fps,
-            duration: bake::colour_period(model),
-            background: opts.background,
-            space: viewer::ViewerSpaceJson {
-                centre: space.centre.to_array(),
-                rotation: space.rotation.to_array(),
-            },
-        };
-        let scene_path = dir.join("scene.json");
-        crate::atomic::write_json(&scene_path, &scene).map_err(|source| ExportError::Io {
-            path: scene_path,
-            source,
-        })?;
-        report.viewer_index = Some(dir.join("index.html"));
+        let index = viewer::write_viewer(
+            model,
+            cameras,
+            times,
+            &bundle,
+            opts.min_opacity,
+            opts.background,
+            &out_dir.join("viewer"),
+        )?;
+        report.viewer_index = Some(index);
+        progress.advance(1);
     }
     report.seconds = start.elapsed().as_secs_f64();
     progress.finish();

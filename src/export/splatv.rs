@@ -157,11 +157,11 @@ pub fn splats_from_model(
         .collect()
 }
 
-fn half2(a: f32, b: f32) -> u32 {
+pub(super) fn half2(a: f32, b: f32) -> u32 {
     f16::from_f32(a).to_bits() as u32 | ((f16::from_f32(b).to_bits() as u32) << 16)
 }
 
-fn unhalf2(v: u32) -> (f32, f32) {
+pub(super) fn unhalf2(v: u32) -> (f32, f32) {
     (
         f16::from_bits(v as u16).to_f32(),
         f16::from_bits((v >> 16) as u16).to_f32(),

@@ -322,7 +322,7 @@ fn export_all_writes_the_documented_tree() {
 }
 
 #[test]
-fn viewer_export_copies_the_bundle_and_writes_equal_size_frames() {
+fn viewer_export_copies_the_bundle_and_writes_the_model_once() {
     let m = model(9, 40);
     let cams = CameraSet::new(vec![camera(64, 48)]);
     let dir = tempfile::tempdir().unwrap();
@@ -336,7 +336,6 @@ fn viewer_export_copies_the_bundle_and_writes_equal_size_frames() {
         model4d: false,
         splatv: false,
         viewer_bundle: Some(bundle),
-        viewer_max_frames: 3,
         background: [0.25, 0.5, 0.75],
         ..Default::default()
     };
@@ -347,65 +346,44 @@ fn viewer_export_copies_the_bundle_and_writes_equal_size_frames() {
     assert!(v.join("assets/a.js").is_file());
     let scene: serde_json::Value =
         serde_json::from_slice(&std::fs::read(v.join("scene.json")).unwrap()).unwrap();
-    let frames = scene["frames"].as_array().unwrap();
-    assert_eq!(frames.len(), 3);
-    let ts: Vec<f64> = frames.iter().map(|f| f["t"].as_f64().unwrap()).collect();
-    assert_eq!(ts, vec![times[0], times[3], times[6]]);
-    let rows = scene["rows"].as_u64().unwrap() as usize;
-    assert!(rows > 0 && rows <= m.len());
+    let ts: Vec<f64> = serde_json::from_value(scene["times"].clone()).unwrap();
+    assert_eq!(ts, times);
+    // One model file for the whole clip, as scene.json describes it.
+    let file = v.join(scene["model"]["file"].as_str().unwrap());
+    let (header, rows) = splat4d::export::web4d::read_web_model(&file).unwrap();
+    assert_eq!(
+        scene["model"]["bytes"].as_u64().unwrap(),
+        std::fs::metadata(&file).unwrap().len()
+    );
+    assert_eq!(
+        scene["model"]["gaussians"].as_u64().unwrap() as usize,
+        rows.len()
+    );
+    assert!(!rows.is_empty() && rows.len() <= m.len());
+    assert_eq!(header.span, [times[0], times[6]]);
+    assert_eq!(header.degrees, m.active.min(m.capacity));
     // The page draws the training background behind the splats.
-    let background: Vec<f64> = scene["background"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|v| v.as_f64().unwrap())
-        .collect();
+    let background: Vec<f64> = serde_json::from_value(scene["background"].clone()).unwrap();
     assert_eq!(background, opts.background.map(f64::from).to_vec());
-    for f in frames {
-        // One size and one row order for all frames; rows a frame does not draw are
-        // transparent.
-        let bytes = std::fs::read(v.join(f["file"].as_str().unwrap())).unwrap();
-        assert_eq!(bytes.len(), 32 * rows);
-        let drawn = bytes.chunks_exact(32).filter(|r| r[27] > 0).count();
-        let splats = f["splats"].as_u64().unwrap() as usize;
-        assert!(drawn <= splats && splats <= rows, "{drawn} {splats} {rows}");
-        // The colours seen from each training camera, RGB per row.
-        let colours = f["colours"].as_array().unwrap();
-        assert_eq!(colours.len(), 1);
-        let rgb = std::fs::read(v.join(colours[0].as_str().unwrap())).unwrap();
-        assert_eq!(rgb.len(), 3 * rows);
-    }
-    // The training camera in viewer space sees the viewer-space points where the engine's
-    // camera sees the world points.
-    let space = &scene["space"];
-    let vec3 =
-        |v: &serde_json::Value| DVec3::from_array(serde_json::from_value(v.clone()).unwrap());
-    let quat = |v: &serde_json::Value| {
-        let q: [f64; 4] = serde_json::from_value(v.clone()).unwrap();
-        DQuat::from_xyzw(q[0], q[1], q[2], q[3])
-    };
-    let (centre, to_viewer) = (vec3(&space["centre"]), quat(&space["rotation"]));
+    // The camera as the engine has it (world to camera, OpenCV axes).
     let cam = &scene["cameras"][0];
-    let (position, cam_to_viewer) = (vec3(&cam["position"]), quat(&cam["rotation"]));
     assert_eq!(cam["name"], "test");
     assert_eq!(cam["fx"].as_f64().unwrap(), cams.cameras[0].intrinsics.fx);
-    assert!(
-        (position.length() - 4.0).abs() < 0.5,
-        "camera to the scene centre {position}"
-    );
-    for mean in &m.means {
-        let world = DVec3::new(mean[0] as f64, mean[1] as f64, mean[2] as f64);
-        let seen = cams.cameras[0].world_to_camera.apply(world);
-        let viewer = to_viewer * (world - centre);
-        let seen_in_viewer = cam_to_viewer.inverse() * (viewer - position);
-        assert!(
-            (seen - seen_in_viewer).length() < 1e-9,
-            "{seen} vs {seen_in_viewer}"
-        );
+    let rotation: [[f64; 3]; 3] = serde_json::from_value(cam["rotation"].clone()).unwrap();
+    let translation: [f64; 3] = serde_json::from_value(cam["translation"].clone()).unwrap();
+    let w = &cams.cameras[0].world_to_camera;
+    for r in 0..3 {
+        assert!((translation[r] - w.translation[r]).abs() < 1e-12);
+        for c in 0..3 {
+            assert!((rotation[r][c] - w.rotation[r][c]).abs() < 1e-12);
+        }
     }
-    // The cameras' up direction is −y in viewer space (gsplat's orbit controls).
-    let up = cam_to_viewer * DVec3::NEG_Y;
-    assert!(up.y < -0.9, "camera up in viewer space {up}");
+    // Up is the camera's −y.
+    let up: [f64; 3] = serde_json::from_value(scene["up"].clone()).unwrap();
+    let r = &cams.cameras[0].world_to_camera.rotation;
+    for k in 0..3 {
+        assert!((up[k] + r[1][k]).abs() < 1e-12, "up {up:?}");
+    }
 }
 
 fn walk(dir: &std::path::Path) -> Vec<std::path::PathBuf> {

@@ -1,5 +1,5 @@
 //! Fuzzed readers of the engine's files: the model file (`model.bin`), the 4D model PLY,
-//! the per-time-step 3DGS PLY and glTF time step. Damaged copies of valid files (`shared_types::fuzz`)
+//! the per-time-step 3DGS PLY and glTF time step, the viewer's `model.4dgs`. Damaged copies of valid files (`shared_types::fuzz`)
 //! must give an error or a model, never a panic, an abort or an allocation a damaged
 //! count asked for. `PROPTEST_CASES` sets the number of cases.
 
@@ -11,6 +11,7 @@ use splat4d::export::bake::bake_frame;
 use splat4d::export::gltf::{encode_glb, read_glb};
 use splat4d::export::ply3d::{read_frame_ply, write_frame_ply};
 use splat4d::export::ply4d::{read_model_ply, write_model_ply};
+use splat4d::export::web4d;
 use splat4d::model::Gaussians;
 use splat4d::model::file::{parse_model, save_model};
 
@@ -68,5 +69,10 @@ proptest! {
     #[test]
     fn gltf_time_step(bytes in damaged(encode_glb(&bake_frame(&model(), 0.5, 0.0)))) {
         within_budget(|| read_glb(&bytes, std::path::Path::new("step.glb")))?;
+    }
+
+    #[test]
+    fn viewer_model(bytes in damaged(web4d::encode(&model(), [0.0, 1.0], 0.0).bytes)) {
+        within_budget(|| web4d::decode(&bytes))?;
     }
 }

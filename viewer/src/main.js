@@ -1,226 +1,97 @@
-// splat4d browser viewer: plays the per-timestep `.splat` frames listed in scene.json with
-// gsplat.js. It opens at the first training camera (its exact pose and intrinsics), a row
-// of buttons switches between the training cameras (showing the colours seen from that
-// camera), dragging orbits from there, and the time slider / play button move through the
-// frames. `?splatv=URL` plays the export's `.splatv` instead, drawn by gsplat's own
-// `.splatv` renderer (a check that the file plays in a third-party player).
+// splat4d browser viewer: draws the export's whole 4D model (`model.4dgs`, listed in
+// scene.json) natively, slicing every Gaussian at the playback time on the GPU and
+// colouring it for the viewpoint shown (renderer.js). Opens at the first training camera
+// (its exact pose and intrinsics); buttons switch cameras, dragging orbits, the slider
+// and play button move through the clip at the capture's pace. The model streams in,
+// the most important Gaussians first, and is drawn while it loads.
 //
-// URL parameters (for links and tests): ?frame=N or ?t=0..1 (fraction of the sequence),
-// ?camera=K (training camera, default 0), ?play=0 (start paused), ?goto=N (switch to frame
-// N once the first frame is shown), ?ui=0 (canvas only, for screenshots), ?float=0 (blend
-// in 8 bits, as gsplat does by itself), ?stock=1 (gsplat's shaders unpatched, 8-bit: what
-// gsplat alone would show), ?splatv=../scene.splatv (serve the export folder, not only
-// viewer/).
+// URL parameters (for links and tests): ?frame=N (the export's N-th time step) or
+// ?t=0..1 (fraction of the clip), ?camera=K (training camera, default 0),
+// ?pose=qw,qx,qy,qz,tx,ty,tz (a world → camera pose, OpenCV axes, with camera K's
+// intrinsics), ?play=0 (start paused), ?goto=N (step to frame N inside the page once
+// the first view is drawn), ?ui=0 (canvas only, for screenshots), ?float=0 (blend in 8
+// bits). The link button puts the current view and time into the address bar.
 //
-// window.viewerState = { ready, frame, camera, mode, loaded, total } tells a test when the
-// requested frame is drawn and depth-sorted for the current camera.
-import * as SPLAT from "gsplat";
-import { patchGsplat } from "./gsplat_patches.js";
+// window.viewerState = { ready, time, camera, loaded, total } tells a test when the whole
+// model is loaded and drawn in the depth order of the current view and time.
+import { NEAR, createRenderer, recordsPerRow } from "./renderer.js";
+import { createSorter } from "./sort.js";
+import { loadModel } from "./web4d.js";
 import { floatTarget } from "./float_target.js";
+import { centreOf, orbitControls, quatToRows, rowsToQuat } from "./camera.js";
 
 const $ = (id) => document.getElementById(id);
 const setStatus = (text) => ($("status").textContent = text);
 
-// Quaternions as [x, y, z, w].
-const qmul = (a, b) => [
-  a[3] * b[0] + a[0] * b[3] + a[1] * b[2] - a[2] * b[1],
-  a[3] * b[1] - a[0] * b[2] + a[1] * b[3] + a[2] * b[0],
-  a[3] * b[2] + a[0] * b[1] - a[1] * b[0] + a[2] * b[3],
-  a[3] * b[3] - a[0] * b[0] - a[1] * b[1] - a[2] * b[2],
-];
-const qconj = (q) => [-q[0], -q[1], -q[2], q[3]];
-const qrotate = (q, v) => qmul(qmul(q, [v[0], v[1], v[2], 0]), qconj(q)).slice(0, 3);
-
-/// Fetch `url` as an ArrayBuffer, reporting received bytes to `onBytes(count)`.
-async function fetchBytes(url, onBytes) {
-  const res = await fetch(url);
-  if (!res.ok) throw new Error(`${url}: HTTP ${res.status}`);
-  if (!res.body) {
-    const whole = await res.arrayBuffer();
-    onBytes(whole.byteLength);
-    return whole;
-  }
-  const reader = res.body.getReader();
-  const chunks = [];
-  let size = 0;
-  for (;;) {
-    const { done, value } = await reader.read();
-    if (done) break;
-    chunks.push(value);
-    size += value.length;
-    onBytes(value.length);
-  }
-  const out = new Uint8Array(size);
-  let at = 0;
-  for (const c of chunks) {
-    out.set(c, at);
-    at += c.length;
-  }
-  return out.buffer;
-}
-
-// What the page shows and how far it has got; `ready` once the wanted frame is packed,
-// uploaded and depth-sorted for the current camera.
-const state = {
-  frame: -1, // frame in the live splat
-  colours: null, // camera whose colours are in the live splat (null: the .splat's own)
-  want: 0, // frame asked for
-  position: 0, // slider position (fractional in .splatv mode)
-  phase: "packing", // packing → sorting → shown
-  sortMark: 0,
-  quiet: 0,
-  ready: false,
-};
-
 async function main() {
   const params = new URLSearchParams(location.search);
   if (params.get("ui") === "0") document.body.classList.add("bare");
-  const sceneInfo = await (await fetch("scene.json")).json();
-  const frames = sceneInfo.frames;
-  if (!frames || !frames.length) throw new Error("scene.json lists no frames");
-  const cameras = sceneInfo.cameras || [];
-  const last = frames.length - 1;
-  const splatvUrl = params.get("splatv");
-  const mode = splatvUrl ? "splatv" : "frames";
-  const fps = sceneInfo.fps || 15;
+  const scene = await (await fetch("scene.json")).json();
+  if (!scene.model) throw new Error("scene.json names no model (an export older than this viewer: export again)");
+  const times = scene.times && scene.times.length ? scene.times : [0];
+  const [t0, t1] = [Math.min(...times), Math.max(...times)];
+  const cameras = scene.cameras || [];
+  const unitsPerSecond = scene.time.units_per_second;
+  const seconds = (t) => t / unitsPerSecond + scene.time.start_seconds;
 
   const canvas = $("canvas");
-  // The colour the model was trained on, behind the splats (as render and eval draw it).
-  const background = (sceneInfo.background || [0, 0, 0]).map((v) => Math.min(1, Math.max(0, v)));
+  const background = (scene.background || [0, 0, 0]).map((v) => Math.min(1, Math.max(0, v)));
   const bg255 = background.map((v) => Math.round(255 * v));
   canvas.style.background = `rgb(${bg255[0]}, ${bg255[1]}, ${bg255[2]})`;
-  // ?stock=1: gsplat as published (its culling and low-pass, 8-bit blending), to compare.
-  const stock = params.get("stock") === "1";
-  if (!stock) patchGsplat();
-  // No shader passes: gsplat's default fade-in pass shrinks the splats while it runs.
-  const renderer = new SPLAT.WebGLRenderer(canvas, []);
-  const gl = renderer.gl;
-  const target = stock || params.get("float") === "0" ? null : floatTarget(gl, background);
-  const scene = new SPLAT.Scene();
-  const camera = new SPLAT.Camera();
-  camera.data.near = 0.01; // the engine's near plane (gsplat: 0.1)
-  camera.data.far = 1000;
-  const programs = [renderer.renderProgram];
+  const gl = canvas.getContext("webgl2", { antialias: false, premultipliedAlpha: true, alpha: false });
+  if (!gl) throw new Error("this browser has no WebGL2");
+  const target = params.get("float") === "0" ? null : floatTarget(gl, background);
+  const renderer = createRenderer(gl);
 
-  const clampFrame = (i) => Math.max(0, Math.min(last, Math.round(Number(i)) || 0));
-  let startFrame = 0;
-  if (params.has("frame")) startFrame = clampFrame(params.get("frame"));
-  else if (params.has("t")) startFrame = clampFrame(Number(params.get("t")) * last);
-  const startCamera = cameras.length
-    ? Math.max(0, Math.min(cameras.length - 1, Number(params.get("camera") ?? sceneInfo.start_camera ?? 0) | 0))
-    : null;
-
-  // ---- loading, with progress -------------------------------------------------------
-  const progress = $("progress");
-  const rowBytes = 32 + 3 * cameras.length;
-  let received = 0;
-  const expected = mode === "frames" ? (sceneInfo.rows || 0) * rowBytes * frames.length : 0;
-  const showProgress = (what) => {
-    const mb = (v) => (v / 1e6).toFixed(1);
-    if (expected > 0) progress.value = Math.min(1, received / expected);
-    setStatus(`loading ${what} (${mb(received)}${expected > 0 ? ` / ${mb(expected)}` : ""} MB)`);
+  const state = {
+    time: t0,
+    camera: null, // training camera shown exactly, or null
+    version: 0, // counts changes of view, time or loaded data
+    asked: -1, // the version whose depth order was last asked for
+    sorted: -1, // the version of the depth order in use
+    quiet: 0, // frames drawn with it
+    ready: false,
+    loaded: 0,
   };
-  const loaded = new Array(frames.length).fill(null); // { splat, colours: [per camera] }
-  let loadedCount = 0;
-  let live = null; // the one gsplat Splat whose rows are replaced per frame
+  const changed = () => state.version++;
+  const sorter = createSorter(({ version, order, n }) => {
+    renderer.setOrder(order, n);
+    state.sorted = version;
+    state.quiet = 0;
+  });
 
-  /// The rows of frame `i` as gsplat SplatData, with the colours seen from camera `cam`
-  /// (null: the .splat's colours, seen from the mean camera centre).
-  const frameData = (i, cam) => {
-    const data = SPLAT.SplatData.Deserialize(new Uint8Array(loaded[i].splat.slice(0)));
-    const rgb = cam === null ? null : loaded[i].colours[cam];
-    if (rgb) {
-      const src = new Uint8Array(rgb);
-      const dst = data.colors;
-      if (src.length !== 3 * data.vertexCount) throw new Error(`${frames[i].colours[cam]}: wrong size`);
-      for (let r = 0; r < data.vertexCount; r++) {
-        dst[4 * r] = src[3 * r];
-        dst[4 * r + 1] = src[3 * r + 1];
-        dst[4 * r + 2] = src[3 * r + 2];
-      }
+  // ---- view -----------------------------------------------------------------------
+  const resize = () => {
+    const dpr = window.devicePixelRatio || 1;
+    const [w, h] = [Math.round(canvas.clientWidth * dpr), Math.round(canvas.clientHeight * dpr)];
+    if (canvas.width !== w || canvas.height !== h) {
+      canvas.width = w;
+      canvas.height = h;
+      changed();
     }
-    return data;
   };
-
-  if (mode === "frames") {
-    const loadFrame = async (i) => {
-      const note = () => showProgress(`frame ${loadedCount + 1} / ${frames.length}`);
-      const splat = await fetchBytes(frames[i].file, (n) => ((received += n), note()));
-      if (sceneInfo.rows && splat.byteLength !== 32 * sceneInfo.rows) {
-        throw new Error(`${frames[i].file}: ${splat.byteLength} bytes, scene.json says ${sceneInfo.rows} rows of 32`);
-      }
-      const colours = [];
-      for (const file of frames[i].colours || []) colours.push(await fetchBytes(file, (n) => ((received += n), note())));
-      loaded[i] = { splat, colours };
-      loadedCount++;
-    };
-    await loadFrame(startFrame);
-    live = new SPLAT.Splat(frameData(startFrame, startCamera));
-    scene.addObject(live);
-    state.frame = state.want = startFrame;
-    state.colours = startCamera;
-    // The other frames in the background, a few at a time; playback waits for them.
-    (async () => {
-      const queue = frames.map((_, i) => i).filter((i) => i !== startFrame);
-      await Promise.all(Array.from({ length: 3 }, async () => {
-        while (queue.length) await loadFrame(queue.shift());
-      }));
-      document.body.classList.add("loaded");
-      setStatus("");
-    })().catch(fail);
-  } else {
-    const video = new SPLAT.VideoRenderProgram(renderer);
-    renderer.addProgram(video);
-    programs.push(video);
-    await SPLAT.SplatvLoader.LoadAsync(splatvUrl, scene, null, (f) => {
-      progress.value = f;
-      setStatus(`loading ${splatvUrl} (${Math.round(100 * f)} %)`);
-    });
-    loadedCount = frames.length;
-    document.body.classList.add("loaded");
-    setStatus("");
-    state.phase = "sorting";
-  }
-  // gsplat's .splatv renderer takes its time from the clock (sin(Date.now()/1000)/2 + 1/2,
-  // in [0, 1]: the whole clip); the slider drives it instead.
-  let splatvTime = 0;
-  if (mode === "splatv") Date.now = () => 1000 * Math.asin(Math.max(-1, Math.min(1, 2 * splatvTime - 1)));
-
-  // ---- readiness: packed, uploaded and depth-sorted for this view --------------------
-  let sortCount = 0;
-  let hookedWorker = null;
-  const hookSortWorker = () => {
-    const w = renderer.renderProgram.worker;
-    if (!w || w === hookedWorker || !w.onmessage) return;
-    const inner = w.onmessage;
-    w.onmessage = (e) => {
-      inner(e);
-      if (e.data && e.data.depthIndex) sortCount++;
-    };
-    hookedWorker = w;
+  resize();
+  let intrinsics = null; // { fx, fy, cx, cy } of the image, fitted into the canvas
+  let imageCamera = null; // the training camera whose intrinsics are shown
+  const fitIntrinsics = (cam) => {
+    const [W, H] = [canvas.width, canvas.height];
+    const s = Math.min(W / cam.width, H / cam.height);
+    return { fx: cam.fx * s, fy: cam.fy * s, cx: W / 2 + (cam.cx - cam.width / 2) * s, cy: H / 2 + (cam.cy - cam.height / 2) * s };
   };
-  const viewChanged = () => {
-    state.sortMark = sortCount;
-    if (state.phase !== "packing") state.phase = "sorting";
-    state.ready = false;
-  };
-
-  // ---- cameras ------------------------------------------------------------------------
-  // Training cameras come in viewer space; the .splatv is in world coordinates.
-  const space = sceneInfo.space || { centre: [0, 0, 0], rotation: [0, 0, 0, 1] };
-  const poseOf = (cam) => {
-    if (mode === "frames") return { position: cam.position, rotation: cam.rotation };
-    const back = qconj(space.rotation);
-    const p = qrotate(back, cam.position);
-    return {
-      position: [p[0] + space.centre[0], p[1] + space.centre[1], p[2] + space.centre[2]],
-      rotation: qmul(back, cam.rotation),
-    };
-  };
-  let intrinsics = null; // { fx, fy, cx, cy } in canvas pixels
-  let pinned = null; // the training camera shown exactly, or null while orbiting
-  let controls = null;
-  let focalUploaded = null;
+  const centre = scene.centre || [0, 0, 0];
+  const controls = orbitControls(
+    canvas,
+    scene.up || [0, 0, -1],
+    () => {
+      // The first touch leaves the training camera: keep its focal length, centre the image.
+      if (state.camera === null) return;
+      state.camera = null;
+      intrinsics = { ...intrinsics, cx: canvas.width / 2, cy: canvas.height / 2 };
+      cameraButtons.forEach((b) => b.classList.remove("active"));
+      changed();
+    },
+    changed,
+  );
   const cameraButtons = cameras.map((cam, k) => {
     const b = document.createElement("button");
     b.textContent = cam.name;
@@ -229,135 +100,88 @@ async function main() {
     $("cams").appendChild(b);
     return b;
   });
-  /// Show training camera `k` exactly: its pose, its intrinsics fitted into the canvas,
-  /// and the colours seen from it.
-  const pin = (k) => {
-    if (controls) {
-      controls.dispose();
-      controls = null;
-    }
-    pinned = k;
-    const pose = poseOf(cameras[k]);
-    camera.position = new SPLAT.Vector3(...pose.position);
-    camera.rotation = new SPLAT.Quaternion(...pose.rotation);
+  /// Show training camera `k` exactly (or `pose` with its intrinsics).
+  const pin = (k, pose = null) => {
     const cam = cameras[k];
-    const [W, H] = [canvas.width, canvas.height];
-    const s = Math.min(W / cam.width, H / cam.height);
-    intrinsics = {
-      fx: cam.fx * s,
-      fy: cam.fy * s,
-      cx: W / 2 + (cam.cx - cam.width / 2) * s,
-      cy: H / 2 + (cam.cy - cam.height / 2) * s,
-    };
-    cameraButtons.forEach((b, i) => b.classList.toggle("active", i === k));
-    viewChanged();
+    imageCamera = cam;
+    intrinsics = fitIntrinsics(cam);
+    controls.setFrom(pose || { rotation: cam.rotation, translation: cam.translation }, centre, intrinsics.fy);
+    state.camera = pose ? null : k;
+    cameraButtons.forEach((b, i) => b.classList.toggle("active", i === state.camera));
+    changed();
   };
-  /// Hand the camera to gsplat's orbit controls, orbiting about the point on its axis
-  /// nearest the scene centre (roll is dropped).
-  const unpin = () => {
-    const p = camera.position;
-    const f = camera.forward;
-    const c = mode === "frames" ? [0, 0, 0] : space.centre;
-    const radius = Math.max((c[0] - p.x) * f.x + (c[1] - p.y) * f.y + (c[2] - p.z) * f.z, 0.1);
-    const target = new SPLAT.Vector3(p.x + radius * f.x, p.y + radius * f.y, p.z + radius * f.z);
-    // gsplat's orbit puts the camera at target + r·(sin α cos β, −sin β, −cos α cos β).
-    const alpha = Math.atan2(-f.x, f.z);
-    const beta = Math.asin(Math.max(-1, Math.min(1, f.y)));
-    controls = new SPLAT.OrbitControls(camera, canvas, alpha, beta, radius, true, target);
-    controls.minZoom = 0.05 * radius;
-    controls.maxZoom = Math.max(30, 10 * radius);
-    const [W, H] = [canvas.width, canvas.height];
-    if (intrinsics) intrinsics = { fx: intrinsics.fx, fy: intrinsics.fy, cx: W / 2, cy: H / 2 };
-    pinned = null;
-    cameraButtons.forEach((b) => b.classList.remove("active"));
-    viewChanged();
-  };
-  // On the window in the capture phase: runs before the canvas's own listeners, which the
-  // new controls add in time to get this very event.
-  for (const type of ["mousedown", "wheel", "touchstart"]) {
-    window.addEventListener(type, (e) => e.target === canvas && pinned !== null && unpin(), {
-      capture: true,
-      passive: true,
-    });
+  const clampCamera = (k) => Math.max(0, Math.min(cameras.length - 1, Number(k) | 0));
+  const startCamera = cameras.length ? clampCamera(params.get("camera") ?? scene.start_camera ?? 0) : null;
+  let startPose = null;
+  if (params.has("pose")) {
+    const v = params.get("pose").split(",").map(Number);
+    if (v.length !== 7 || v.some((x) => !Number.isFinite(x))) throw new Error("?pose= needs 7 numbers: qw,qx,qy,qz,tx,ty,tz");
+    startPose = { rotation: quatToRows(v.slice(0, 4)), translation: v.slice(4) };
   }
-  /// Focal lengths and principal point into gsplat's camera (and its shaders).
-  const applyIntrinsics = () => {
-    if (!intrinsics) {
-      const f = (0.5 * canvas.height) / Math.tan((25 * Math.PI) / 180);
-      intrinsics = { fx: f, fy: f, cx: canvas.width / 2, cy: canvas.height / 2 };
+  if (startCamera !== null) pin(startCamera, startPose);
+  else {
+    // No cameras listed: look at the centre from −z·3.
+    const f = canvas.height;
+    intrinsics = { fx: f, fy: f, cx: canvas.width / 2, cy: canvas.height / 2 };
+    controls.setFrom({ rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]], translation: [-centre[0], -centre[1], 3 - centre[2]] }, centre, f);
+  }
+  window.addEventListener("resize", () => {
+    const height = canvas.height;
+    resize();
+    if (state.camera !== null || !imageCamera) intrinsics = imageCamera ? fitIntrinsics(imageCamera) : intrinsics;
+    else {
+      const s = canvas.height / height; // orbiting: keep the vertical field of view
+      intrinsics = { fx: intrinsics.fx * s, fy: intrinsics.fy * s, cx: canvas.width / 2, cy: canvas.height / 2 };
     }
-    const d = camera.data;
-    if (d.fx !== intrinsics.fx) d.fx = intrinsics.fx;
-    if (d.fy !== intrinsics.fy) d.fy = intrinsics.fy;
-    // The principal point goes into the projection's third column (gsplat centres it).
-    const b = d.projectionMatrix.buffer;
-    b[8] = (2 * intrinsics.cx) / canvas.width - 1;
-    b[9] = 1 - (2 * intrinsics.cy) / canvas.height;
-    // gsplat uploads the focal lengths only when a program starts.
-    const key = `${d.fx},${d.fy},${renderer.renderProgram.renderData !== null}`;
-    if (key !== focalUploaded) {
-      focalUploaded = key;
-      for (const p of programs) {
-        gl.useProgram(p.program);
-        gl.uniform2fv(gl.getUniformLocation(p.program, "focal"), new Float32Array([d.fx, d.fy]));
-      }
-    }
+    changed();
+  });
+  const view = () => {
+    const pose = controls.pose;
+    return { rotation: pose.rotation, translation: pose.translation, eye: centreOf(pose), ...intrinsics };
   };
 
-  // ---- time ---------------------------------------------------------------------------
+  // ---- time -----------------------------------------------------------------------
   const slider = $("time");
-  slider.max = String(last);
-  if (mode === "splatv") slider.step = "any";
-  const setPosition = (x) => {
-    x = Math.max(0, Math.min(last, x));
-    if (mode === "frames") x = Math.round(x);
-    state.position = x;
-    slider.value = String(x);
-    const i = Math.round(x);
-    const tail = mode === "frames" ? `${frames[i].splats} splats` : ".splatv";
-    $("label").textContent = `t = ${frames[i].seconds.toFixed(3)} s (frame ${i + 1}/${frames.length}, ${tail})`;
-    if (mode === "splatv") {
-      // The time is a uniform: no new data or sort, only a few frames drawn at it.
-      const tau = last > 0 ? x / last : 0;
-      if (tau !== splatvTime) (state.quiet = 0), (state.ready = false);
-      splatvTime = tau;
-      state.frame = state.want = x;
-    } else {
-      state.want = i;
-    }
+  slider.min = "0";
+  slider.max = "1";
+  slider.step = "any";
+  const nearestFrame = (t) => times.reduce((best, v, i) => (Math.abs(v - t) < Math.abs(times[best] - t) ? i : best), 0);
+  const setTime = (t) => {
+    t = Math.max(t0, Math.min(t1, t));
+    if (t !== state.time) changed();
+    state.time = t;
+    slider.value = String(t1 > t0 ? (t - t0) / (t1 - t0) : 0);
+    const i = nearestFrame(t);
+    $("label").textContent = `t = ${seconds(t).toFixed(3)} s (frame ${i + 1}/${times.length})`;
   };
-  /// Frames mode: put the wanted frame (and colours) into the live splat once it is loaded
-  /// and gsplat is not packing the previous one.
-  const swapIn = () => {
-    if (mode !== "frames") return;
-    const colours = pinned;
-    if ((state.want === state.frame && colours === state.colours) || !loaded[state.want] || live.data.detached) return;
-    const src = frameData(state.want, colours);
-    const d = live.data;
-    if (src.vertexCount !== d.vertexCount) throw new Error(`frame ${state.want} has ${src.vertexCount} rows, expected ${d.vertexCount}`);
-    d.positions.set(src.positions);
-    d.rotations.set(src.rotations);
-    d.scales.set(src.scales);
-    d.colors.set(src.colors);
-    d.changed = true;
-    live.raiseChangeEvent();
-    state.frame = state.want;
-    state.colours = colours;
-    state.phase = "packing";
-    state.ready = false;
-  };
-
+  const clampFrame = (i) => Math.max(0, Math.min(times.length - 1, Math.round(Number(i)) || 0));
+  if (params.has("frame")) setTime(times[clampFrame(params.get("frame"))]);
+  else if (params.has("t")) setTime(t0 + Number(params.get("t")) * (t1 - t0));
+  else setTime(t0);
   let playing = false;
-  let playClock = 0;
+  let playFrom = { wall: 0, time: t0 };
   const setPlaying = (p) => {
-    playing = p && frames.length > 1;
+    playing = p && t1 > t0;
     $("play").textContent = playing ? "❚❚" : "▶";
-    playClock = performance.now() - (state.position / fps) * 1000;
+    playFrom = { wall: performance.now(), time: state.time };
   };
   $("play").onclick = () => setPlaying(!playing);
   slider.oninput = () => {
     setPlaying(false);
-    setPosition(Number(slider.value));
+    setTime(t0 + Number(slider.value) * (t1 - t0));
+  };
+  $("link").onclick = () => {
+    const pose = controls.pose;
+    const q = rowsToQuat(pose.rotation);
+    const p = new URLSearchParams(location.search);
+    p.set("camera", String(cameras.indexOf(imageCamera)));
+    p.set("pose", [...q, ...pose.translation].map((v) => +v.toFixed(6)).join(","));
+    p.set("t", ((state.time - t0) / Math.max(t1 - t0, 1e-12)).toFixed(6));
+    p.delete("frame");
+    p.set("play", "0");
+    history.replaceState(null, "", `?${p}`);
+    navigator.clipboard?.writeText(location.href).catch(() => {});
+    setStatus("link to this view in the address bar");
   };
   window.addEventListener("keydown", (e) => {
     if (e.code === "Space") {
@@ -365,66 +189,78 @@ async function main() {
       e.preventDefault();
     } else if (e.code === "Period" || e.code === "Comma") {
       setPlaying(false);
-      setPosition(Math.round(state.position) + (e.code === "Period" ? 1 : -1));
+      setTime(times[clampFrame(nearestFrame(state.time) + (e.code === "Period" ? 1 : -1))]);
     } else {
       const digit = /^Digit([1-9])$/.exec(e.code);
       if (digit && Number(digit[1]) <= cameras.length) pin(Number(digit[1]) - 1);
     }
   });
-  window.addEventListener("resize", () => {
-    const height = canvas.height;
-    renderer.resize();
-    if (pinned !== null) pin(pinned);
-    else if (intrinsics) {
-      // Orbiting: keep the vertical field of view.
-      const s = canvas.height / height;
-      intrinsics = { fx: intrinsics.fx * s, fy: intrinsics.fy * s, cx: canvas.width / 2, cy: canvas.height / 2 };
-    }
-  });
 
-  if (startCamera !== null) pin(startCamera);
-  else unpin(); // no training cameras listed: orbit the scene centre
+  // ---- data -----------------------------------------------------------------------
+  const progress = $("progress");
+  let model = null;
+  const loading = loadModel(
+    scene.model.file,
+    scene.model.bytes,
+    (header) => ({ perRow: recordsPerRow(gl, header.texels) }),
+    (m) => {
+      model = m;
+      progress.value = m.loaded / m.count;
+      setStatus(`loading ${scene.model.file}: ${m.loaded} / ${m.count} Gaussians`);
+    },
+  );
+  loading
+    .then(() => {
+      document.body.classList.add("loaded");
+      setStatus("");
+    })
+    .catch(fail);
   let gotoFrame = params.has("goto") ? clampFrame(params.get("goto")) : null;
-  setPosition(mode === "frames" ? startFrame : params.has("frame") || params.has("t") ? (params.has("frame") ? Number(params.get("frame")) : Number(params.get("t")) * last) : 0);
   setPlaying(params.get("play") !== "0");
 
   const frame = (now) => {
     if (playing) {
-      // Wall-clock playback at the export's rate; frames not loaded yet are skipped.
-      const x = (((now - playClock) / 1000) * fps) % frames.length;
-      if (mode === "splatv") setPosition(Math.min(x, last));
-      else if (loaded[Math.floor(x)]) setPosition(Math.floor(x));
+      const span = t1 - t0;
+      const t = playFrom.time - t0 + ((now - playFrom.wall) / 1000) * unitsPerSecond;
+      setTime(t0 + (((t % span) + span) % span));
     }
-    swapIn();
-    if (controls) {
-      controls.update();
-      viewChanged(); // never "ready" while the orbit controls move the camera
+    if (model) {
+      const uploaded = renderer.upload(model);
+      if (uploaded !== state.loaded) {
+        state.loaded = uploaded;
+        sorter.feed(model, uploaded);
+        changed();
+      }
+      const v = view();
+      if (state.asked !== state.version) {
+        sorter.request(state.version, v, state.time, NEAR);
+        state.asked = state.version;
+      }
+      if (target) target.begin();
+      else gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+      gl.viewport(0, 0, canvas.width, canvas.height);
+      if (target) gl.clearColor(0, 0, 0, 0);
+      else gl.clearColor(background[0], background[1], background[2], 1);
+      gl.clear(gl.COLOR_BUFFER_BIT);
+      renderer.draw(model, v, state.time, canvas.width, canvas.height);
+      if (target) target.end();
+      state.quiet++;
     }
-    applyIntrinsics();
-    if (target) target.begin();
-    renderer.render(scene, camera);
-    if (target) target.end();
-    hookSortWorker();
-
-    const rd = renderer.renderProgram.renderData;
-    if (state.phase === "packing" && (!live || (!live.data.detached && rd && !rd.updating && !rd.needsRebuild && !rd.dataChanged))) {
-      state.phase = "sorting";
-      state.sortMark = sortCount;
-    }
-    if (state.phase === "sorting" && sortCount > state.sortMark) {
-      state.phase = "shown";
-      state.quiet = 0;
-    }
-    if (state.phase === "shown") state.quiet++;
-    const ready = state.phase === "shown" && state.quiet >= 3 && state.want === state.frame;
+    const ready = !!model && state.loaded === model.count && state.sorted === state.version && state.quiet >= 2;
     if (ready && gotoFrame !== null) {
-      setPosition(gotoFrame); // ?goto: one switch inside the page, as the slider does
+      setTime(times[gotoFrame]); // ?goto: one step inside the page, as the keys do
       gotoFrame = null;
     } else if (ready !== state.ready) {
       state.ready = ready;
-      if (ready) document.title = `splat4d viewer: ready frame ${state.frame}`;
+      if (ready) document.title = "splat4d viewer: ready";
     }
-    window.viewerState = { ready: state.ready, frame: state.frame, camera: pinned, mode, loaded: loadedCount, total: frames.length };
+    window.viewerState = {
+      ready: state.ready,
+      time: state.time,
+      camera: state.camera,
+      loaded: state.loaded,
+      total: model ? model.count : scene.model.gaussians,
+    };
     requestAnimationFrame(frame);
   };
   requestAnimationFrame(frame);
