@@ -166,8 +166,6 @@ pub const RANGES: &[(&str, Range)] = &[
     ("export.steps", SOME),
     ("export.min_opacity", within(0.0, 1.0)),
     ("export.gltf_every", COUNT),
-    ("export.viewer_max_frames", SOME),
-    ("export.viewer_fps", FPS),
     ("cluster.cpus", SOME),
     ("cluster.gpus", COUNT),
 ];
