@@ -1,6 +1,8 @@
 //! One run at a time per capture directory: an exclusive OS lock on `work/.lock`.
 //! The OS releases it when the process ends, however it ends, so a crash never leaves a
-//! stale lock behind.
+//! stale lock behind. On a cluster the jobs of a capture take it on the shared
+//! filesystem: NFS carries such locks between clients, Lustre only with its `flock` mount
+//! option (without it taking the lock fails, naming the file).
 
 use std::fs::{self, File, OpenOptions};
 use std::io::{Read, Seek, SeekFrom, Write};

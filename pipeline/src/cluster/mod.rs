@@ -446,3 +446,36 @@ fn hostname() -> String {
         .or_else(|| std::env::var("HOSTNAME").ok())
         .unwrap_or_else(|| "the submitting host".into())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn failed(state: JobState) -> JobInfo {
+        JobInfo {
+            id: "7".into(),
+            state,
+            reason: None,
+            node: None,
+            exit_code: Some("1:0".into()),
+        }
+    }
+
+    #[test]
+    fn a_failed_job_names_its_log_or_the_shared_filesystem() {
+        let tmp = tempfile::tempdir().unwrap();
+        let work = tmp.path().join("work");
+        let text = failed_detail(&work, "sync", "7", &failed(JobState::Failed));
+        assert!(
+            text.starts_with("job 7 FAILED (exit 1:0); its log")
+                && text.contains("logs/sync-7.log was never written here")
+                && text.contains("filesystem the compute nodes share"),
+            "{text}"
+        );
+        let log = jobs::stage_log(&work, "sync", "7");
+        std::fs::create_dir_all(log.parent().unwrap()).unwrap();
+        std::fs::write(&log, "error").unwrap();
+        let text = failed_detail(&work, "sync", "7", &failed(JobState::Timeout));
+        assert_eq!(text, "job 7 TIMEOUT (exit 1:0); log work/sync/slurm-7.log");
+    }
+}

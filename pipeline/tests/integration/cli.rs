@@ -43,6 +43,57 @@ fn unknown_stages_and_conflicting_flags_are_rejected() {
 }
 
 #[test]
+fn submit_takes_several_captures_and_a_stage_range() {
+    let cli = parse(&["submit", "a", "b", "--to", "train", "--backend", "cpu"]).unwrap();
+    let Cmd::Submit(args) = cli.command else {
+        panic!("expected submit")
+    };
+    assert_eq!(args.capture_dirs.len(), 2);
+    assert_eq!(args.to.as_deref(), Some("train"));
+    assert!(
+        parse(&["submit"]).is_err(),
+        "a capture directory is required"
+    );
+    assert!(parse(&["submit", "a", "--only", "trian"]).is_err());
+    assert!(matches!(
+        parse(&["cancel", "a"]).unwrap().command,
+        Cmd::Cancel { .. }
+    ));
+}
+
+/// Without Slurm's commands on PATH, `submit` names the missing command and submits
+/// nothing; `status` still prints its table.
+#[test]
+fn submit_without_slurm_says_what_is_missing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = make_capture(&tmp.path().join("cap"), 4, 8);
+    let empty = tmp.path().join("no-tools");
+    std::fs::create_dir_all(&empty).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .args(["submit", "--to", "sync"])
+        .arg(&root)
+        .env("PATH", &empty)
+        .env("PIPELINE_CLUSTER_CONFIG", tmp.path().join("none.toml"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("`sbatch` was not found") && err.contains("login node"),
+        "{err}"
+    );
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .arg("status")
+        .arg(&root)
+        .env("PATH", &empty)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(String::from_utf8_lossy(&out.stdout).contains("STAGE"));
+}
+
+#[test]
 fn demo_has_a_default_output_directory() {
     let Cmd::Demo {
         out_dir,
