@@ -515,6 +515,19 @@ mod tests {
     }
 
     #[test]
+    fn a_full_colour_model_of_200k_gaussians_fits_in_40_mb() {
+        let record = WebHeader::texels_for(ColourDegrees::FULL) * 16;
+        assert_eq!(record, 192);
+        assert!(200_000 * record <= 40_000_000);
+        // Degree 1 without temporal colour, as short trainings end: a third of that.
+        let small = ColourDegrees {
+            spatial: 1,
+            temporal: 0,
+        };
+        assert_eq!(WebHeader::texels_for(small) * 16, 64);
+    }
+
+    #[test]
     fn damaged_headers_are_errors_not_panics() {
         let model = moving_model();
         let bytes = encode(&model, [0.0, 1.0], 0.0).bytes;
