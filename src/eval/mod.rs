@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 pub use frames::{FrameOutputs, FrameSink, RenderedPath, render_path};
 
 use crate::camera::Camera;
-use crate::metrics::lpips::{ImagePair, Lpips, LpipsError};
+use crate::metrics::lpips::{ImagePair, Lpips, LpipsDevice, LpipsError};
 use crate::metrics::{MetricsError, image_metrics, masked_metrics};
 use crate::model::Gaussians;
 use crate::progress::Progress;
@@ -296,7 +296,8 @@ struct SetRun<'a> {
 /// write into `out_dir`: `metrics.json` (definitions, LPIPS status, per-set means),
 /// `per_frame.csv` (one row per view) and `grid_<set>_<frame>.png` (ground truth |
 /// render | error heat map) for a few frames of each set. LPIPS is computed only when
-/// `lpips` is given; otherwise it is reported as [`LPIPS_SKIPPED`]. Views are rendered on
+/// `lpips` is given (on the renderer's device when that is a GPU, else on the CPU);
+/// otherwise it is reported as [`LPIPS_SKIPPED`]. Views are rendered on
 /// `background`, the colour the model was trained on.
 #[allow(clippy::too_many_arguments)]
 pub fn evaluate(
@@ -335,6 +336,10 @@ pub fn evaluate(
             views: train,
         },
     ];
+    let lpips_device = match backend.as_gpu() {
+        Some(gpu) => LpipsDevice::Gpu(&gpu.gpu),
+        None => LpipsDevice::Cpu,
+    };
     let mut grids = Vec::new();
     for set in &sets {
         let wanted_grids = grid_indices(set.views.len());
@@ -379,7 +384,8 @@ pub fn evaluate(
                 .iter()
                 .map(|r| r.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect())
                 .collect();
-            // LPIPS of the whole batch at once: the native network runs the views in parallel.
+            // LPIPS of the whole batch at once: the native network runs the views in parallel,
+            // on the renderer's GPU when it has one.
             let lpips_values: Vec<Option<f64>> = match lpips {
                 Some(net) => {
                     let pairs: Vec<ImagePair> = rendered
@@ -392,7 +398,7 @@ pub fn evaluate(
                             height: *h as usize,
                         })
                         .collect();
-                    net.distances(&pairs)
+                    net.distances_on(lpips_device, &pairs)
                         .into_iter()
                         .enumerate()
                         .map(|(k, d)| {

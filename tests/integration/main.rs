@@ -24,6 +24,7 @@ mod gpu_backward;
 mod gpu_decay;
 mod gpu_decay_train;
 mod gpu_loss;
+mod gpu_lpips;
 mod gpu_parity;
 mod gpu_train;
 mod gpu_train_loop;

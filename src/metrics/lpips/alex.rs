@@ -23,6 +23,7 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 
 use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use super::conv::{Conv2d, FeatureMap, max_pool_3x3_s2};
 use super::weights::{Tensor, read_tensors};
@@ -56,10 +57,16 @@ pub const MIN_SIDE: usize = 31;
 #[derive(Clone, Debug)]
 pub struct AlexLpips {
     path: PathBuf,
-    convs: Vec<Conv2d>,
+    /// Which load these weights come from (clones share it): the key of their copy on a
+    /// GPU (`gpu`).
+    pub(super) load_id: u64,
+    pub(super) convs: Vec<Conv2d>,
     /// The five `NetLinLayer` weights, one per channel of their tap.
-    linear: Vec<Vec<f32>>,
+    pub(super) linear: Vec<Vec<f32>>,
 }
+
+/// The next [`AlexLpips::load_id`].
+static NEXT_LOAD: AtomicU64 = AtomicU64::new(0);
 
 /// The weights-file names of AlexNet's convolution `i` and LPIPS linear layer `i`.
 pub fn tensor_names(i: usize) -> [String; 3] {
@@ -105,6 +112,7 @@ impl AlexLpips {
         }
         Ok(Self {
             path: path.to_path_buf(),
+            load_id: NEXT_LOAD.fetch_add(1, Ordering::Relaxed),
             convs,
             linear,
         })
@@ -136,37 +144,22 @@ impl AlexLpips {
     /// The distance of each pair, in order. Pairs of one size go through the network
     /// together, in batches of up to [`BATCH_PIXELS`].
     pub fn distances(&self, pairs: &[ImagePair]) -> Vec<Result<f64, LpipsError>> {
-        let mut results: Vec<Option<Result<f64, LpipsError>>> = pairs
-            .iter()
-            .map(|p| {
-                check_pair(p)
-                    .and_then(|()| too_small(p.width, p.height))
-                    .err()
-            })
-            .map(|e| e.map(Err))
-            .collect();
-        let mut sizes: BTreeMap<(usize, usize), Vec<usize>> = BTreeMap::new();
-        for (k, p) in pairs.iter().enumerate() {
-            if results[k].is_none() {
-                sizes.entry((p.width, p.height)).or_default().push(k);
-            }
-        }
-        for ((width, height), members) in sizes {
-            let per_batch = (BATCH_PIXELS / (2 * width * height)).max(1);
-            for batch in members.chunks(per_batch) {
-                let images: Vec<[&[f32]; 2]> =
-                    batch.iter().map(|&k| [pairs[k].a, pairs[k].b]).collect();
-                let distances = self.same_size_distances(&images, width, height);
-                for (&k, d) in batch.iter().zip(distances) {
-                    results[k] = Some(d.ok_or(LpipsError::TooSmall {
-                        width,
-                        height,
-                        min: MIN_SIDE,
-                    }));
-                }
-            }
-        }
-        results.into_iter().flatten().collect()
+        by_size(
+            pairs,
+            |width, height| BATCH_PIXELS / (2 * width * height),
+            |images, width, height| {
+                self.same_size_distances(images, width, height)
+                    .into_iter()
+                    .map(|d| {
+                        d.ok_or(LpipsError::TooSmall {
+                            width,
+                            height,
+                            min: MIN_SIDE,
+                        })
+                    })
+                    .collect()
+            },
+        )
     }
 
     /// LPIPS of pairs of `width × height` images: all of them go through each layer
@@ -215,6 +208,43 @@ impl AlexLpips {
         }
         totals.into_iter().map(Some).collect()
     }
+}
+
+/// The distance of each pair, in order, by `run`: the pairs that are not malformed or too
+/// small are grouped by size and handed to `run` (images, width, height) in batches of at
+/// most `per_batch(width, height)` pairs (at least one); `run` gives one result per pair.
+pub(super) fn by_size(
+    pairs: &[ImagePair],
+    per_batch: impl Fn(usize, usize) -> usize,
+    mut run: impl FnMut(&[[&[f32]; 2]], usize, usize) -> Vec<Result<f64, LpipsError>>,
+) -> Vec<Result<f64, LpipsError>> {
+    let mut results: Vec<Option<Result<f64, LpipsError>>> = pairs
+        .iter()
+        .map(|p| {
+            check_pair(p)
+                .and_then(|()| too_small(p.width, p.height))
+                .err()
+        })
+        .map(|e| e.map(Err))
+        .collect();
+    let mut sizes: BTreeMap<(usize, usize), Vec<usize>> = BTreeMap::new();
+    for (k, p) in pairs.iter().enumerate() {
+        if results[k].is_none() {
+            sizes.entry((p.width, p.height)).or_default().push(k);
+        }
+    }
+    for ((width, height), members) in sizes {
+        for batch in members.chunks(per_batch(width, height).max(1)) {
+            let images: Vec<[&[f32]; 2]> =
+                batch.iter().map(|&k| [pairs[k].a, pairs[k].b]).collect();
+            let distances = run(&images, width, height);
+            debug_assert_eq!(distances.len(), batch.len());
+            for (&k, d) in batch.iter().zip(distances) {
+                results[k] = Some(d);
+            }
+        }
+    }
+    results.into_iter().flatten().collect()
 }
 
 /// `TooSmall` when either side is under [`MIN_SIDE`].

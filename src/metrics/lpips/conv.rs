@@ -85,6 +85,16 @@ impl Conv2d {
         }
     }
 
+    /// The kernel, HWIO (`size × size × in × out`): a `(size²·in) × out` matrix.
+    pub fn kernel(&self) -> &[f32] {
+        &self.kernel
+    }
+
+    /// One bias per output channel.
+    pub fn bias(&self) -> &[f32] {
+        &self.bias
+    }
+
     /// Rows of the kernel matrix: values in one receptive field.
     fn field(&self) -> usize {
         self.size * self.size * self.in_channels

@@ -2,7 +2,8 @@
 //! interleaved RGB images in `[0, 1]`, by one of two networks behind [`Lpips`]:
 //! - `alex`: LPIPS v0.1 on AlexNet, computed natively from the weights
 //!   `scripts/setup.sh` installs (`weights`: the file format and where it is looked for;
-//!   `conv`: the layers). The default.
+//!   `conv`: the layers). The default. It runs on the CPU, or on a GPU (`gpu`, WGSL
+//!   kernels) when the caller names one ([`LpipsDevice`]); the CPU path is the reference.
 //! - `onnx`: a user-supplied ONNX model (`[eval] lpips = "model.onnx"`), run with tract.
 //!
 //! [`Lpips::installed`] is the default network, or `None` when no weights are installed
@@ -11,12 +12,15 @@
 
 mod alex;
 mod conv;
+mod gpu;
 mod maps;
 mod onnx;
 pub mod weights;
 mod winograd;
 
 use std::path::{Path, PathBuf};
+
+use crate::render::gpu::Gpu;
 
 pub use alex::{AlexLpips, BATCH_PIXELS, MIN_SIDE};
 pub use onnx::OnnxLpips;
@@ -63,6 +67,10 @@ pub enum LpipsError {
         height: usize,
         min: usize,
     },
+    #[error(
+        "LPIPS-alex on the GPU ({adapter}) failed: {message}; evaluate with backend = \"cpu\" to compute it on the CPU"
+    )]
+    Gpu { adapter: String, message: String },
     #[error("running LPIPS model {path} on a {width}×{height} image failed: {message}")]
     Run {
         path: PathBuf,
@@ -77,6 +85,25 @@ pub enum LpipsError {
 pub enum Lpips {
     Alex(AlexLpips),
     Onnx(OnnxLpips),
+}
+
+/// Where LPIPS-alex runs. An ONNX model always runs on the CPU (tract).
+#[derive(Clone, Copy, Default)]
+pub enum LpipsDevice<'a> {
+    /// The native network on rayon (the reference).
+    #[default]
+    Cpu,
+    /// WGSL kernels on this device; the weights are uploaded once per device.
+    Gpu(&'a Gpu),
+}
+
+impl std::fmt::Debug for LpipsDevice<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Cpu => f.write_str("Cpu"),
+            Self::Gpu(gpu) => write!(f, "Gpu({})", gpu.describe()),
+        }
+    }
 }
 
 /// Two same-sized interleaved RGB images in `[0, 1]` to compare.
@@ -148,12 +175,24 @@ impl Lpips {
         }
     }
 
-    /// The distance of each pair, in order. The native network takes same-sized pairs
-    /// through its layers together; an ONNX model runs them one after another.
+    /// The distance of each pair, in order, on the CPU. The native network takes
+    /// same-sized pairs through its layers together; an ONNX model runs them one after
+    /// another.
     pub fn distances(&self, pairs: &[ImagePair]) -> Vec<Result<f64, LpipsError>> {
-        match self {
-            Self::Alex(net) => net.distances(pairs),
-            Self::Onnx(_) => pairs
+        self.distances_on(LpipsDevice::Cpu, pairs)
+    }
+
+    /// [`Self::distances`] on `device`: LPIPS-alex takes the pairs through WGSL kernels
+    /// when it is a GPU; an ONNX model runs on the CPU whatever the device.
+    pub fn distances_on(
+        &self,
+        device: LpipsDevice<'_>,
+        pairs: &[ImagePair],
+    ) -> Vec<Result<f64, LpipsError>> {
+        match (self, device) {
+            (Self::Alex(net), LpipsDevice::Cpu) => net.distances(pairs),
+            (Self::Alex(net), LpipsDevice::Gpu(gpu)) => net.distances_on_gpu(gpu, pairs),
+            (Self::Onnx(_), _) => pairs
                 .iter()
                 .map(|p| self.distance(p.a, p.b, p.width, p.height))
                 .collect(),
