@@ -1,11 +1,11 @@
 //! Criterion benchmarks of the exports on the render benchmark's 100k-Gaussian scene
 //! (full colour degrees): baking one time step into 3D Gaussians, encoding a 3DGS PLY
-//! frame, the native 4D PLY, the `.splatv`, and a whole `export_all` of 10 frames
-//! (files into a temporary folder, no viewer).
+//! frame, the native 4D PLY, the `.splatv`, the viewer's `model.4dgs`, and a whole
+//! `export_all` of 10 frames (files into a temporary folder, no viewer).
 //! Run: `cargo bench -p splat4d --bench export`.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use splat4d::export::{ExportOptions, bake_frame, export_all, ply3d, ply4d, splatv};
+use splat4d::export::{ExportOptions, bake_frame, export_all, ply3d, ply4d, splatv, web4d};
 use splat4d::{CameraSet, NoProgress};
 use std::hint::black_box;
 
@@ -39,6 +39,15 @@ fn bench(c: &mut Criterion) {
             ))
         })
     });
+    group.bench_function("viewer_model", |b| {
+        b.iter(|| black_box(web4d::encode(&model, [0.0, 1.0], 1.0 / 255.0).bytes))
+    });
+    let web = web4d::encode(&model, [0.0, 1.0], 1.0 / 255.0);
+    eprintln!(
+        "model.4dgs: {} Gaussians, {} bytes",
+        web.header.count,
+        web.bytes.len()
+    );
     let dir = tempfile::tempdir().unwrap();
     let times: Vec<f64> = (0..10).map(|k| k as f64 / 9.0).collect();
     let opts = ExportOptions {

@@ -48,6 +48,8 @@ const MAX_HEADER: usize = 1 << 20;
 /// The quantisation scale of a coefficient covers this quantile of its magnitudes
 /// (rarer, larger values are clamped): a few outliers do not coarsen every other value.
 const SCALE_QUANTILE: f64 = 0.999;
+/// Records sampled (evenly) for the quantiles.
+const SCALE_SAMPLE: usize = 50_000;
 /// Largest finite half float.
 const HALF_MAX: f64 = 65504.0;
 /// Smallest standard deviation stored (a normal-range half float keeps 3 digits).
@@ -174,19 +176,27 @@ pub fn encode(model: &Gaussians<f32>, span: [f64; 2], min_opacity: f64) -> Encod
         model.colour_of(i)[(j * ns_cap + s) * 3 + c]
     };
     let nk = ns * nt;
-    let sh_scales: Vec<f32> = (1..nk)
+    // Each coefficient's magnitudes over an even sample of the records, gathered in one
+    // pass over the sample (each Gaussian's coefficients are contiguous).
+    let step = rows.len().div_ceil(SCALE_SAMPLE).max(1);
+    let mut mags: Vec<Vec<f32>> = vec![Vec::new(); nk.saturating_sub(1)];
+    for r in rows.iter().step_by(step) {
+        for (k, m) in (1..nk).zip(&mut mags) {
+            m.extend(
+                (0..3)
+                    .map(|c| coeff(r.index, k, c).abs())
+                    .filter(|v| v.is_finite()),
+            );
+        }
+    }
+    let sh_scales: Vec<f32> = mags
         .into_par_iter()
-        .map(|k| {
-            let mut mags: Vec<f32> = rows
-                .iter()
-                .flat_map(|r| (0..3).map(move |c| coeff(r.index, k, c).abs()))
-                .filter(|v| v.is_finite())
-                .collect();
-            if mags.is_empty() {
+        .map(|mut m| {
+            if m.is_empty() {
                 return 1.0;
             }
-            let at = ((mags.len() - 1) as f64 * SCALE_QUANTILE).round() as usize;
-            let (_, q, _) = mags.select_nth_unstable_by(at, f32::total_cmp);
+            let at = ((m.len() - 1) as f64 * SCALE_QUANTILE).round() as usize;
+            let (_, q, _) = m.select_nth_unstable_by(at, f32::total_cmp);
             if *q > 0.0 { *q / 127.0 } else { 1.0 }
         })
         .collect();
