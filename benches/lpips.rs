@@ -1,11 +1,14 @@
 //! Criterion benchmark of LPIPS-alex computed natively (`splat4d::metrics::lpips`): one
 //! image pair at 640×360 and at 1352×1014, and a batch of four 640×360 pairs (how eval
-//! measures its views). Needs the weights `scripts/setup.sh` installs; without them it
-//! says so and measures nothing.
+//! measures its views), on the CPU and, where a GPU opens, the same three on the GPU
+//! (`gpu_*`; software adapters such as lavapipe only with `SPLAT4D_GPU_SOFTWARE=1`).
+//! Needs the weights `scripts/setup.sh` installs; without them it says so and measures
+//! nothing.
 //! Run: `cargo bench -p splat4d --bench lpips`.
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use splat4d::metrics::lpips::{INSTALL_HINT, ImagePair, Lpips};
+use splat4d::metrics::lpips::{INSTALL_HINT, ImagePair, Lpips, LpipsDevice};
+use splat4d::render::gpu::{AdapterPolicy, Gpu};
 use std::hint::black_box;
 
 /// A smooth image with some texture (values in [0, 1]).
@@ -29,19 +32,25 @@ fn bench(c: &mut Criterion) {
         }
         Err(e) => panic!("{e}"),
     };
+    let gpu = match Gpu::open(AdapterPolicy::from_env()) {
+        Ok(gpu) => Some(gpu),
+        Err(e) => {
+            eprintln!("no GPU cases: {e}");
+            None
+        }
+    };
     let mut group = c.benchmark_group("lpips_alex");
     group.sample_size(10);
-    for (w, h) in [(640, 360), (1352, 1014)] {
-        let (a, b) = (image(w, h, 1), image(w, h, 2));
-        group.bench_function(format!("pair_{w}x{h}"), |bench| {
-            bench.iter(|| black_box(net.distance(&a, &b, w, h).unwrap()))
-        });
+    let mut devices = vec![("", LpipsDevice::Cpu)];
+    if let Some(gpu) = &gpu {
+        eprintln!("GPU cases on {}", gpu.describe());
+        devices.push(("gpu_", LpipsDevice::Gpu(gpu)));
     }
     let (w, h) = (640, 360);
     let images: Vec<(Vec<f32>, Vec<f32>)> = (0..4)
         .map(|k| (image(w, h, 2 * k), image(w, h, 2 * k + 1)))
         .collect();
-    let pairs: Vec<ImagePair> = images
+    let batch: Vec<ImagePair> = images
         .iter()
         .map(|(a, b)| ImagePair {
             a,
@@ -50,9 +59,23 @@ fn bench(c: &mut Criterion) {
             height: h,
         })
         .collect();
-    group.bench_function("batch_4x_640x360", |bench| {
-        bench.iter(|| black_box(net.distances(&pairs)))
-    });
+    for (prefix, device) in devices {
+        for (w, h) in [(640, 360), (1352, 1014)] {
+            let (a, b) = (image(w, h, 1), image(w, h, 2));
+            let pair = [ImagePair {
+                a: &a,
+                b: &b,
+                width: w,
+                height: h,
+            }];
+            group.bench_function(format!("{prefix}pair_{w}x{h}"), |bench| {
+                bench.iter(|| black_box(net.distances_on(device, &pair).pop().unwrap().unwrap()))
+            });
+        }
+        group.bench_function(format!("{prefix}batch_4x_640x360"), |bench| {
+            bench.iter(|| black_box(net.distances_on(device, &batch)))
+        });
+    }
     group.finish();
 }
 
