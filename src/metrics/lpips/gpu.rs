@@ -160,8 +160,8 @@ impl AlexLpips {
 
     /// [`Self::distances`] on `gpu`: pairs of one size go through the kernels together,
     /// in batches of up to [`BATCH_PIXELS`] (fewer where one of the batch's buffers would
-    /// pass the device's storage-buffer limit). A device failure is an error for each pair
-    /// of its batch.
+    /// pass the device's storage-buffer limit; a pair whose maps alone would pass it is
+    /// computed on the CPU). A device failure is an error for each pair of its batch.
     pub fn distances_on_gpu(&self, gpu: &Gpu, pairs: &[ImagePair]) -> Vec<Result<f64, LpipsError>> {
         let kernels = gpu.pipelines(LpipsKernels::new);
         let weights = self.weights_on(gpu);
@@ -182,19 +182,34 @@ impl AlexLpips {
                 .same_size_on_gpu(gpu, &kernels, &weights, images, width, height)
             {
                 Ok(distances) => distances.into_iter().map(Ok).collect(),
-                Err(message) => images
+                Err(Failure::TooLarge) => {
+                    let on_cpu: Vec<ImagePair> = images
+                        .iter()
+                        .map(|&[a, b]| ImagePair {
+                            a,
+                            b,
+                            width,
+                            height,
+                        })
+                        .collect();
+                    self.distances(&on_cpu)
+                }
+                Err(Failure::TooSmall) => images
                     .iter()
                     .map(|_| {
-                        Err(match &message {
-                            Failure::TooSmall => LpipsError::TooSmall {
-                                width,
-                                height,
-                                min: MIN_SIDE,
-                            },
-                            Failure::Device(message) => LpipsError::Gpu {
-                                adapter: gpu.describe(),
-                                message: message.clone(),
-                            },
+                        Err(LpipsError::TooSmall {
+                            width,
+                            height,
+                            min: MIN_SIDE,
+                        })
+                    })
+                    .collect(),
+                Err(Failure::Device(message)) => images
+                    .iter()
+                    .map(|_| {
+                        Err(LpipsError::Gpu {
+                            adapter: gpu.describe(),
+                            message: message.clone(),
                         })
                     })
                     .collect(),
@@ -220,11 +235,7 @@ impl AlexLpips {
             .min(gpu.limits.max_buffer_size);
         let largest = images as u64 * shapes.largest_image_bytes();
         if largest > limit {
-            return Err(Failure::Device(format!(
-                "a {width}×{height} image pair needs {:.0} MiB in one buffer, above this GPU's limit of {:.0} MiB",
-                largest as f64 / 1048576.0,
-                limit as f64 / 1048576.0
-            )));
+            return Err(Failure::TooLarge);
         }
         let device = &gpu.device;
         let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -365,6 +376,8 @@ impl AlexLpips {
 enum Failure {
     /// The images are too small for the network (the callers check this first).
     TooSmall,
+    /// One pair's maps do not fit in the device's largest storage buffer.
+    TooLarge,
     /// The device failed; what it said.
     Device(String),
 }
