@@ -250,7 +250,8 @@ fn submit(args: SubmitArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             if let Some(p) = args.preset {
                 config = config.with_preset(p);
             }
-            let settings = pipeline::cluster::settings_for(&config, &names)?;
+            let settings =
+                pipeline::cluster::settings_for(&config, &capture.config_path(), &names)?;
             Ok(pipeline::cluster::submit(
                 &pipeline, &capture, &config, &settings, &options,
             )?)

@@ -11,8 +11,6 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::ConfigError;
-
 /// Environment variable naming the user-level cluster file (instead of [`user_file`]'s
 /// default place).
 pub const USER_FILE_ENV: &str = "PIPELINE_CLUSTER_CONFIG";
@@ -172,10 +170,9 @@ impl ClusterSettings {
         }
     }
 
-    /// What is wrong with these settings, if anything: a time or memory Slurm would
-    /// refuse, or `[cluster.stages.X]` for a stage that does not exist. `stages`: the
-    /// pipeline's stage names.
-    pub fn problem(&self, stages: &[&str]) -> Option<String> {
+    /// What is wrong with these settings' values, if anything: a time or memory Slurm
+    /// would refuse.
+    pub fn value_problem(&self) -> Option<String> {
         let check = |section: &str, time: &Option<String>, mem: &Option<String>| {
             if let Some(t) = time
                 && !is_slurm_time(t)
@@ -193,21 +190,24 @@ impl ClusterSettings {
             }
             None
         };
-        if let Some(p) = check("cluster", &self.time, &self.mem) {
-            return Some(p);
-        }
-        for (name, own) in &self.stages {
-            if !stages.contains(&name.as_str()) {
-                return Some(format!(
+        check("cluster", &self.time, &self.mem).or_else(|| {
+            self.stages.iter().find_map(|(name, own)| {
+                check(&format!("cluster.stages.{name}"), &own.time, &own.mem)
+            })
+        })
+    }
+
+    /// A `[cluster.stages.<name>]` table that names no stage of `stages`, if any.
+    pub fn stage_problem(&self, stages: &[&str]) -> Option<String> {
+        self.stages
+            .keys()
+            .find(|name| !stages.contains(&name.as_str()))
+            .map(|name| {
+                format!(
                     "[cluster.stages.{name}]: there is no stage `{name}`; the stages are: {}",
                     stages.join(", ")
-                ));
-            }
-            if let Some(p) = check(&format!("cluster.stages.{name}"), &own.time, &own.mem) {
-                return Some(p);
-            }
-        }
-        None
+                )
+            })
     }
 }
 
@@ -252,54 +252,9 @@ pub fn user_file() -> Option<PathBuf> {
     Some(config.join("4c4d").join("cluster.toml"))
 }
 
-/// The `[cluster]` table of a user-level file (defaults when the file is absent), checked
-/// like `capture.toml`'s.
-pub fn load_user_file(path: &Path, stages: &[&str]) -> Result<ClusterSettings, ConfigError> {
-    if !path.exists() {
-        return Ok(ClusterSettings::default());
-    }
-    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    parse_user_file(&text, path, stages)
-}
-
-/// Parse a user-level cluster file: one `[cluster]` table, nothing else.
-pub fn parse_user_file(
-    text: &str,
-    path: &Path,
-    stages: &[&str],
-) -> Result<ClusterSettings, ConfigError> {
-    let invalid = |message: String| ConfigError::Invalid {
-        path: path.to_path_buf(),
-        message,
-    };
-    #[derive(Deserialize)]
-    #[serde(deny_unknown_fields)]
-    struct UserFile {
-        #[serde(default)]
-        cluster: ClusterSettings,
-    }
-    let table: toml::Table = toml::from_str(text).map_err(|e| invalid(e.to_string()))?;
-    crate::ranges::check(&table).map_err(invalid)?;
-    let file: UserFile = toml::from_str(text).map_err(|e| {
-        invalid(format!(
-            "{}(a cluster file holds one [cluster] table, the keys of docs/cluster.md)",
-            e
-        ))
-    })?;
-    match file.cluster.problem(stages) {
-        Some(message) => Err(invalid(message)),
-        None => Ok(file.cluster),
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    const STAGES: &[&str] = &["ingest", "train"];
 
     #[test]
     fn slurm_times_and_sizes() {
@@ -322,72 +277,6 @@ mod tests {
         }
         for m in ["", "G", "16GB", "1.5G", "-2G"] {
             assert!(!is_slurm_memory(m), "{m}");
-        }
-    }
-
-    #[test]
-    fn capture_keys_override_the_user_file_and_stages_override_the_section() {
-        let user = parse_user_file(
-            "[cluster]\npartition = \"cpu\"\ngpu_partition = \"gpu\"\naccount = \"lab\"\ntime = \"1:00:00\"\nsbatch_args = [\"--qos=low\"]\n[cluster.stages.train]\ntime = \"12:00:00\"\nmem = \"64G\"\n",
-            Path::new("u.toml"),
-            STAGES,
-        )
-        .unwrap();
-        let capture = ClusterSettings {
-            account: Some("other".into()),
-            cpus: Some(2),
-            stages: BTreeMap::from([(
-                "train".to_string(),
-                StageResources {
-                    mem: Some("32G".into()),
-                    ..Default::default()
-                },
-            )]),
-            ..Default::default()
-        };
-        let merged = user.overridden_by(&capture);
-        let bin = Path::new("/shared/bin/pipeline");
-        let ingest = merged.request("ingest", false, bin);
-        assert_eq!(ingest.partition.as_deref(), Some("cpu"));
-        assert_eq!(ingest.account.as_deref(), Some("other"));
-        assert_eq!(ingest.time.as_deref(), Some("1:00:00"));
-        assert_eq!((ingest.cpus, ingest.gpus), (2, 0));
-        assert_eq!(ingest.sbatch_args, ["--qos=low"]);
-        assert_eq!(ingest.program, bin);
-        let train = merged.request("train", true, bin);
-        assert_eq!(train.partition.as_deref(), Some("gpu"));
-        assert_eq!(train.time.as_deref(), Some("12:00:00"));
-        assert_eq!(train.mem.as_deref(), Some("32G"));
-        assert_eq!(train.gpus, DEFAULT_GPUS);
-        // A GPU stage with gpus = 0 asks for none and stays on the CPU partition.
-        let none = ClusterSettings {
-            gpus: Some(0),
-            ..merged
-        };
-        let train = none.request("train", true, bin);
-        assert_eq!((train.gpus, train.partition.as_deref()), (0, Some("cpu")));
-    }
-
-    #[test]
-    fn bad_user_files_name_the_file_and_the_key() {
-        for (text, needle) in [
-            ("[cluster]\npartiton = \"x\"\n", "partiton"),
-            ("[cluster]\ntime = \"4h\"\n", "[cluster] time = \"4h\""),
-            ("[cluster]\nmem = \"16GB\"\n", "mem = \"16GB\""),
-            ("[cluster]\ncpus = 0\n", "cpus = 0 is out of range"),
-            (
-                "[cluster.stages.trian]\ntime = \"1:00\"\n",
-                "no stage `trian`",
-            ),
-            ("[train]\niterations = 5\n", "one [cluster] table"),
-        ] {
-            let err = parse_user_file(text, Path::new("/home/u/cluster.toml"), STAGES)
-                .unwrap_err()
-                .to_string();
-            assert!(
-                err.contains(needle) && err.contains("/home/u/cluster.toml"),
-                "{text}: {err}"
-            );
         }
     }
 }

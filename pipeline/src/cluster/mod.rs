@@ -10,10 +10,12 @@
 //! - `config`: the `[cluster]` settings (capture.toml, and a user-level file).
 //! - `jobs`: the jobs file, each job's script and `sbatch` arguments.
 //! - `slurm`: the Slurm commands and the parsers of their output.
+//! - `user_file`: the user-level `[cluster]` file.
 
 pub mod config;
 pub mod jobs;
 pub mod slurm;
+pub mod user_file;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -72,13 +74,21 @@ pub enum ClusterError {
 }
 
 /// The `[cluster]` settings of a capture: the user-level file's, with the keys
-/// `capture.toml` sets over them.
+/// `capture.toml` (at `config_path`) sets over them. A `[cluster.stages.<name>]` that
+/// names no stage is an error naming the file.
 pub fn settings_for(
     config: &CaptureConfig,
+    config_path: &Path,
     stage_names: &[&str],
 ) -> Result<ClusterSettings, ConfigError> {
+    if let Some(message) = config.cluster.stage_problem(stage_names) {
+        return Err(ConfigError::Invalid {
+            path: config_path.to_path_buf(),
+            message,
+        });
+    }
     let user = match config::user_file() {
-        Some(path) => config::load_user_file(&path, stage_names)?,
+        Some(path) => user_file::load_user_file(&path, stage_names)?,
         None => ClusterSettings::default(),
     };
     Ok(user.overridden_by(&config.cluster))
@@ -459,6 +469,30 @@ mod tests {
             node: None,
             exit_code: Some("1:0".into()),
         }
+    }
+
+    #[test]
+    fn a_cluster_table_for_no_stage_is_an_error_naming_capture_toml() {
+        let config =
+            CaptureConfig::parse("[cluster.stages.training]\ncpus = 2\n", Path::new("c.toml"))
+                .unwrap();
+        let names = crate::stages::pipeline().stage_names();
+        let err = settings_for(&config, Path::new("/x/capture.toml"), &names)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("no stage `training`") && err.contains("/x/capture.toml"),
+            "{err}"
+        );
+        let ok = CaptureConfig::parse("[cluster.stages.train]\ncpus = 2\n", Path::new("c.toml"))
+            .unwrap();
+        assert_eq!(
+            settings_for(&ok, Path::new("c.toml"), &names)
+                .unwrap()
+                .stages["train"]
+                .cpus,
+            Some(2)
+        );
     }
 
     #[test]
