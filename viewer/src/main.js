@@ -219,6 +219,15 @@ async function main() {
   setPlaying(params.get("play") !== "0");
 
   const frame = (now) => {
+    try {
+      draw(now);
+    } catch (e) {
+      fail(e);
+      return;
+    }
+    requestAnimationFrame(frame);
+  };
+  const draw = (now) => {
     if (playing) {
       const span = t1 - t0;
       const t = playFrom.time - t0 + ((now - playFrom.wall) / 1000) * unitsPerSecond;
@@ -261,7 +270,6 @@ async function main() {
       loaded: state.loaded,
       total: model ? model.count : scene.model.gaussians,
     };
-    requestAnimationFrame(frame);
   };
   requestAnimationFrame(frame);
 }

@@ -200,6 +200,10 @@ export function createRenderer(gl) {
       gl.activeTexture(gl.TEXTURE0);
       gl.bindTexture(gl.TEXTURE_2D, texture);
       if (uploadedRows === 0 && !this.allocated) {
+        const max = gl.getParameter(gl.MAX_TEXTURE_SIZE);
+        if (model.rows > max) {
+          throw new Error(`${model.count} Gaussians need a ${width}×${model.rows} texture; this GPU allows ${max}×${max} (at most ${max * model.perRow} Gaussians): export a smaller model`);
+        }
         gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA32UI, width, model.rows, 0, gl.RGBA_INTEGER, gl.UNSIGNED_INT, null);
         gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
         gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
