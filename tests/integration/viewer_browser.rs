@@ -607,3 +607,25 @@ fn viewer_shows_the_scene_and_changes_with_time() {
         "screenshots barely differ: {diff}"
     );
 }
+
+/// The viewer's JavaScript unit tests (`viewer/test/unit/`, Node's test runner): pose
+/// conversions in every branch, orbiting without roll at a kept distance, the depth sort
+/// against a direct cull and sort.
+#[test]
+fn viewer_javascript_unit_tests_pass() {
+    let Some(browser) = Browser::find() else {
+        return;
+    };
+    let viewer = Path::new(env!("CARGO_MANIFEST_DIR")).join("viewer");
+    let out = std::process::Command::new(&browser.node)
+        .args(["--test", "test/unit/"])
+        .current_dir(&viewer)
+        .output()
+        .expect("start node");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && text.contains("# fail 0"),
+        "viewer unit tests failed:\n{text}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
