@@ -7,8 +7,8 @@
 //! Run: `cargo bench -p splat4d --bench lpips`.
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use splat4d::gpu::{AdapterPolicy, Gpu};
 use splat4d::metrics::lpips::{INSTALL_HINT, ImagePair, Lpips, LpipsDevice};
-use splat4d::render::gpu::{AdapterPolicy, Gpu};
 use std::hint::black_box;
 
 /// A smooth image with some texture (values in [0, 1]).

@@ -19,7 +19,8 @@
 //! `-- 'gpu_loss/.*128x96|gpu_adam/.*/2000$'` for the loss and Adam at theirs).
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use splat4d::render::gpu::{AdapterPolicy, GpuBackend};
+use splat4d::gpu::AdapterPolicy;
+use splat4d::render::gpu::GpuBackend;
 use splat4d::render::{RenderBackend, ViewRequest};
 use splat4d::train::gpu::{GpuAdam, GpuTraining};
 use splat4d::train::loss::image_loss;

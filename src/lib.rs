@@ -4,7 +4,8 @@
 //! - [`math`]: the per-Gaussian math every render backend follows (4D rotations, slicing
 //!   at time t, spherical + spherindrical colour, EWA projection, numerics);
 //! - [`render`]: the [`RenderBackend`] trait and its backends (`render::cpu`, with the
-//!   `f64` oracle `render::reference`);
+//!   `f64` oracle `render::reference`, and `render::gpu`);
+//! - [`gpu`]: the device and the kernel toolkit every WGSL owner builds with;
 //! - [`model`]: the Gaussians, their file format and their initialisation from points;
 //! - [`train`]: loss, optimiser, densification and the training loop; [`decay`]: the 4C4D
 //!   Neural Decaying Function that plugs into it;
@@ -24,6 +25,7 @@ pub use shared_types::{atomic, camera, progress};
 pub mod decay;
 pub mod eval;
 pub mod export;
+pub mod gpu;
 pub mod math;
 pub mod metrics;
 pub mod model;

@@ -14,7 +14,8 @@ use rayon::prelude::*;
 use rig::frames::FramesIndex;
 use serde::{Deserialize, Serialize};
 use shared_types::{Camera, CameraSet, Progress};
-use splat4d::render::gpu::{AdapterPolicy, GpuBackend};
+use splat4d::gpu::AdapterPolicy;
+use splat4d::render::gpu::GpuBackend;
 use splat4d::train::{Dataset, ImageU8, View};
 use splat4d::{Gaussians, RenderBackend, TimeMapping};
 

@@ -13,8 +13,8 @@
 use crate::common;
 use crate::eval_support;
 
+use splat4d::gpu::{AdapterPolicy, Gpu};
 use splat4d::metrics::lpips::{INSTALL_HINT, ImagePair, Lpips, LpipsDevice, LpipsError, MIN_SIDE};
-use splat4d::render::gpu::{AdapterPolicy, Gpu};
 use std::sync::{Arc, OnceLock};
 
 /// Largest accepted difference between the GPU's and the CPU's distance.

@@ -11,10 +11,11 @@
 
 use crate::train_scene;
 
+use splat4d::gpu::AdapterPolicy;
 use splat4d::load_model;
 use splat4d::model::init::{InitOptions, gaussians_from_points};
 use splat4d::render::RenderBackend;
-use splat4d::render::gpu::{AdapterPolicy, GpuBackend};
+use splat4d::render::gpu::GpuBackend;
 use splat4d::train::gpu::{GpuAdam, GpuTraining, TrainView};
 use splat4d::train::loss::image_loss;
 use splat4d::train::optim::{Adam, GroupRates, LearningRates, ParamBuffers};

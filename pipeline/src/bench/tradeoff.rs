@@ -520,7 +520,7 @@ fn measure(
     let backend: Box<dyn RenderBackend> = match setting.backend {
         TrainOn::Cpu => Box::new(splat4d::CpuBackend),
         TrainOn::Gpu => Box::new(
-            splat4d::render::gpu::GpuBackend::new(splat4d::render::gpu::AdapterPolicy::from_env())
+            splat4d::render::gpu::GpuBackend::new(splat4d::gpu::AdapterPolicy::from_env())
                 .context("--backend gpu")?,
         ),
     };

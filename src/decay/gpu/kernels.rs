@@ -1,9 +1,10 @@
 //! The neural decay's compute pipelines (WGSL in `shaders/decay_*.wgsl`; each file's
-//! kernels share one bind-group layout). Built with the renderer's toolkit
-//! (`render::gpu::compute`) once per device, on first use ([`DecayKernels::of`]).
+//! kernels share one bind-group layout). Built with the GPU toolkit
+//! (`gpu::compute`) once per device, on first use ([`DecayKernels::of`]).
 
+use crate::gpu::compute::{Kernel, Slot, layout, shader};
+use crate::math::GAUSSIAN_WGSL;
 use crate::render::gpu::GpuBackend;
-use crate::render::gpu::compute::{Kernel, Slot, gaussian_shader, layout};
 use Slot::{Read, ReadWrite, Uniform};
 use std::sync::Arc;
 
@@ -28,16 +29,22 @@ impl DecayKernels {
     }
 
     fn new(device: &wgpu::Device) -> Self {
-        let decay_mlp =
-            gaussian_shader(device, "decay_mlp", include_str!("shaders/decay_mlp.wgsl"));
-        let decay_view = gaussian_shader(
+        let decay_mlp = shader(
+            device,
+            "decay_mlp",
+            &[GAUSSIAN_WGSL],
+            include_str!("shaders/decay_mlp.wgsl"),
+        );
+        let decay_view = shader(
             device,
             "decay_view",
+            &[GAUSSIAN_WGSL],
             include_str!("shaders/decay_view.wgsl"),
         );
-        let decay_apply = gaussian_shader(
+        let decay_apply = shader(
             device,
             "decay_apply",
+            &[GAUSSIAN_WGSL],
             include_str!("shaders/decay_apply.wgsl"),
         );
         let mlp_layout = layout(

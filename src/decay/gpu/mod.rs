@@ -19,17 +19,18 @@
 //! Adam state are brought up to date by [`GpuDecay::download`] at host syncs.
 //!
 //! It renders nothing and trains no Gaussian: the trainer's step (`train::gpu`) calls it
-//! between its own passes. It builds its own pipelines with the renderer's toolkit
-//! (`render::gpu::compute`) and names nothing of the trainer.
+//! between its own passes. It builds its own pipelines with the GPU toolkit
+//! (`gpu::compute`) and names nothing of the trainer.
 
 mod kernels;
 
 use crate::decay::config::{DecayConfig, DecayInputs, DecayVariant, VisibilityMode};
 use crate::decay::mlp::{Mlp, MlpAdam};
+use crate::gpu::Gpu;
+use crate::gpu::compute::{Kernel, WG, read_buffer, storage, storage_init, uniform};
 use crate::model::Gaussians;
 use crate::render::RenderError;
-use crate::render::gpu::compute::{Kernel, WG, read_buffer, storage, storage_init, uniform};
-use crate::render::gpu::{Gpu, GpuBackend, ViewUniform, pack_params};
+use crate::render::gpu::{GpuBackend, ViewUniform, pack_params};
 use kernels::DecayKernels;
 use std::sync::Arc;
 

@@ -14,16 +14,16 @@
 //! there (cached with the device, keyed by the load they come from); the pipelines are
 //! built once per device (`Gpu::pipelines`).
 //!
-//! This module computes LPIPS and nothing else; it uses the renderer's kernel toolkit
-//! (`render::gpu::compute`) and its device, and knows nothing of rendering.
+//! This module computes LPIPS and nothing else; it uses the GPU kernel toolkit
+//! (`crate::gpu`), and knows nothing of rendering.
 
 use std::sync::{Arc, Mutex, PoisonError};
 
 use super::alex::{AlexLpips, BATCH_PIXELS, LAYERS, MIN_SIDE, by_size};
 use super::conv::output_side;
 use super::{ImagePair, LpipsError};
-use crate::render::gpu::Gpu;
-use crate::render::gpu::compute::{Kernel, Slot, read_buffer, shader, storage, uniform};
+use crate::gpu::Gpu;
+use crate::gpu::compute::{Kernel, Slot, read_buffer, shader, storage, uniform};
 use Slot::{Read, ReadWrite, Uniform};
 
 /// Output pixels and channels of one `conv_relu` workgroup (`BM`, `BN` in the shader).
@@ -88,14 +88,21 @@ impl LpipsKernels {
         let conv = shader(
             device,
             "lpips_conv",
+            &[],
             include_str!("shaders/lpips_conv.wgsl"),
         );
         let maps = shader(
             device,
             "lpips_maps",
+            &[],
             include_str!("shaders/lpips_maps.wgsl"),
         );
-        let tap = shader(device, "lpips_tap", include_str!("shaders/lpips_tap.wgsl"));
+        let tap = shader(
+            device,
+            "lpips_tap",
+            &[],
+            include_str!("shaders/lpips_tap.wgsl"),
+        );
         let maps_slots = [Uniform, Read, ReadWrite];
         let tap_slots = [Uniform, Read, Read, ReadWrite, ReadWrite];
         Self {
@@ -358,7 +365,9 @@ impl AlexLpips {
         }
         encoder.copy_buffer_to_buffer(&totals, 0, &staging, 0, 4 * pairs.len() as u64);
         gpu.queue.submit([encoder.finish()]);
-        let words = read_back(gpu, &staging, 4 * pairs.len() as u64);
+        let words = gpu
+            .read_words(&staging, 4 * pairs.len() as u64)
+            .map_err(|e| Failure::Device(e.to_string()));
         if let Some(e) = pollster::block_on(memory.pop()) {
             return Err(Failure::Device(e.to_string()));
         }
@@ -429,27 +438,4 @@ impl Shapes {
             .map(|(&(w, h), layer)| w * h * layer.4);
         4 * taps.chain(pools).fold(self.input, usize::max) as u64
     }
-}
-
-/// Wait for the submitted work and read `bytes` of `staging` as `u32` words.
-fn read_back(gpu: &Gpu, staging: &wgpu::Buffer, bytes: u64) -> Result<Vec<u32>, Failure> {
-    let slice = staging.slice(..bytes);
-    let (tx, rx) = std::sync::mpsc::channel();
-    slice.map_async(wgpu::MapMode::Read, move |r| {
-        let _ = tx.send(r);
-    });
-    gpu.device
-        .poll(wgpu::PollType::wait_indefinitely())
-        .map_err(|e| Failure::Device(format!("waiting for the GPU: {e}")))?;
-    rx.recv()
-        .map_err(|_| Failure::Device("the GPU read-back was dropped".into()))?
-        .map_err(|e| Failure::Device(format!("reading the GPU result: {e}")))?;
-    let words = {
-        let view = slice
-            .get_mapped_range()
-            .map_err(|e| Failure::Device(format!("reading the GPU result: {e}")))?;
-        bytemuck::pod_collect_to_vec::<u8, u32>(&view)
-    };
-    staging.unmap();
-    Ok(words)
 }

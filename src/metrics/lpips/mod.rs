@@ -20,7 +20,7 @@ mod winograd;
 
 use std::path::{Path, PathBuf};
 
-use crate::render::gpu::Gpu;
+use crate::gpu::Gpu;
 
 pub use alex::{AlexLpips, BATCH_PIXELS, MIN_SIDE};
 pub use onnx::OnnxLpips;

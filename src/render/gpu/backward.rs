@@ -10,8 +10,8 @@
 //! floats anywhere, so the result is the same on every run, and it adds the per-tile
 //! terms in the order the CPU backward does.
 
-use super::compute::{read_buffer, storage, storage_init};
 use super::{GpuBackend, GpuFrame};
+use crate::gpu::compute::{read_buffer, storage, storage_init};
 use crate::model::Gaussians;
 use crate::render::{Gradients, ImageGradients, RenderError, Rendered, check_backward_inputs};
 use std::sync::Arc;

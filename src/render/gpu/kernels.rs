@@ -1,9 +1,13 @@
 //! The renderer's compute pipelines (WGSL in `shaders/`): forward, scan, sort, tile
-//! ranges, and the two backward kernels. Built with the [`super::compute`] toolkit by
+//! ranges, and the two backward kernels. Built with the [`crate::gpu::compute`] toolkit by
 //! `GpuBackend::new`; the trainer's and the decay's kernels are built by their owners.
 
-use super::compute::{Kernel, Slot, gaussian_shader, layout, shader};
+use crate::gpu::compute::{Kernel, Slot, layout, shader};
+use crate::math::GAUSSIAN_WGSL;
 use Slot::{Read, ReadWrite, Uniform};
+
+/// The view constants and the splat record (`shaders/view.wgsl`), for the kernels that read them.
+const VIEW: &str = include_str!("shaders/view.wgsl");
 
 /// Every pipeline of the renderer.
 pub struct Kernels {
@@ -21,26 +25,34 @@ pub struct Kernels {
 
 impl Kernels {
     pub fn new(device: &wgpu::Device) -> Self {
-        let preprocess = gaussian_shader(
+        let preprocess = shader(
             device,
             "preprocess",
+            &[VIEW, GAUSSIAN_WGSL],
             include_str!("shaders/preprocess.wgsl"),
         );
-        let preprocess_backward = gaussian_shader(
+        let preprocess_backward = shader(
             device,
             "preprocess_backward",
+            &[VIEW, GAUSSIAN_WGSL],
             include_str!("shaders/preprocess_backward.wgsl"),
         );
         let raster_backward = shader(
             device,
             "raster_backward",
+            &[VIEW],
             include_str!("shaders/raster_backward.wgsl"),
         );
-        let emit = shader(device, "emit", include_str!("shaders/emit.wgsl"));
-        let scan = shader(device, "scan", include_str!("shaders/scan.wgsl"));
-        let sort = shader(device, "sort", include_str!("shaders/sort.wgsl"));
-        let ranges = shader(device, "ranges", include_str!("shaders/ranges.wgsl"));
-        let raster = shader(device, "raster", include_str!("shaders/raster.wgsl"));
+        let emit = shader(device, "emit", &[VIEW], include_str!("shaders/emit.wgsl"));
+        let scan = shader(device, "scan", &[], include_str!("shaders/scan.wgsl"));
+        let sort = shader(device, "sort", &[], include_str!("shaders/sort.wgsl"));
+        let ranges = shader(device, "ranges", &[], include_str!("shaders/ranges.wgsl"));
+        let raster = shader(
+            device,
+            "raster",
+            &[VIEW],
+            include_str!("shaders/raster.wgsl"),
+        );
         let k = |m: &wgpu::ShaderModule, entry: &str, slots: &[Slot]| {
             Kernel::alone(device, m, entry, slots)
         };

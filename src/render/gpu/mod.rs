@@ -17,8 +17,8 @@
 //! gradients are of the model as uploaded by the render.
 //!
 //! This module renders and differentiates, nothing else: forward, backward, scan and sort,
-//! the device ([`device`]) and the kernel toolkit ([`compute`]) every owner of WGSL
-//! kernels builds with. It imports nothing of the trainer or the decay. The training step
+//! built on the device and kernel toolkit of [`crate::gpu`]. It imports nothing of the
+//! trainer or the decay. The training step
 //! on the device (loss, Adam, densification statistics) is `train::gpu`, the neural
 //! decay's device side `decay::gpu`; each builds its own pipelines. What they use of the
 //! renderer is `pub(crate)`: the device and its error scope and read-back
@@ -28,28 +28,26 @@
 //! and backward (`GpuFrame`, `encode_backward`).
 
 mod backward;
-pub mod compute;
-mod device;
 mod kernels;
 mod sort;
 
 pub(crate) use backward::{PARAM_FLOATS, encode as encode_backward};
-pub use device::{AdapterPolicy, Gpu, GpuError};
 
 use super::{
     Gradients, ImageGradients, RenderBackend, RenderError, RenderStats, Rendered, ViewRequest,
     checked_pinhole, period_of,
 };
+use crate::gpu::compute::{read_buffer, storage, storage_init, uniform};
+use crate::gpu::{AdapterPolicy, Gpu, GpuError};
 use crate::math::project::PinholeCamera;
 use crate::model::Gaussians;
-use compute::{read_buffer, storage, storage_init, uniform};
 use kernels::Kernels;
 use sort::{Scan, SortBuffers, encode_sort};
 use std::sync::Arc;
 
 /// Tile side in pixels (as on the CPU).
 const TILE: u32 = 16;
-/// Bytes of one projected splat record (`Splat` in `shaders/common.wgsl`).
+/// Bytes of one projected splat record (`Splat` in `shaders/view.wgsl`).
 const SPLAT_BYTES: u64 = 64;
 
 /// The GPU backend: an open device and the compiled kernels.
@@ -105,7 +103,7 @@ pub(crate) struct ViewBuffers {
     pub(crate) radii: wgpu::Buffer,
 }
 
-/// The per-view constants (`View` in `shaders/common.wgsl`).
+/// The per-view constants (`View` in `shaders/view.wgsl`).
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub(crate) struct ViewUniform {
@@ -214,29 +212,9 @@ impl GpuBackend {
         bytes: u64,
     ) -> Result<Vec<u32>, RenderError> {
         self.gpu.queue.submit([encoder.finish()]);
-        if bytes == 0 {
-            return Ok(Vec::new());
-        }
-        let slice = staging.slice(..bytes);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
         self.gpu
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| RenderError::Gpu(format!("waiting for the GPU: {e}")))?;
-        rx.recv()
-            .map_err(|_| RenderError::Gpu("the GPU read-back was dropped".into()))?
-            .map_err(|e| RenderError::Gpu(format!("reading the GPU result: {e}")))?;
-        let words = {
-            let view = slice
-                .get_mapped_range()
-                .map_err(|e| RenderError::Gpu(format!("reading the GPU result: {e}")))?;
-            bytemuck::pod_collect_to_vec::<u8, u32>(&view)
-        };
-        staging.unmap();
-        Ok(words)
+            .read_words(staging, bytes)
+            .map_err(|e| RenderError::Gpu(e.to_string()))
     }
 
     pub(crate) fn prepare(

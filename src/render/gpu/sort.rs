@@ -1,8 +1,8 @@
 //! Host side of the GPU prefix sum and radix sort: which kernels run, over which buffers,
 //! in what order. The work itself is in `shaders/scan.wgsl` and `shaders/sort.wgsl`.
 
-use super::compute::{WG, storage, uniform};
 use super::kernels::Kernels;
+use crate::gpu::compute::{WG, storage, uniform};
 
 /// An inclusive prefix sum of `len` u32 in a buffer, prepared once: one level per factor
 /// of 256 (each level scans the block totals of the one before).

@@ -5,9 +5,10 @@
 //! read-back; it computes what `train::optim::Adam::step` does, in the same f32 order.
 
 use super::kernels::TrainKernels;
+use crate::gpu::Gpu;
+use crate::gpu::compute::{read_buffer, storage, uniform};
 use crate::model::Gaussians;
-use crate::render::gpu::compute::{read_buffer, storage, uniform};
-use crate::render::gpu::{Gpu, GpuBackend, PARAM_FLOATS, pack_params};
+use crate::render::gpu::{GpuBackend, PARAM_FLOATS, pack_params};
 use crate::render::{Gradients, RenderError};
 use crate::train::optim::{Adam, BETA1, BETA2, EPSILON, GroupRates, ParamBuffers};
 use std::sync::Arc;

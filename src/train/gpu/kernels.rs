@@ -1,10 +1,10 @@
 //! The training step's compute pipelines (WGSL in `shaders/`): the loss passes, the
 //! conversion of a byte target, Adam, the batch sum of gradients and the densification
-//! statistics. Built with the renderer's toolkit (`render::gpu::compute`) once per device,
+//! statistics. Built with the GPU toolkit (`gpu::compute`) once per device,
 //! on first use ([`TrainKernels::of`]).
 
+use crate::gpu::compute::{Kernel, Slot, layout, shader};
 use crate::render::gpu::GpuBackend;
-use crate::render::gpu::compute::{Kernel, Slot, layout, shader};
 use Slot::{Read, ReadWrite, Uniform};
 use std::sync::Arc;
 
@@ -28,11 +28,11 @@ impl TrainKernels {
     }
 
     fn new(device: &wgpu::Device) -> Self {
-        let loss = shader(device, "loss", include_str!("shaders/loss.wgsl"));
-        let unpack = shader(device, "unpack", include_str!("shaders/unpack.wgsl"));
-        let adam = shader(device, "adam", include_str!("shaders/adam.wgsl"));
-        let add = shader(device, "add", include_str!("shaders/add.wgsl"));
-        let stats = shader(device, "stats", include_str!("shaders/stats.wgsl"));
+        let loss = shader(device, "loss", &[], include_str!("shaders/loss.wgsl"));
+        let unpack = shader(device, "unpack", &[], include_str!("shaders/unpack.wgsl"));
+        let adam = shader(device, "adam", &[], include_str!("shaders/adam.wgsl"));
+        let add = shader(device, "add", &[], include_str!("shaders/add.wgsl"));
+        let stats = shader(device, "stats", &[], include_str!("shaders/stats.wgsl"));
         let k = |m: &wgpu::ShaderModule, entry: &str, slots: &[Slot]| {
             Kernel::alone(device, m, entry, slots)
         };

@@ -9,10 +9,10 @@
 //! A target may be uploaded as bytes and converted on the device (`shaders/unpack.wgsl`).
 
 use super::kernels::TrainKernels;
+use crate::gpu::compute::{WG, grid, read_buffer, storage, storage_init, uniform};
 use crate::metrics::ssim::{C1, C2, RADIUS, SIGMA};
 use crate::render::RenderError;
 use crate::render::gpu::GpuBackend;
-use crate::render::gpu::compute::{WG, grid, read_buffer, storage, storage_init, uniform};
 use crate::train::loss::LossValue;
 
 /// The loss constants (`LossParams` in `shaders/loss.wgsl`).

@@ -4,9 +4,10 @@
 //! training step reads nothing back for them; the host reads them when it densifies.
 
 use super::kernels::TrainKernels;
+use crate::gpu::Gpu;
+use crate::gpu::compute::{read_buffer, storage, uniform};
 use crate::render::RenderError;
-use crate::render::gpu::compute::{read_buffer, storage, uniform};
-use crate::render::gpu::{Gpu, GpuBackend};
+use crate::render::gpu::GpuBackend;
 use crate::train::densify::DensifyStats;
 use std::sync::Arc;
 

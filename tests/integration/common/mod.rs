@@ -226,7 +226,8 @@ pub fn at_camera(cam: &Camera, x: f64, y: f64, z: f64, t: f64) -> [f64; 4] {
 /// allowed). Without an adapter: a panic under `CI=true`, else `None` with a line saying
 /// `what` was skipped.
 pub fn gpu(what: &str) -> Option<&'static splat4d::render::gpu::GpuBackend> {
-    use splat4d::render::gpu::{AdapterPolicy, GpuBackend};
+    use splat4d::gpu::AdapterPolicy;
+    use splat4d::render::gpu::GpuBackend;
     static GPU: std::sync::OnceLock<Result<GpuBackend, String>> = std::sync::OnceLock::new();
     match GPU
         .get_or_init(|| GpuBackend::new(AdapterPolicy::AllowSoftware).map_err(|e| e.to_string()))

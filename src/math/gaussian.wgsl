@@ -1,6 +1,7 @@
-// Per-Gaussian constants and guards shared by `preprocess`, `preprocess_backward` and the
-// decay's kernels (src/decay/gpu/shaders), as in src/math/numerics.rs and the stage modules
-// of src/math.
+// The per-Gaussian math of this module in WGSL: the constants and guards of numerics.rs
+// and the stage modules, and the time slice. Prepended (`math::GAUSSIAN_WGSL`) to the
+// kernels that evaluate a Gaussian: the renderer's `preprocess` and its backward, and the
+// decay's kernels.
 
 const TEMPORAL_CUTOFF: f32 = 0.05;
 const MIN_TIME_VARIANCE: f32 = 1e-30;

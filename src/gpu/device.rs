@@ -24,7 +24,7 @@ impl AdapterPolicy {
     }
 }
 
-/// Why no GPU device could be had.
+/// Why no GPU device could be had, or one stopped answering.
 #[derive(Debug, thiserror::Error)]
 pub enum GpuError {
     #[error(
@@ -37,6 +37,8 @@ pub enum GpuError {
     SoftwareOnly { found: String },
     #[error("could not open the GPU device '{adapter}': {reason}")]
     Device { adapter: String, reason: String },
+    #[error("reading a result back from the GPU failed ({0}); the device may have been lost")]
+    ReadBack(String),
 }
 
 /// An open device and what it is.
@@ -115,6 +117,33 @@ impl Gpu {
         let new = Arc::new(build(&self.device));
         built.push(new.clone());
         new
+    }
+
+    /// Wait for the submitted work and read the first `bytes` of `staging` (a
+    /// `compute::read_buffer`) back as `u32` words.
+    pub fn read_words(&self, staging: &wgpu::Buffer, bytes: u64) -> Result<Vec<u32>, GpuError> {
+        if bytes == 0 {
+            return Ok(Vec::new());
+        }
+        let slice = staging.slice(..bytes);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::ReadBack(format!("waiting for the GPU: {e}")))?;
+        rx.recv()
+            .map_err(|_| GpuError::ReadBack("the mapping was dropped".into()))?
+            .map_err(|e| GpuError::ReadBack(e.to_string()))?;
+        let words = {
+            let view = slice
+                .get_mapped_range()
+                .map_err(|e| GpuError::ReadBack(e.to_string()))?;
+            bytemuck::pod_collect_to_vec::<u8, u32>(&view)
+        };
+        staging.unmap();
+        Ok(words)
     }
 
     /// The adapter in words, e.g. `NVIDIA H100 (Vulkan, DiscreteGpu)`.

@@ -1,22 +1,19 @@
 //! The small toolkit every owner of WGSL kernels builds with — the renderer
-//! ([`super::kernels`]), the trainer's device step (`train::gpu`) and the neural decay's
-//! device side (`decay::gpu`): shader modules with the shared WGSL prepended, pipelines
-//! and their bind-group layouts ([`Kernel`]), binding buffers and dispatching over many
-//! workgroups, and the buffers kernels read and write. It builds no pipeline itself: each
-//! owner builds its own (the renderer in `GpuBackend::new`, the others once per device
-//! through [`super::Gpu::pipelines`]).
+//! (`render::gpu`), the trainer's device step (`train::gpu`), the neural decay's device
+//! side (`decay::gpu`) and LPIPS (`metrics::lpips::gpu`): shader modules with the shared
+//! WGSL prepended, pipelines and their bind-group layouts ([`Kernel`]), binding buffers and
+//! dispatching over many workgroups, and the buffers kernels read and write. It builds no
+//! pipeline itself and knows nothing of Gaussians: each owner builds its own pipelines (the
+//! renderer in `GpuBackend::new`, the others once per device through
+//! [`super::Gpu::pipelines`]) and keeps its kernels in its own `shaders/` folder.
 //!
-//! Shared WGSL: `shaders/common.wgsl` (the view constants, the splat record, `WG` and
-//! `flat_index`) is prepended to every kernel module ([`shader`]); `shaders/gaussian.wgsl`
-//! (per-Gaussian constants, guards and the time slice) also to the modules that evaluate
-//! a Gaussian ([`gaussian_shader`]). Both live with the renderer; each owner's own kernels
-//! live in its own `shaders/` folder.
+//! Every module starts with `shaders/kernel.wgsl` (`WG` and `flat_index`), then the
+//! preludes its owner names ([`shader`]): the renderer's view and splat records, the
+//! per-Gaussian math of `math` (`math::GAUSSIAN_WGSL`).
 
 use wgpu::util::DeviceExt;
 
-const COMMON: &str = include_str!("shaders/common.wgsl");
-/// Per-Gaussian constants and guards of `preprocess`, its backward and the decay's kernels.
-const GAUSSIAN: &str = include_str!("shaders/gaussian.wgsl");
+const KERNEL: &str = include_str!("shaders/kernel.wgsl");
 
 /// Threads per 1D workgroup (`WG` in the shaders).
 pub const WG: u32 = 256;
@@ -38,18 +35,22 @@ pub struct Kernel {
     layout: wgpu::BindGroupLayout,
 }
 
-/// A shader module of `body` with `shaders/common.wgsl` prepended.
-pub fn shader(device: &wgpu::Device, name: &str, body: &str) -> wgpu::ShaderModule {
+/// A shader module of `body` with `shaders/kernel.wgsl` and then `preludes` prepended.
+pub fn shader(
+    device: &wgpu::Device,
+    name: &str,
+    preludes: &[&str],
+    body: &str,
+) -> wgpu::ShaderModule {
+    let mut source = String::from(KERNEL);
+    for part in preludes.iter().chain([&body]) {
+        source.push('\n');
+        source.push_str(part);
+    }
     device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some(name),
-        source: wgpu::ShaderSource::Wgsl(format!("{COMMON}\n{body}").into()),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
     })
-}
-
-/// A shader module of `body` with `shaders/common.wgsl` and `shaders/gaussian.wgsl`
-/// prepended.
-pub fn gaussian_shader(device: &wgpu::Device, name: &str, body: &str) -> wgpu::ShaderModule {
-    shader(device, name, &format!("{GAUSSIAN}\n{body}"))
 }
 
 /// A bind-group layout of `slots`, bound in order.
@@ -175,7 +176,7 @@ pub fn uniform<T: bytemuck::Pod>(device: &wgpu::Device, value: &T) -> wgpu::Buff
     })
 }
 
-/// A storage buffer of `bytes` bytes (at least 64, one splat record, so empty arrays still bind).
+/// A storage buffer of `bytes` bytes (at least 64, so empty arrays still bind).
 pub fn storage(device: &wgpu::Device, bytes: u64, label: &str) -> wgpu::Buffer {
     device.create_buffer(&wgpu::BufferDescriptor {
         label: Some(label),

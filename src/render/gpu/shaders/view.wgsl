@@ -1,9 +1,6 @@
-// Shared by every WGSL kernel (the renderer's, the training step's in src/train/gpu and the
-// decay's in src/decay/gpu; `render::gpu::compute::shader` prepends it): the per-view
-// constants, the projected splat record, and the 1D index of a (possibly 2D) dispatch of
-// 256-wide workgroups.
+// The renderer's per-view constants and its projected splat record, prepended to the
+// renderer's kernels that read a view or a splat (`render::gpu::kernels`).
 
-const WG: u32 = 256u;
 const TILE: u32 = 16u;
 
 struct View {
@@ -41,8 +38,4 @@ struct Splat {
     colour: vec4<f32>,
     // Inclusive support box in pixels: x0, x1, y0, y1 (clipped to the image).
     rect: vec4<i32>,
-}
-
-fn flat_index(wid: vec3<u32>, nwg: vec3<u32>, lid: u32) -> u32 {
-    return (wid.x + wid.y * nwg.x) * WG + lid;
 }
