@@ -49,7 +49,7 @@ build_viewer() {
     npm ci --prefix "$viewer" --no-audit --no-fund --loglevel=error >/dev/null
   fi
   if [ ! -f "$viewer/dist/index.html" ] ||
-     [ -n "$(find "$viewer/src" "$viewer/index.html" "$viewer/build.mjs" "$viewer/package-lock.json" -newer "$viewer/dist/index.html" 2>/dev/null)" ]; then
+     [ -n "$(find "$viewer/src" "$viewer/index.html" "$viewer/splatv.html" "$viewer/viewer.css" "$viewer/build.mjs" "$viewer/package-lock.json" -newer "$viewer/dist/index.html" 2>/dev/null)" ]; then
     echo "setup: building the viewer bundle (viewer/dist)"
     npm run --prefix "$viewer" --silent build >/dev/null
   fi

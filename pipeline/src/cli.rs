@@ -129,25 +129,8 @@ pub enum Command {
 pub struct RunArgs {
     /// The capture directory (holds raw/, stills/, capture.toml).
     pub capture_dir: PathBuf,
-    /// Start at this stage (earlier stages must have run).
-    #[arg(long, value_parser = PossibleValuesParser::new(pipeline().stage_names()))]
-    pub from: Option<String>,
-    /// Stop after this stage.
-    #[arg(long, value_parser = PossibleValuesParser::new(pipeline().stage_names()))]
-    pub to: Option<String>,
-    /// Run just this stage.
-    #[arg(long, value_parser = PossibleValuesParser::new(pipeline().stage_names()), conflicts_with_all = ["from", "to"])]
-    pub only: Option<String>,
-    /// Rerun the selected stages even if they are up to date.
-    #[arg(long)]
-    pub force: bool,
-    /// Backend of the `train`, `render` and `eval` stages (overrides `[engine] backend`).
-    #[arg(long, value_enum)]
-    pub backend: Option<BackendChoice>,
-    /// Training preset: preview | balanced | best (overrides `[train] preset` and the
-    /// iterations, resolution and Gaussian budget of capture.toml; README "Presets").
-    #[arg(long, value_enum)]
-    pub preset: Option<crate::presets::Preset>,
+    #[command(flatten)]
+    pub stages: StageArgs,
 }
 
 #[derive(Debug, Args)]
@@ -155,25 +138,62 @@ pub struct SubmitArgs {
     /// The capture directories (each holds raw/, stills/, capture.toml).
     #[arg(required = true)]
     pub capture_dirs: Vec<PathBuf>,
+    #[command(flatten)]
+    pub stages: StageArgs,
+}
+
+/// Which stages to run and how: shared by `run` and `submit` (whose jobs run `run`).
+#[derive(Debug, Args)]
+pub struct StageArgs {
     /// Start at this stage (earlier stages must have run).
     #[arg(long, value_parser = PossibleValuesParser::new(pipeline().stage_names()))]
     pub from: Option<String>,
     /// Stop after this stage.
     #[arg(long, value_parser = PossibleValuesParser::new(pipeline().stage_names()))]
     pub to: Option<String>,
-    /// Submit just this stage.
+    /// Just this stage.
     #[arg(long, value_parser = PossibleValuesParser::new(pipeline().stage_names()), conflicts_with_all = ["from", "to"])]
     pub only: Option<String>,
-    /// Submit the selected stages even if they are up to date (their jobs rerun them).
+    /// Rerun the selected stages even if they are up to date.
     #[arg(long)]
     pub force: bool,
     /// Backend of the `train`, `render` and `eval` stages (overrides `[engine] backend`;
-    /// `cpu` asks for no GPU).
+    /// on Slurm, `cpu` asks for no GPU).
     #[arg(long, value_enum)]
     pub backend: Option<BackendChoice>,
-    /// Training preset (overrides `[train] preset`; README "Presets").
+    /// Training preset: preview | balanced | best | full (overrides `[train] preset` and
+    /// the iterations, resolution and Gaussian budget of capture.toml; README "Presets").
     #[arg(long, value_enum)]
     pub preset: Option<crate::presets::Preset>,
+}
+
+impl StageArgs {
+    /// The stages these flags select.
+    pub fn selection(&self) -> crate::runner::Selection {
+        crate::runner::Selection {
+            from: self.from.clone(),
+            to: self.to.clone(),
+            only: self.only.clone(),
+            force: self.force,
+        }
+    }
+
+    /// The flags that carry over to a `pipeline run` of one stage (a Slurm job's command
+    /// line): `--force`, `--backend`, `--preset`.
+    pub fn run_flags(&self) -> Vec<String> {
+        use clap::ValueEnum;
+        let mut flags = Vec::new();
+        if self.force {
+            flags.push("--force".to_string());
+        }
+        if let Some(value) = self.backend.and_then(|b| b.to_possible_value()) {
+            flags.extend(["--backend".to_string(), value.get_name().to_string()]);
+        }
+        if let Some(p) = self.preset {
+            flags.extend(["--preset".to_string(), p.name().to_string()]);
+        }
+        flags
+    }
 }
 
 /// The library `record` talks to the cameras through.

@@ -193,16 +193,11 @@ fn bench_done(
 fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     let (capture, mut config) = open_capture(&args.capture_dir)?;
     pipeline::cluster::check_local_run(&capture)?;
-    if let Some(b) = args.backend {
+    if let Some(b) = args.stages.backend {
         config.engine.backend = b;
     }
-    config = apply_preset(config, args.preset, reporter);
-    let selection = Selection {
-        from: args.from,
-        to: args.to,
-        only: args.only,
-        force: args.force,
-    };
+    config = apply_preset(config, args.stages.preset, reporter);
+    let selection = args.stages.selection();
     let summary = stages::pipeline()
         .run(&capture, &config, &selection, reporter)
         .with_context(|| format!("run on {}", capture.root.display()))?;
@@ -219,35 +214,17 @@ fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
 fn submit(args: SubmitArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     let pipeline = stages::pipeline();
     let names = pipeline.stage_names();
-    let mut run_args = Vec::new();
-    if args.force {
-        run_args.push("--force".to_string());
-    }
-    if let Some(b) = args.backend {
-        use clap::ValueEnum;
-        if let Some(value) = b.to_possible_value() {
-            run_args.extend(["--backend".to_string(), value.get_name().to_string()]);
-        }
-    }
-    if let Some(p) = args.preset {
-        run_args.extend(["--preset".to_string(), p.name().to_string()]);
-    }
     let options = pipeline::cluster::SubmitOptions {
-        selection: Selection {
-            from: args.from,
-            to: args.to,
-            only: args.only,
-            force: args.force,
-        },
-        run_args,
+        selection: args.stages.selection(),
+        run_args: args.stages.run_flags(),
     };
     let mut failed = 0;
     for dir in &args.capture_dirs {
         let outcome = open_capture(dir).and_then(|(capture, mut config)| {
-            if let Some(b) = args.backend {
+            if let Some(b) = args.stages.backend {
                 config.engine.backend = b;
             }
-            if let Some(p) = args.preset {
+            if let Some(p) = args.stages.preset {
                 config = config.with_preset(p);
             }
             let settings =

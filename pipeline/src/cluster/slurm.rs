@@ -157,29 +157,13 @@ pub fn parse_sbatch(stdout: &str) -> Result<String, SlurmError> {
     }
 }
 
-/// The `squeue` format [`parse_squeue`] reads.
+/// The `squeue` format [`parse_squeue`] reads, and its columns.
 pub const SQUEUE_FORMAT: &str = "%i|%T|%r|%N";
+const SQUEUE_COLUMNS: [Column; 4] = [Column::Id, Column::State, Column::Reason, Column::Node];
 
 /// `squeue --noheader --format=%i|%T|%r|%N` lines.
 pub fn parse_squeue(stdout: &str) -> Vec<JobInfo> {
-    stdout
-        .lines()
-        .filter_map(|line| {
-            let mut cells = line.trim().split('|');
-            let id = cells.next()?.trim();
-            let state = cells.next()?;
-            if id.is_empty() {
-                return None;
-            }
-            Some(JobInfo {
-                id: id.to_string(),
-                state: JobState::parse(state),
-                reason: cells.next().and_then(meaningful),
-                node: cells.next().and_then(meaningful),
-                exit_code: None,
-            })
-        })
-        .collect()
+    parse_columns(stdout, &SQUEUE_COLUMNS)
 }
 
 /// `scontrol show job -o` lines: `JobId=12 JobName=… JobState=FAILED Reason=… ExitCode=1:0 …`.
@@ -202,26 +186,47 @@ pub fn parse_scontrol(stdout: &str) -> Vec<JobInfo> {
         .collect()
 }
 
-/// The `sacct` fields [`parse_sacct`] reads.
+/// The `sacct` fields [`parse_sacct`] reads, and its columns.
 pub const SACCT_FORMAT: &str = "JobIDRaw,State,ExitCode,NodeList";
+const SACCT_COLUMNS: [Column; 4] = [Column::Id, Column::State, Column::ExitCode, Column::Node];
 
 /// `sacct --noheader --parsable2 --allocations --format=JobIDRaw,State,ExitCode,NodeList`.
 pub fn parse_sacct(stdout: &str) -> Vec<JobInfo> {
+    parse_columns(stdout, &SACCT_COLUMNS)
+}
+
+/// A column of `squeue`'s or `sacct`'s `|`-separated output.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Column {
+    Id,
+    State,
+    Reason,
+    ExitCode,
+    Node,
+}
+
+/// `|`-separated lines holding `columns` in order; lines without an id or a state, and
+/// job steps (`12.batch`), are skipped.
+fn parse_columns(stdout: &str, columns: &[Column]) -> Vec<JobInfo> {
     stdout
         .lines()
         .filter_map(|line| {
-            let mut cells = line.trim().split('|');
-            let id = cells.next()?.trim();
-            let state = cells.next()?;
+            let cells: Vec<&str> = line.trim().split('|').collect();
+            let cell = |c: Column| {
+                let i = columns.iter().position(|&k| k == c)?;
+                cells.get(i).copied()
+            };
+            let id = cell(Column::Id)?.trim();
+            let state = cell(Column::State)?;
             if id.is_empty() || id.contains('.') {
                 return None;
             }
             Some(JobInfo {
                 id: id.to_string(),
                 state: JobState::parse(state),
-                reason: None,
-                exit_code: cells.next().and_then(meaningful),
-                node: cells.next().and_then(meaningful),
+                reason: cell(Column::Reason).and_then(meaningful),
+                node: cell(Column::Node).and_then(meaningful),
+                exit_code: cell(Column::ExitCode).and_then(meaningful),
             })
         })
         .collect()

@@ -23,9 +23,9 @@ fn run_takes_a_stage_range() {
         panic!("expected run")
     };
     assert_eq!(args.capture_dir.to_str(), Some("cap"));
-    assert_eq!(args.from.as_deref(), Some("sync"));
-    assert_eq!(args.to.as_deref(), Some("train"));
-    assert!(args.force);
+    assert_eq!(args.stages.from.as_deref(), Some("sync"));
+    assert_eq!(args.stages.to.as_deref(), Some("train"));
+    assert!(args.stages.force);
 }
 
 #[test]
@@ -49,7 +49,7 @@ fn submit_takes_several_captures_and_a_stage_range() {
         panic!("expected submit")
     };
     assert_eq!(args.capture_dirs.len(), 2);
-    assert_eq!(args.to.as_deref(), Some("train"));
+    assert_eq!(args.stages.to.as_deref(), Some("train"));
     assert!(
         parse(&["submit"]).is_err(),
         "a capture directory is required"

@@ -88,13 +88,13 @@ impl LpipsKernels {
         let conv = shader(
             device,
             "lpips_conv",
-            &[],
+            &[BATCH],
             include_str!("shaders/lpips_conv.wgsl"),
         );
         let maps = shader(
             device,
             "lpips_maps",
-            &[],
+            &[BATCH],
             include_str!("shaders/lpips_maps.wgsl"),
         );
         let tap = shader(
@@ -130,6 +130,9 @@ struct LayerBuffers {
 /// The weight sets uploaded to one device, newest last, by [`AlexLpips::load_id`].
 #[derive(Default)]
 struct UploadedWeights(Mutex<Vec<(u64, Arc<Vec<LayerBuffers>>)>>);
+
+/// `shaders/lpips_batch.wgsl`: the pixel of a batch's flat index, for the conv and map kernels.
+const BATCH: &str = include_str!("shaders/lpips_batch.wgsl");
 
 /// A storage buffer holding `data` (which is never empty here).
 fn upload(gpu: &Gpu, data: &[f32], label: &str) -> wgpu::Buffer {

@@ -179,6 +179,7 @@ fn respond(mut stream: TcpStream, root: &Path) -> std::io::Result<()> {
     let mime = match file.extension().and_then(|e| e.to_str()) {
         Some("html") => "text/html; charset=utf-8",
         Some("js") => "text/javascript",
+        Some("css") => "text/css",
         Some("json") => "application/json",
         _ => "application/octet-stream",
     };

@@ -70,13 +70,10 @@ fn conv_relu(
     var x0: array<i32, 4>;
     for (var r = 0u; r < 4u; r++) {
         let row = row0 + load_m + 16u * r;
-        let ox = row % conv.out_width;
-        let rest = row / conv.out_width;
-        let oy = rest % conv.out_height;
-        let image = rest / conv.out_height;
-        image_row[r] = image * conv.in_height;
-        y0[r] = select(NO_ROW, i32(oy * conv.stride) - i32(conv.padding), row < conv.rows);
-        x0[r] = i32(ox * conv.stride) - i32(conv.padding);
+        let o = batch_pixel(row, conv.out_width, conv.out_height);
+        image_row[r] = o.z * conv.in_height;
+        y0[r] = select(NO_ROW, i32(o.y * conv.stride) - i32(conv.padding), row < conv.rows);
+        x0[r] = i32(o.x * conv.stride) - i32(conv.padding);
     }
     // And of the kernel: channel `load_n` of field values `load_kb + 4 r`.
     let load_n = lid % BN;

@@ -49,11 +49,8 @@ fn max_pool(
     }
     let c = i % maps.channels;
     let pixel = i / maps.channels;
-    let ox = pixel % maps.out_width;
-    let rest = pixel / maps.out_width;
-    let oy = rest % maps.out_height;
-    let image = rest / maps.out_height;
-    let corner = ((image * maps.in_height + 2u * oy) * maps.in_width + 2u * ox) * maps.channels + c;
+    let o = batch_pixel(pixel, maps.out_width, maps.out_height);
+    let corner = ((o.z * maps.in_height + 2u * o.y) * maps.in_width + 2u * o.x) * maps.channels + c;
     var m = src[corner];
     for (var dy = 0u; dy < 3u; dy++) {
         for (var dx = 0u; dx < 3u; dx++) {
