@@ -34,7 +34,8 @@ pub struct ClusterSettings {
     pub time: Option<String>,
     /// `--cpus-per-task` of each job (default 4).
     pub cpus: Option<u32>,
-    /// `--mem` of each job (`16G`, `4000M`; default: the cluster's `DefMemPerCPU`).
+    /// `--mem` of each job (`16G`, `4000M`; default: sized to the capture for `train` and
+    /// `eval` (`cluster::memory`), the cluster's `DefMemPerCPU` for the others).
     pub mem: Option<String>,
     /// GPUs a GPU stage asks for, `--gres=gpu:N` (default 1; 0: GPU stages ask for none).
     /// GPU stages are those that render with `[engine] backend`, unless it is `cpu`.

@@ -14,6 +14,7 @@
 
 pub mod config;
 pub mod jobs;
+pub mod memory;
 pub mod slurm;
 pub mod user_file;
 
@@ -204,10 +205,16 @@ pub fn submit(
         source,
     })?;
     write(&submission)?;
+    let frames = memory::footprint(&work, capture, config);
     for &i in &chosen {
         let stage = &pipeline.stages[i];
         let gpu = stage.engine && config.engine.backend != crate::engine_inputs::BackendChoice::Cpu;
-        let request = settings.request(stage.name, gpu, &binary);
+        let mut request = settings.request(stage.name, gpu, &binary);
+        if request.mem.is_none()
+            && let Some(frames) = frames
+        {
+            request.mem = memory::request(stage.name, frames, config.train.densify.max_gaussians);
+        }
         let after = submission.jobs.last().map(|j| j.job_id.clone());
         let job = StageJob {
             stage: stage.name,

@@ -453,6 +453,15 @@ fn every_stage_runs_as_a_chained_job_and_gives_what_a_local_run_gives() {
         assert!(record.contains("JobState=COMPLETED"), "{record}");
         let gpu = ["train", "render", "eval"].contains(&job.stage.as_str());
         assert_eq!(record.contains("gpu:1"), gpu, "{}: {record}", job.stage);
+        // The stages that hold every frame ask for memory sized to the capture (its
+        // recordings, probed at submit); the others take the cluster's default per CPU.
+        let sized = ["train", "eval"].contains(&job.stage.as_str());
+        assert_eq!(
+            record.contains("MinMemoryNode="),
+            sized,
+            "{}: {record}",
+            job.stage
+        );
         if let Some((before, earlier)) = &previous {
             let prev_job = submission.job_of(before).unwrap();
             assert_eq!(job.after.as_deref(), Some(prev_job.job_id.as_str()));
