@@ -180,7 +180,7 @@ case "${1:-}" in
 --from)
   [ $# -eq 2 ] || { echo "usage: $0 --from DIR" >&2; exit 2; }
   dir="$(cd "$2" && pwd)"
-  bin="$out/bin"
+  bin="${TMPDIR:-/tmp}/gpu-check-bin"
   mkdir -p "$bin"
   for f in integration render_gpu lpips; do
     [ -f "$dir/bin/$f.xz" ] || { echo "gpu-check: $dir/bin/$f.xz is missing; make the bundle with --bundle" >&2; exit 2; }
