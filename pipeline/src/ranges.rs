@@ -123,7 +123,6 @@ pub const RANGES: &[(&str, Range)] = &[
     ("train.init_time_scale", POSITIVE),
     ("train.init_flatness", FRACTION),
     ("train.max_anisotropy", COUNT),
-    ("train.depth_prior", COUNT),
     ("train.checkpoint_every", COUNT),
     ("train.keep_checkpoints", SOME),
     ("train.report_every", SOME),

@@ -10,7 +10,6 @@ pub mod background;
 pub mod checkpoint;
 pub mod dataset;
 pub mod densify;
-pub mod depth_prior;
 mod device_step;
 pub mod gpu;
 pub mod log;
@@ -79,8 +78,6 @@ pub struct TrainConfig {
     /// Largest allowed ratio of a Gaussian's longest spatial axis to its middle one
     /// (needles are reshaped into ribbons after every step; 0: no limit).
     pub max_anisotropy: f64,
-    /// Weight λ of the sparse depth prior from the initial points ([`depth_prior`]; 0: off).
-    pub depth_prior: f64,
     pub lr: LearningRates,
     pub densify: DensifyConfig,
     /// Write a checkpoint every this many iterations (0: only at the end).
@@ -107,7 +104,6 @@ impl Default for TrainConfig {
             init_flatness: 0.0,
             init_velocity: true,
             max_anisotropy: 0.0,
-            depth_prior: 0.0,
             lr: LearningRates::default(),
             densify: DensifyConfig::default(),
             checkpoint_every: 1000,
@@ -330,9 +326,6 @@ fn validate(config: &TrainConfig, dataset: &Dataset) -> Result<(), TrainError> {
     if !(config.max_anisotropy == 0.0 || config.max_anisotropy > 1.0) {
         return bad("max_anisotropy must be 0 (no limit) or greater than 1");
     }
-    if !(config.depth_prior.is_finite() && config.depth_prior >= 0.0) {
-        return bad("depth_prior must be a finite weight ≥ 0 (0: off)");
-    }
     if !(0.0..=1.0).contains(&config.init_flatness) {
         return bad("init_flatness must be in [0, 1] (0: round Gaussians)");
     }
@@ -503,26 +496,12 @@ pub fn train(
             .device_decay()
             .is_some_and(|d| GpuDecay::supports(d.config));
     let mut stepper: Box<dyn Stepper + '_> = match backend.as_gpu() {
-        // The depth prior's loss runs on the host (the GPU backend renders and
-        // differentiates its depth).
-        Some(gpu)
-            if config.depth_prior == 0.0
-                && (access != ModelAccess::OpacityFactor || decay_on_device) =>
-        {
+        Some(gpu) if access != ModelAccess::OpacityFactor || decay_on_device => {
             Box::new(DeviceStep::new(
                 gpu, config, background, dataset, &model, &adam, &stats, hooks,
             )?)
         }
-        _ => {
-            let depths = if config.depth_prior > 0.0 {
-                depth_prior::targets(init, &dataset.views)
-            } else {
-                Vec::new()
-            };
-            Box::new(HostStep::new(
-                backend, config, background, dataset, &model, depths,
-            ))
-        }
+        _ => Box::new(HostStep::new(backend, config, background, dataset, &model)),
     };
     // The cap and hooks that touch the model run on the host every step (a decay on the
     // device touches the device's model only).

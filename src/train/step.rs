@@ -13,7 +13,6 @@ use crate::metrics::psnr_from_mse;
 use crate::model::Gaussians;
 use crate::render::{Gradients, ImageGradients, RenderBackend, RenderOptions};
 use crate::train::densify::DensifyStats;
-use crate::train::depth_prior::{self, DepthTargets};
 use crate::train::loss::{LossValue, image_loss};
 use crate::train::optim::{Adam, GroupRates};
 use crate::train::{Dataset, TrainConfig, TrainError, TrainHooks};
@@ -112,10 +111,6 @@ pub(crate) struct HostStep<'a> {
     /// One view's gradients, reused across views and iterations: the backward resizes
     /// and overwrites it, so the large colour array is not faulted in afresh every view.
     g: Gradients<f32>,
-    /// The depth prior's targets per view (empty when it is off).
-    depths: Vec<DepthTargets>,
-    d_depth: Vec<f32>,
-    d_alpha: Vec<f32>,
 }
 
 impl<'a> HostStep<'a> {
@@ -125,7 +120,6 @@ impl<'a> HostStep<'a> {
         background: [f32; 3],
         dataset: &'a Dataset,
         model: &Gaussians<f32>,
-        depths: Vec<DepthTargets>,
     ) -> Self {
         Self {
             backend,
@@ -135,9 +129,6 @@ impl<'a> HostStep<'a> {
             target: Vec::new(),
             d_image: Vec::new(),
             g: Gradients::zeros_like(model, false),
-            depths,
-            d_depth: Vec::new(),
-            d_alpha: Vec::new(),
         }
     }
 }
@@ -181,29 +172,10 @@ impl Stepper for HostStep<'_> {
             let (w, h) = (r.width as usize, r.height as usize);
             let lv = image_loss(&r.rgb, target, w, h, config.lambda_ssim, Some(d_image));
             d_image.iter_mut().for_each(|g| *g *= scale);
-            let with_depth = match self.depths.get(vi) {
-                Some(t) if !t.pixels.is_empty() => {
-                    for plane in [&mut self.d_depth, &mut self.d_alpha] {
-                        plane.clear();
-                        plane.resize(w * h, 0.0);
-                    }
-                    let weight = config.depth_prior * scale as f64;
-                    depth_prior::loss(
-                        t,
-                        &r.depth,
-                        &r.alpha,
-                        weight,
-                        &mut self.d_depth,
-                        &mut self.d_alpha,
-                    );
-                    true
-                }
-                _ => false,
-            };
             let up = ImageGradients {
                 rgb: d_image,
-                alpha: with_depth.then_some(&self.d_alpha[..]),
-                depth: with_depth.then_some(&self.d_depth[..]),
+                alpha: None,
+                depth: None,
             };
             backend
                 .backward(model, &r, &up, g)

@@ -34,7 +34,6 @@ mod metrics_values;
 mod model_file;
 mod paths_geometry;
 mod reference;
-mod train_depth_prior;
 mod train_fit;
 mod train_hooks;
 mod train_resume;
