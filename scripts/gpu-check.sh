@@ -33,13 +33,13 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 out="${GPU_CHECK_OUT:-$root/target/gpu-check}"
 
 # The paths of the built test and benchmark executables, one per line: integration,
-# render_gpu, lpips.
+# render_gpu, lpips (cargo's progress and errors go to stderr).
 build() {
   cd "$root"
   {
     cargo test -p splat4d --test integration --no-run --message-format=json
     cargo bench -p splat4d --bench render_gpu --bench lpips --no-run --message-format=json
-  } 2>/dev/null | python3 -c '
+  } | python3 -c '
 import json, sys
 found = {}
 for line in sys.stdin:
@@ -56,10 +56,16 @@ for name in ("integration", "render_gpu", "lpips"):
 '
 }
 
+# Stop unless the build gave all three executables.
+built() {
+  [ $# -eq 3 ] || { echo "gpu-check: the build failed (cargo's errors are above)" >&2; exit 1; }
+}
+
 bundle() {
   local dir="$1"
   mkdir -p "$dir/bin"
   mapfile -t exes < <(build)
+  built "${exes[@]}"
   for exe in "${exes[@]}"; do
     local name
     name="$(basename "$exe" | sed 's/-[0-9a-f]*$//')"
@@ -196,6 +202,7 @@ case "${1:-}" in
     pipeline_bin="$root/target/release/pipeline"
   fi
   mapfile -t exes < <(build)
+  built "${exes[@]}"
   bin="$out/bin"
   mkdir -p "$bin"
   for exe in "${exes[@]}"; do ln -sf "$exe" "$bin/$(basename "$exe" | sed 's/-[0-9a-f]*$//')"; done
