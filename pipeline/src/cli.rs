@@ -178,6 +178,20 @@ impl StageArgs {
         }
     }
 
+    /// `config` with these flags' `--backend` and `--preset` applied.
+    pub fn configure(
+        &self,
+        mut config: crate::config::CaptureConfig,
+    ) -> crate::config::CaptureConfig {
+        if let Some(b) = self.backend {
+            config.engine.backend = b;
+        }
+        match self.preset {
+            Some(p) => config.with_preset(p),
+            None => config,
+        }
+    }
+
     /// The flags that carry over to a `pipeline run` of one stage (a Slurm job's command
     /// line): `--force`, `--backend`, `--preset`.
     pub fn run_flags(&self) -> Vec<String> {

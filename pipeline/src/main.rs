@@ -191,12 +191,10 @@ fn bench_done(
 }
 
 fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
-    let (capture, mut config) = open_capture(&args.capture_dir)?;
+    let (capture, config) = open_capture(&args.capture_dir)?;
     pipeline::cluster::check_local_run(&capture)?;
-    if let Some(b) = args.stages.backend {
-        config.engine.backend = b;
-    }
-    config = apply_preset(config, args.stages.preset, reporter);
+    say_preset(args.stages.preset, reporter);
+    let config = args.stages.configure(config);
     let selection = args.stages.selection();
     let summary = stages::pipeline()
         .run(&capture, &config, &selection, reporter)
@@ -220,13 +218,8 @@ fn submit(args: SubmitArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     };
     let mut failed = 0;
     for dir in &args.capture_dirs {
-        let outcome = open_capture(dir).and_then(|(capture, mut config)| {
-            if let Some(b) = args.stages.backend {
-                config.engine.backend = b;
-            }
-            if let Some(p) = args.stages.preset {
-                config = config.with_preset(p);
-            }
+        let outcome = open_capture(dir).and_then(|(capture, config)| {
+            let config = args.stages.configure(config);
             let settings =
                 pipeline::cluster::settings_for(&config, &capture.config_path(), &names)?;
             Ok(pipeline::cluster::submit(
@@ -445,17 +438,10 @@ fn capture_summary(capture: &pipeline::layout::Capture) -> String {
 }
 
 /// `--preset` over the capture's settings, said to the user.
-fn apply_preset(
-    config: pipeline::config::CaptureConfig,
-    preset: Option<pipeline::presets::Preset>,
-    reporter: &Reporter,
-) -> pipeline::config::CaptureConfig {
-    match preset {
-        Some(p) => {
-            reporter.say(&format!("preset {}: {}", p.name(), p.describe()));
-            config.with_preset(p)
-        }
-        None => config,
+/// Say which preset a run uses, when one was chosen.
+fn say_preset(preset: Option<pipeline::presets::Preset>, reporter: &Reporter) {
+    if let Some(p) = preset {
+        reporter.say(&format!("preset {}: {}", p.name(), p.describe()));
     }
 }
 
@@ -492,8 +478,11 @@ fn demo(
     let trainer = pipeline::engine_inputs::training_backend_for(config.engine.backend)?;
     let hardware_gpu = trainer.as_gpu().is_some_and(|g| !g.is_software());
     let schedule = pipeline::presets::demo_preset(preset.or(config.preset), hardware_gpu);
-    if schedule != config.preset {
-        config = apply_preset(config, schedule, reporter);
+    if schedule != config.preset
+        && let Some(p) = schedule
+    {
+        say_preset(schedule, reporter);
+        config = config.with_preset(p);
     }
     reporter.say(&format!(
         "training on {}: {}",

@@ -297,7 +297,7 @@ impl TrainHooks for HostDecay {
 /// (PSNR within 0.1 dB); the speeds are printed, not asserted.
 /// `cargo test -p splat4d --test integration -- --ignored --nocapture gpu_decay_train::bench`
 #[test]
-#[ignore = "a benchmark (minutes on lavapipe)"]
+#[ignore = "a benchmark (minutes on lavapipe); scripts/gpu-check.sh runs it on a GPU"]
 fn bench_neural_decay_device_path_against_the_host_path() {
     let Some(gpu) = gpu() else { return };
     let data = train_scene::dataset(32, 24);

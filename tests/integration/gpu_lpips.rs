@@ -316,7 +316,7 @@ fn evaluate_with_the_gpu_renderer_computes_lpips_on_the_gpu() {
 /// (`--release` for a CPU number comparable with BENCHMARKS.md). On a software adapter
 /// only one pair is timed.
 #[test]
-#[ignore = "timing"]
+#[ignore = "timing (most of a minute a pair on lavapipe); scripts/gpu-check.sh runs it on a GPU"]
 fn gpu_lpips_timing() {
     let Some((net, gpu)) = setup("GPU LPIPS timing") else {
         return;

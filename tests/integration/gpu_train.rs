@@ -94,7 +94,7 @@ fn a_short_training_on_the_gpu_backend_matches_the_cpu() {
 }
 
 #[test]
-#[ignore = "300 iterations × 4 views at 64×48: minutes on lavapipe; run with --ignored where a GPU is"]
+#[ignore = "300 iterations × 4 views at 64×48: minutes on lavapipe; scripts/gpu-check.sh runs it on a GPU"]
 fn three_hundred_iterations_on_the_gpu_backend_match_the_cpu() {
     compare(300, 64, 48, 4);
 }

@@ -97,6 +97,11 @@ fn from_streams(streams: &Streams, frames: &FramesConfig) -> Footprint {
     }
 }
 
+/// Whether `stage` holds the frames, so its job's `--mem` is sized to them ([`request`]).
+pub fn sized(stage: &str) -> bool {
+    matches!(stage, "train" | "eval")
+}
+
 /// `--mem` for `stage`'s job (`"1536M"`), for the stages that hold the frames; `None` for
 /// the others (the cluster's default applies).
 pub fn request(stage: &str, frames: Footprint, max_gaussians: usize) -> Option<String> {

@@ -205,13 +205,15 @@ pub fn submit(
         source,
     })?;
     write(&submission)?;
-    let frames = memory::footprint(&work, capture, config);
+    // Counted once, and only when a job needs it (it may probe the recordings).
+    let frames = std::cell::OnceCell::new();
     for &i in &chosen {
         let stage = &pipeline.stages[i];
         let gpu = stage.engine && config.engine.backend != crate::engine_inputs::BackendChoice::Cpu;
         let mut request = settings.request(stage.name, gpu, &binary);
         if request.mem.is_none()
-            && let Some(frames) = frames
+            && memory::sized(stage.name)
+            && let Some(frames) = *frames.get_or_init(|| memory::footprint(&work, capture, config))
         {
             request.mem = memory::request(stage.name, frames, config.train.densify.max_gaussians);
         }
