@@ -13,6 +13,9 @@
 //! model, one view, only the loss read back). 2k Gaussians at 128×96 for software
 //! adapters; 100k and 1M at 1352×1014 for real GPUs.
 //!
+//! `SPLAT4D_GPU_PROFILE=1` first prints where one such iteration's device time goes,
+//! kernel by kernel (`Gpu::profile`), at 100k and 1M (2k on software adapters).
+//!
 //! `gpu_loss`: the L1 + D-SSIM loss with its image gradient (upload of both images and
 //! read-back of loss and gradient included), next to the CPU loss; `gpu_adam`: one Adam
 //! step on resident parameters (gradients already on the device; waits for the device),
@@ -28,9 +31,9 @@ use splat4d::gpu::AdapterPolicy;
 use splat4d::render::gpu::GpuBackend;
 use splat4d::render::{RenderBackend, ViewRequest};
 use splat4d::train::dataset::ImageU8;
-use splat4d::train::gpu::{GpuAdam, GpuTraining, TrainView};
+use splat4d::train::gpu::{GpuAdam, GpuImage, GpuTraining, StepResult, TrainView};
 use splat4d::train::loss::image_loss;
-use splat4d::train::optim::{Adam, LearningRates};
+use splat4d::train::optim::{Adam, GroupRates, LearningRates};
 use splat4d::{Camera, Gaussians, Gradients, ImageGradients, RenderOptions};
 use std::hint::black_box;
 
@@ -47,6 +50,9 @@ fn bench(c: &mut Criterion) {
         }
     };
     eprintln!("adapter: {}", gpu.describe());
+    if std::env::var("SPLAT4D_GPU_PROFILE").is_ok_and(|v| v == "1") {
+        profile_resident_steps(&gpu);
+    }
     let opts = RenderOptions::<f32>::default();
     let small = camera();
     let mut large: Camera = camera();
@@ -157,43 +163,104 @@ fn adam(c: &mut Criterion, gpu: &GpuBackend) {
     group.finish();
 }
 
+/// The sizes `gpu_resident_step` times: 2k at 128×96 for software adapters, 100k and 1M
+/// at 1352×1014 for real GPUs.
+const RESIDENT_SIZES: [(usize, u32, u32); 3] = [
+    (2_000, 128, 96),
+    (100_000, 1352, 1014),
+    (1_000_000, 1352, 1014),
+];
+
+/// One whole training iteration on the device, set up for `n` Gaussians and a `w×h` view
+/// against a mid-grey target (which the model does not match anywhere).
+struct ResidentStep {
+    model: Gaussians<f32>,
+    camera: Camera,
+    target: GpuImage,
+    adam: GpuAdam,
+    rates: GroupRates,
+}
+
+impl ResidentStep {
+    fn new(gpu: &GpuBackend, n: usize, w: u32, h: u32) -> Self {
+        let mut camera: Camera = camera();
+        camera.intrinsics = camera.intrinsics.scaled_to(w, h);
+        let model = scene(n);
+        let target = gpu
+            .upload_image(&ImageU8 {
+                width: w,
+                height: h,
+                data: vec![128; 3 * (w * h) as usize],
+            })
+            .unwrap();
+        let adam = GpuAdam::new(gpu, &model).unwrap();
+        let rates = LearningRates::default().at(10, 100, 2.0);
+        Self {
+            model,
+            camera,
+            target,
+            adam,
+            rates,
+        }
+    }
+
+    /// One iteration; returns once its loss is read back.
+    fn run(&mut self, gpu: &GpuBackend) -> StepResult {
+        let views = [TrainView {
+            camera: &self.camera,
+            t: 0.5,
+            target: &self.target,
+        }];
+        self.adam
+            .train_step(gpu, &self.model, &views, [0.0; 3], 0.2, &self.rates)
+            .unwrap()
+    }
+}
+
 fn resident_step(c: &mut Criterion, gpu: &GpuBackend) {
     let mut group = c.benchmark_group("gpu_resident_step");
     group.sample_size(10);
-    for (n, w, h) in [
-        (2_000usize, 128u32, 96u32),
-        (100_000, 1352, 1014),
-        (1_000_000, 1352, 1014),
-    ] {
-        let mut cam: Camera = camera();
-        cam.intrinsics = cam.intrinsics.scaled_to(w, h);
+    for (n, w, h) in RESIDENT_SIZES {
         group.bench_function(BenchmarkId::new(format!("{w}x{h}"), n), |b| {
-            let model = scene(n);
-            // A target the model does not match everywhere: a mid-grey image.
-            let target = gpu
-                .upload_image(&ImageU8 {
-                    width: w,
-                    height: h,
-                    data: vec![128; 3 * (w * h) as usize],
-                })
-                .unwrap();
-            let mut on_gpu = GpuAdam::new(gpu, &model).unwrap();
-            let rates = LearningRates::default().at(10, 100, 2.0);
-            let views = [TrainView {
-                camera: &cam,
-                t: 0.5,
-                target: &target,
-            }];
-            b.iter(|| {
-                black_box(
-                    on_gpu
-                        .train_step(gpu, &model, &views, [0.0; 3], 0.2, &rates)
-                        .unwrap(),
-                )
-            })
+            let mut step = ResidentStep::new(gpu, n, w, h);
+            b.iter(|| black_box(step.run(gpu)))
         });
     }
     group.finish();
+}
+
+/// With `SPLAT4D_GPU_PROFILE=1`: where one resident training iteration's device time goes,
+/// kernel by kernel ([`splat4d::gpu::Gpu::profile`]), at the sizes `gpu_resident_step`
+/// times (the small one on software adapters only), next to the iteration's wall time;
+/// where the kernels use subgroups, again with the fixed-order kernels.
+fn profile_resident_steps(gpu: &GpuBackend) {
+    if !gpu.gpu().can_profile() {
+        eprintln!("profile: {}", gpu.gpu().profile(|| ()).unwrap_err());
+        return;
+    }
+    let ordered = gpu
+        .uses_subgroups()
+        .then(|| GpuBackend::without_subgroups(AdapterPolicy::from_env()).unwrap());
+    let backends = [("", Some(gpu)), (", fixed-order kernels", ordered.as_ref())];
+    let sizes = RESIDENT_SIZES
+        .into_iter()
+        .filter(|&(n, ..)| (n == 2_000) == gpu.is_software());
+    for (n, w, h) in sizes {
+        for (what, backend) in backends {
+            let Some(backend) = backend else { continue };
+            let mut step = ResidentStep::new(backend, n, w, h);
+            // A first iteration warms the device up.
+            step.run(backend);
+            let started = std::time::Instant::now();
+            let (_, profile) = backend.gpu().profile(|| step.run(backend)).unwrap();
+            let wall = started.elapsed().as_secs_f64() * 1e3;
+            println!(
+                "profile: one resident training iteration, {n} Gaussians at {w}x{h}{what}: {wall:.2} ms wall, {:.2} ms in kernels",
+                profile.total_ms()
+            );
+            println!("{}", profile.table());
+        }
+    }
 }
 
 /// Fixed upstream gradients for a `w×h` image (any values do: the work does not depend

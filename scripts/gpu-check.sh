@@ -21,8 +21,10 @@
 #      host, one whole resident training iteration (render, loss, backward, Adam) at 100k
 #      and 1M, Adam alone at 1M, the loss, and LPIPS on the GPU (one pair at 640×360 and
 #      at 1352×1014, a batch of four);
-#   4. peak GPU memory while the benchmarks ran (nvidia-smi, sampled every 200 ms);
-#   5. with --demo: `pipeline demo --backend gpu` at `best` and `full`, held-out PSNR /
+#   4. where one training iteration's device time goes, kernel by kernel, at 100k and 1M
+#      (timestamp queries; profile.md);
+#   5. peak GPU memory while the benchmarks ran (nvidia-smi, sampled every 200 ms);
+#   6. with --demo: `pipeline demo --backend gpu` at `best` and `full`, held-out PSNR /
 #      SSIM / LPIPS and the train stage's wall time.
 # It takes a few minutes on a data-centre GPU. Logs and the table go to $GPU_CHECK_OUT
 # (default target/gpu-check/). SPLAT4D_GPU_SOFTWARE=1 runs it on a software adapter
@@ -126,7 +128,10 @@ check() {
   fi
   echo "gpu-check: benchmarks"
   local opts=(--warm-up-time 1 --measurement-time 2 --sample-size 10 --noplot --output-format bencher)
-  (cd "$root" && "$bin/render_gpu" --bench "$render_filter" "${opts[@]}") >"$out/render_gpu.log" 2>&1 || true
+  # SPLAT4D_GPU_PROFILE=1: the benchmark first prints one training iteration's device
+  # time kernel by kernel.
+  (cd "$root" && SPLAT4D_GPU_PROFILE=1 "$bin/render_gpu" --bench "$render_filter" "${opts[@]}") >"$out/render_gpu.log" 2>&1 || true
+  grep -E '^(profile:|\|)' "$out/render_gpu.log" >"$out/profile.md" || true
   : >"$out/lpips.log"
   if [ -n "$lpips_filter" ]; then
     (cd "$root" && "$bin/lpips" --bench "$lpips_filter" "${opts[@]}") >"$out/lpips.log" 2>&1 || true
@@ -175,6 +180,8 @@ PY
   echo "| check | result |"
   echo "|---|---|"
   cat "$out/table.md"
+  echo
+  cat "$out/profile.md"
   return "$tests_rc"
 }
 

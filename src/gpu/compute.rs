@@ -33,6 +33,8 @@ use Slot::{Read, ReadWrite, Uniform};
 pub struct Kernel {
     pub pipeline: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
+    /// The entry point, which names the kernel in a profile.
+    name: String,
 }
 
 /// A shader module of `body` with `shaders/kernel.wgsl` and then `preludes` prepended.
@@ -104,6 +106,7 @@ impl Kernel {
         Self {
             pipeline,
             layout: layout.clone(),
+            name: entry.to_owned(),
         }
     }
 
@@ -154,10 +157,20 @@ impl Kernel {
         if groups == 0 {
             return;
         }
+        let (x, y) = grid(groups);
+        self.dispatch_grid(pass, group, [x, y, 1]);
+    }
+
+    /// Run a grid of `[x, y, z]` workgroups.
+    pub fn dispatch_grid(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        group: &wgpu::BindGroup,
+        [x, y, z]: [u32; 3],
+    ) {
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, group, &[]);
-        let (x, y) = grid(groups);
-        pass.dispatch_workgroups(x, y, 1);
+        super::profile::timed(pass, &self.name, |pass| pass.dispatch_workgroups(x, y, z));
     }
 }
 

@@ -39,6 +39,8 @@ pub enum GpuError {
     Device { adapter: String, reason: String },
     #[error("reading a result back from the GPU failed ({0}); the device may have been lost")]
     ReadBack(String),
+    #[error("the GPU '{0}' cannot time kernels (it lacks timestamp queries inside compute passes)")]
+    NoProfiling(String),
 }
 
 /// An open device and what it is.
@@ -84,6 +86,8 @@ impl Gpu {
         let limits = best.limits();
         let (device, queue) = pollster::block_on(best.request_device(&wgpu::DeviceDescriptor {
             label: Some("splat4d"),
+            required_features: best.features()
+                & (super::profile::PROFILE_FEATURES | wgpu::Features::SUBGROUP),
             required_limits: limits.clone(),
             ..Default::default()
         }))
@@ -144,6 +148,15 @@ impl Gpu {
         };
         staging.unmap();
         Ok(words)
+    }
+
+    /// Kernels may use subgroup operations: the device has them, in subgroups of 8 or more
+    /// invocations, and `SPLAT4D_GPU_SUBGROUPS=0` does not turn them off (which gives the
+    /// kernels that sum in the same order on every adapter).
+    pub fn subgroups(&self) -> bool {
+        let off = std::env::var("SPLAT4D_GPU_SUBGROUPS").is_ok_and(|v| v == "0" || v == "false");
+        !off && self.device.features().contains(wgpu::Features::SUBGROUP)
+            && self.info.subgroup_min_size >= 8
     }
 
     /// The adapter in words, e.g. `NVIDIA H100 (Vulkan, DiscreteGpu)`.

@@ -22,6 +22,12 @@ const TOLERANCE: f64 = 1e-4;
 
 /// A device of the test binary's own (software adapters allowed). Without one: a panic
 /// under `CI=true`, else `None` with a line saying `what` was skipped.
+/// The largest distance accepted between identical images. Not exactly zero: where the
+/// two images' pixels sit at different places in the convolution's register tiles, a GPU
+/// compiler may fuse a multiply-add in one place and not the other (SPIR-V allows it per
+/// operation), so their features can differ in the last bit (3e-16 on an H100).
+const IDENTICAL: f64 = 1e-12;
+
 fn gpu(what: &str) -> Option<&'static Gpu> {
     static GPU: OnceLock<Result<Arc<Gpu>, String>> = OnceLock::new();
     match GPU.get_or_init(|| Gpu::open(AdapterPolicy::AllowSoftware).map_err(|e| e.to_string())) {
@@ -135,7 +141,8 @@ fn gpu_lpips_gives_the_cpu_distances_on_the_example_images() {
         width: w,
         height: h,
     };
-    assert_eq!(distances(&net, LpipsDevice::Gpu(gpu), &[same]), [0.0]);
+    let d = distances(&net, LpipsDevice::Gpu(gpu), &[same])[0];
+    assert!((0.0..=IDENTICAL).contains(&d), "identical images: {d}");
 }
 
 #[test]
@@ -188,7 +195,7 @@ fn gpu_lpips_gives_the_cpu_distances_on_a_batch_of_several_sizes() {
         );
         worst = worst.max((g - c).abs());
         if k == 4 {
-            assert_eq!(*g, 0.0, "identical images");
+            assert!((0.0..=IDENTICAL).contains(g), "identical images: {g}");
         } else {
             assert!(*g > 0.01, "pair {k}: {g}");
         }

@@ -314,12 +314,14 @@ impl AlexLpips {
                     .conv_relu
                     .bind(device, &[&params, &x, &layer.kernel, &layer.bias, &tap]);
                 let across = tiles_m.clamp(1, MAX_GROUPS);
-                pass.set_pipeline(&kernels.conv_relu.pipeline);
-                pass.set_bind_group(0, &group, &[]);
-                pass.dispatch_workgroups(
-                    across,
-                    (cout as u32).div_ceil(CONV_TILE),
-                    tiles_m.div_ceil(across),
+                kernels.conv_relu.dispatch_grid(
+                    &mut pass,
+                    &group,
+                    [
+                        across,
+                        (cout as u32).div_ceil(CONV_TILE),
+                        tiles_m.div_ceil(across),
+                    ],
                 );
 
                 let pixels = out_w * out_h;

@@ -161,10 +161,9 @@ pub(crate) fn encode(
     );
     let mut pass = enc.begin_compute_pass(&Default::default());
     if state.pairs > 0 {
-        pass.set_pipeline(&k.rasterise_backward.pipeline);
-        pass.set_bind_group(0, &raster, &[]);
         let u = &state.uniform;
-        pass.dispatch_workgroups(u.tiles_x, u.tiles_y, 1);
+        k.rasterise_backward
+            .dispatch_grid(&mut pass, &raster, [u.tiles_x, u.tiles_y, 1]);
     }
     k.preprocess_backward
         .dispatch_items(&mut pass, &per_gaussian, n as u32);

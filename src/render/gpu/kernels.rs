@@ -2,6 +2,7 @@
 //! ranges, and the two backward kernels. Built with the [`crate::gpu::compute`] toolkit by
 //! `GpuBackend::new`; the trainer's and the decay's kernels are built by their owners.
 
+use crate::gpu::Gpu;
 use crate::gpu::compute::{Kernel, Slot, layout, shader};
 use crate::math::GAUSSIAN_WGSL;
 use Slot::{Read, ReadWrite, Uniform};
@@ -21,10 +22,17 @@ pub struct Kernels {
     pub rasterise: Kernel,
     pub rasterise_backward: Kernel,
     pub preprocess_backward: Kernel,
+    /// `rasterise_backward` sums with subgroup operations (and the sort's `scatter` ranks
+    /// with them, where subgroups have one size).
+    pub subgroups: bool,
 }
 
 impl Kernels {
-    pub fn new(device: &wgpu::Device) -> Self {
+    /// The pipelines; with `subgroups`, where [`Gpu::subgroups`] allows, the backward sums
+    /// over a tile's pixels with subgroup operations.
+    pub fn new(gpu: &Gpu, subgroups: bool) -> Self {
+        let device = &gpu.device;
+        let subgroups = subgroups && gpu.subgroups();
         let preprocess = shader(
             device,
             "preprocess",
@@ -37,15 +45,30 @@ impl Kernels {
             &[VIEW, GAUSSIAN_WGSL],
             include_str!("shaders/preprocess_backward.wgsl"),
         );
+        // Sums over a tile's pixels with subgroup operations where the device has them.
         let raster_backward = shader(
             device,
             "raster_backward",
-            &[VIEW],
-            include_str!("shaders/raster_backward.wgsl"),
+            &[VIEW, include_str!("shaders/raster_backward_pixel.wgsl")],
+            if subgroups {
+                include_str!("shaders/raster_backward_subgroup.wgsl")
+            } else {
+                include_str!("shaders/raster_backward.wgsl")
+            },
         );
         let emit = shader(device, "emit", &[VIEW], include_str!("shaders/emit.wgsl"));
         let scan = shader(device, "scan", &[], include_str!("shaders/scan.wgsl"));
-        let sort = shader(device, "sort", &[], include_str!("shaders/sort.wgsl"));
+        // Ranks a block's entries with subgroup ballots where subgroups have one size.
+        let sort = shader(
+            device,
+            "sort",
+            &[include_str!("shaders/sort.wgsl")],
+            if subgroups && gpu.info.subgroup_min_size == gpu.info.subgroup_max_size {
+                include_str!("shaders/sort_scatter_subgroup.wgsl")
+            } else {
+                include_str!("shaders/sort_scatter.wgsl")
+            },
+        );
         let ranges = shader(device, "ranges", &[], include_str!("shaders/ranges.wgsl"));
         let raster = shader(
             device,
@@ -94,6 +117,7 @@ impl Kernels {
                     Uniform, Read, Read, Read, Read, Read, Read, ReadWrite, ReadWrite,
                 ],
             ),
+            subgroups,
         }
     }
 }

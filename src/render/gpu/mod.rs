@@ -136,8 +136,26 @@ impl GpuBackend {
     /// Open a device allowed by `policy` and compile the kernels.
     pub fn new(policy: AdapterPolicy) -> Result<Self, GpuError> {
         let gpu = Gpu::open(policy)?;
-        let kernels = Kernels::new(&gpu.device);
+        let kernels = Kernels::new(&gpu, true);
         Ok(Self { gpu, kernels })
+    }
+
+    /// As [`GpuBackend::new`], but with kernels that use no subgroup operations and so
+    /// sum in the same order on every adapter (as `SPLAT4D_GPU_SUBGROUPS=0` gives).
+    pub fn without_subgroups(policy: AdapterPolicy) -> Result<Self, GpuError> {
+        let gpu = Gpu::open(policy)?;
+        let kernels = Kernels::new(&gpu, false);
+        Ok(Self { gpu, kernels })
+    }
+
+    /// Whether the kernels use subgroup operations ([`Gpu::subgroups`]).
+    pub fn uses_subgroups(&self) -> bool {
+        self.kernels.subgroups
+    }
+
+    /// The device this backend renders on (for [`Gpu::profile`]).
+    pub fn gpu(&self) -> &Gpu {
+        &self.gpu
     }
 
     /// The adapter this backend renders on.
@@ -510,9 +528,8 @@ impl GpuBackend {
                         &buffers.pixels,
                     ],
                 );
-                pass.set_pipeline(&k.rasterise.pipeline);
-                pass.set_bind_group(0, &raster, &[]);
-                pass.dispatch_workgroups(u.tiles_x, u.tiles_y, 1);
+                k.rasterise
+                    .dispatch_grid(&mut pass, &raster, [u.tiles_x, u.tiles_y, 1]);
                 in_b
             };
             if pairs > 0 {

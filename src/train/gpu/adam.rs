@@ -6,7 +6,7 @@
 
 use super::kernels::TrainKernels;
 use crate::gpu::Gpu;
-use crate::gpu::compute::{read_buffer, storage, uniform};
+use crate::gpu::compute::{read_buffer, storage, storage_init, uniform};
 use crate::model::Gaussians;
 use crate::render::gpu::{GpuBackend, PARAM_FLOATS, pack_params};
 use crate::render::{Gradients, RenderError};
@@ -62,6 +62,8 @@ pub struct GpuAdam {
     pub(super) grads: Packed,
     m: Packed,
     v: Packed,
+    /// Opacity factors of 1, for views the decay does not factor.
+    pub(super) ones: wgpu::Buffer,
     step: u64,
 }
 
@@ -91,6 +93,7 @@ impl GpuAdam {
                 grads: Packed::zeros(device, count, colour_len, "Adam gradients"),
                 m: Packed::zeros(device, count, colour_len, "Adam first moments"),
                 v: Packed::zeros(device, count, colour_len, "Adam second moments"),
+                ones: storage_init(device, &vec![1.0f32; count.max(1)], "no opacity factor"),
                 step: 0,
             })
         })?;

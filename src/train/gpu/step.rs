@@ -173,11 +173,7 @@ impl GpuAdam {
             let uploaded = Arc::new(ModelBuffers {
                 params: self.params.params.clone(),
                 colours: self.params.colours.clone(),
-                ones: storage_init(
-                    &backend.gpu.device,
-                    &vec![1.0f32; n.max(1)],
-                    "no opacity factor",
-                ),
+                ones: self.ones.clone(),
                 count: n,
                 colour_len: self.colour_len,
             });
@@ -221,9 +217,10 @@ impl GpuAdam {
         let mut enc = device.create_command_encoder(&Default::default());
         let param_words = (PARAM_FLOATS * self.count) as u32;
         let colour_words = self.colour_len as u32;
-        // Later views' gradients, added into the batch's.
-        let part_params = storage(device, 4 * param_words as u64, "view gradients");
-        let part_colours = storage(device, 4 * colour_words as u64, "view colour gradients");
+        // Later views' gradients, added into the batch's (none with one view).
+        let part_bytes = |words: u32| if views.len() > 1 { 4 * words as u64 } else { 0 };
+        let part_params = storage(device, part_bytes(param_words), "view gradients");
+        let part_colours = storage(device, part_bytes(colour_words), "view colour gradients");
         let mut passes = Vec::with_capacity(views.len());
         for (v, (frame, view)) in frames.iter().zip(views).enumerate() {
             let state = frame

@@ -1,8 +1,9 @@
 // One pass of a stable least-significant-digit radix sort of (tile, depth, value) entries
 // by 4 bits of the tile or depth key. `histogram` counts each block's digits into a
 // digit-major table; after an inclusive scan of that table, `scatter` moves every entry
-// to its digit's slot, keeping the order of equal digits (ranks come from a workgroup
-// scan of packed per-digit flags, two 16-bit counters per word).
+// to its digit's slot, keeping the order of equal digits. Two `scatter`s rank the entries
+// of a block (src/render/gpu/kernels.rs picks one): `sort_scatter.wgsl` with a workgroup
+// scan, `sort_scatter_subgroup.wgsl` with subgroup ballots.
 
 struct Pass {
     count: u32,
@@ -22,7 +23,6 @@ struct Pass {
 @group(0) @binding(7) var<storage, read_write> table: array<u32>;
 
 var<workgroup> digit_count: array<atomic<u32>, 16>;
-var<workgroup> packed: array<array<u32, 8>, 256>;
 
 fn digit_of(i: u32) -> u32 {
     var key = src_depth[i];
@@ -53,42 +53,10 @@ fn histogram(
     }
 }
 
-@compute @workgroup_size(256)
-fn scatter(
-    @builtin(workgroup_id) wid: vec3<u32>,
-    @builtin(num_workgroups) nwg: vec3<u32>,
-    @builtin(local_invocation_index) lid: u32,
-) {
-    let block = wid.x + wid.y * nwg.x;
-    let i = block * WG + lid;
-    let valid = i < pass_.count;
-    var d = 0u;
-    var mine = array<u32, 8>(0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u);
-    if valid {
-        d = digit_of(i);
-        mine[d >> 1u] = 1u << ((d & 1u) * 16u);
-    }
-    packed[lid] = mine;
-    workgroupBarrier();
-    for (var step = 1u; step < WG; step <<= 1u) {
-        var add = array<u32, 8>(0u, 0u, 0u, 0u, 0u, 0u, 0u, 0u);
-        if lid >= step {
-            add = packed[lid - step];
-        }
-        workgroupBarrier();
-        for (var w = 0u; w < 8u; w++) {
-            packed[lid][w] += add[w];
-        }
-        workgroupBarrier();
-    }
-    if !valid || block >= pass_.blocks {
-        return;
-    }
-    let word = d >> 1u;
-    let bit = (d & 1u) * 16u;
-    let rank = ((packed[lid][word] >> bit) & 0xffffu) - 1u;
-    let total = (packed[WG - 1u][word] >> bit) & 0xffffu;
-    let dst = table[d * pass_.blocks + block] - total + rank;
+// Move entry i, of digit d, to its slot: the digit's end in this block (the scanned
+// table) less the block's entries of that digit, plus the entry's rank among them.
+fn move_entry(i: u32, d: u32, block: u32, in_block: u32, rank: u32) {
+    let dst = table[d * pass_.blocks + block] - in_block + rank;
     dst_tile[dst] = src_tile[i];
     dst_depth[dst] = src_depth[i];
     dst_value[dst] = src_value[i];
