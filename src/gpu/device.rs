@@ -2,6 +2,9 @@
 //! one such as Mesa's lavapipe, which is slower than the CPU engine and serves for tests),
 //! and the pipelines other owners build for it ([`Gpu::pipelines`]).
 
+use super::compute::read_buffer;
+use super::pool::{BufferPool, Pooled};
+use super::profile::{PROFILE_FEATURES, Profile, Recording};
 use std::any::Any;
 use std::sync::{Arc, Mutex, PoisonError};
 
@@ -52,6 +55,8 @@ pub struct Gpu {
     /// Pipelines built for this device by owners other than the renderer, one set per
     /// type ([`Gpu::pipelines`]).
     pipelines: Mutex<Vec<Arc<dyn Any + Send + Sync>>>,
+    /// Scratch buffers between uses ([`Gpu::scratch`]).
+    pool: BufferPool,
 }
 
 impl Gpu {
@@ -86,8 +91,7 @@ impl Gpu {
         let limits = best.limits();
         let (device, queue) = pollster::block_on(best.request_device(&wgpu::DeviceDescriptor {
             label: Some("splat4d"),
-            required_features: best.features()
-                & (super::profile::PROFILE_FEATURES | wgpu::Features::SUBGROUP),
+            required_features: best.features() & (PROFILE_FEATURES | wgpu::Features::SUBGROUP),
             required_limits: limits.clone(),
             ..Default::default()
         }))
@@ -101,6 +105,7 @@ impl Gpu {
             info,
             limits,
             pipelines: Mutex::new(Vec::new()),
+            pool: BufferPool::default(),
         }))
     }
 
@@ -157,6 +162,56 @@ impl Gpu {
         let off = std::env::var("SPLAT4D_GPU_SUBGROUPS").is_ok_and(|v| v == "0" || v == "false");
         !off && self.device.features().contains(wgpu::Features::SUBGROUP)
             && self.info.subgroup_min_size >= 8
+    }
+
+    /// A storage buffer (STORAGE, COPY_SRC and COPY_DST) of at least `bytes` from this
+    /// device's pool of scratch buffers (`gpu::pool`): one an earlier user returned when
+    /// one of its size bucket is idle. Its contents are undefined; it returns to the pool
+    /// when dropped.
+    pub fn scratch(&self, bytes: u64, label: &str) -> Pooled {
+        self.pool.take(&self.device, bytes, label)
+    }
+
+    /// Buffers idle in the pool of scratch buffers, and their bytes.
+    pub fn pooled(&self) -> (usize, u64) {
+        self.pool.idle()
+    }
+
+    /// The adapter can time kernels ([`Gpu::profile`]).
+    pub fn can_profile(&self) -> bool {
+        self.device.features().contains(PROFILE_FEATURES)
+    }
+
+    /// Run `work` (on this thread) and time every kernel it dispatches on this device
+    /// (`gpu::profile`). Profiles do not nest: an inner one takes the dispatches.
+    pub fn profile<R>(&self, work: impl FnOnce() -> R) -> Result<(R, Profile), GpuError> {
+        if !self.can_profile() {
+            return Err(GpuError::NoProfiling(self.describe()));
+        }
+        let recording = Recording::start(&self.device);
+        let result = work();
+        let Some(recorded) = recording.stop() else {
+            return Ok((result, Profile::default()));
+        };
+        let used = recorded.queries();
+        if used == 0 {
+            return Ok((result, recorded.profile(&[], 0.0)));
+        }
+        let bytes = 8 * used as u64;
+        let resolved = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("profile timestamps"),
+            size: bytes,
+            usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let staging = read_buffer(&self.device, bytes);
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        enc.resolve_query_set(&recorded.set, 0..used, &resolved, 0);
+        enc.copy_buffer_to_buffer(&resolved, 0, &staging, 0, bytes);
+        self.queue.submit([enc.finish()]);
+        let words = self.read_words(&staging, bytes)?;
+        let tick_ns = self.queue.get_timestamp_period() as f64;
+        Ok((result, recorded.profile(&words, tick_ns)))
     }
 
     /// The adapter in words, e.g. `NVIDIA H100 (Vulkan, DiscreteGpu)`.

@@ -1,12 +1,11 @@
 //! Where a GPU's time goes: every kernel dispatched through [`super::compute::Kernel`]
-//! while [`Gpu::profile`] runs some work is bracketed by two device timestamps, and the
-//! device time is summed per kernel. It needs an adapter with timestamp queries inside
-//! compute passes (Vulkan, DX12 and Metal on most GPUs; [`Gpu::can_profile`]); the
-//! timestamps are written only while a profile records, so other work pays nothing.
-//! `scripts/gpu-check.sh` prints one training iteration's profile.
+//! while [`Gpu::profile`](super::Gpu::profile) runs some work is bracketed by two device
+//! timestamps, and the device time is summed per kernel. It needs an adapter with
+//! timestamp queries inside compute passes (Vulkan, DX12 and Metal on most GPUs;
+//! [`Gpu::can_profile`](super::Gpu::can_profile)); the timestamps are written only while
+//! a profile records, so other work pays nothing. `scripts/gpu-check.sh` prints one
+//! training iteration's profile.
 
-use super::compute::read_buffer;
-use super::device::{Gpu, GpuError};
 use std::cell::RefCell;
 
 /// Device time of one kernel over the profiled work.
@@ -19,7 +18,7 @@ pub struct KernelTime {
     pub ms: f64,
 }
 
-/// What [`Gpu::profile`] measured.
+/// What [`Gpu::profile`](super::Gpu::profile) measured.
 #[derive(Clone, Debug, Default)]
 pub struct Profile {
     /// One entry per kernel, most time first.
@@ -32,6 +31,18 @@ impl Profile {
     /// Device time of every timed dispatch, in milliseconds.
     pub fn total_ms(&self) -> f64 {
         self.kernels.iter().map(|k| k.ms).sum()
+    }
+
+    /// The profile of `n` repetitions of the same work as the mean of one: times and
+    /// dispatch counts divided by `n`.
+    pub fn per_repetition(mut self, n: u32) -> Self {
+        let n = n.max(1);
+        for k in &mut self.kernels {
+            k.ms /= n as f64;
+            k.dispatches /= n;
+        }
+        self.untimed /= n;
+        self
     }
 
     /// A Markdown table: kernel, dispatches, milliseconds, share of the total.
@@ -63,16 +74,17 @@ impl Profile {
 /// Timestamps (two per dispatch) in one query set.
 const QUERIES: u32 = wgpu::QUERY_SET_MAX_QUERIES;
 
-struct Recording {
-    set: wgpu::QuerySet,
-    /// The kernel of each timed dispatch, in order.
+/// What a profile has recorded: the timestamps' query set, the kernel of each timed
+/// dispatch in order, and the dispatches past the set.
+pub(crate) struct Recorded {
+    pub(crate) set: wgpu::QuerySet,
     names: Vec<String>,
     untimed: u32,
 }
 
 thread_local! {
-    /// The profile this thread records into, while [`Gpu::profile`] runs.
-    static RECORDING: RefCell<Option<Recording>> = const { RefCell::new(None) };
+    /// The profile this thread records into, while a [`Recording`] lives.
+    static RECORDING: RefCell<Option<Recorded>> = const { RefCell::new(None) };
 }
 
 /// Dispatch through `dispatch`, bracketed by timestamps when a profile records.
@@ -102,69 +114,54 @@ pub(crate) fn timed(
     }
 }
 
-/// Clears the recording when [`Gpu::profile`] leaves, also by a panic.
-struct Stop;
+/// This thread's profile while it lives: dispatches are timed until [`Recording::stop`],
+/// or until it is dropped (also by a panic). One at a time per thread.
+pub(crate) struct Recording;
 
-impl Drop for Stop {
-    fn drop(&mut self) {
-        RECORDING.with_borrow_mut(|r| r.take());
-    }
-}
-
-impl Gpu {
-    /// The adapter can time kernels ([`Gpu::profile`]).
-    pub fn can_profile(&self) -> bool {
-        self.device.features().contains(PROFILE_FEATURES)
-    }
-
-    /// Run `work` (on this thread) and time every kernel it dispatches on this device.
-    pub fn profile<R>(&self, work: impl FnOnce() -> R) -> Result<(R, Profile), GpuError> {
-        if !self.can_profile() {
-            return Err(GpuError::NoProfiling(self.describe()));
-        }
-        let set = self.device.create_query_set(&wgpu::QuerySetDescriptor {
+impl Recording {
+    pub(crate) fn start(device: &wgpu::Device) -> Self {
+        let set = device.create_query_set(&wgpu::QuerySetDescriptor {
             label: Some("profile"),
             ty: wgpu::QueryType::Timestamp,
             count: QUERIES,
         });
         RECORDING.with_borrow_mut(|r| {
-            *r = Some(Recording {
+            *r = Some(Recorded {
                 set,
                 names: Vec::new(),
                 untimed: 0,
             })
         });
-        let stop = Stop;
-        let result = work();
-        let recording = RECORDING.with_borrow_mut(|r| r.take());
-        drop(stop);
-        let Some(recording) = recording else {
-            return Ok((result, Profile::default()));
-        };
-        let used = 2 * recording.names.len() as u32;
+        Self
+    }
+
+    /// What was recorded; `None` when a nested recording took it (profiles do not nest).
+    pub(crate) fn stop(self) -> Option<Recorded> {
+        RECORDING.with_borrow_mut(|r| r.take())
+    }
+}
+
+impl Drop for Recording {
+    fn drop(&mut self) {
+        RECORDING.with_borrow_mut(|r| r.take());
+    }
+}
+
+impl Recorded {
+    /// Timestamps written (two per timed dispatch).
+    pub(crate) fn queries(&self) -> u32 {
+        2 * self.names.len() as u32
+    }
+
+    /// The profile from the resolved timestamps (`words`: two u32 per query) and the
+    /// length of a tick in nanoseconds.
+    pub(crate) fn profile(self, words: &[u32], tick_ns: f64) -> Profile {
         let mut profile = Profile {
             kernels: Vec::new(),
-            untimed: recording.untimed,
+            untimed: self.untimed,
         };
-        if used == 0 {
-            return Ok((result, profile));
-        }
-        let bytes = 8 * used as u64;
-        let resolved = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("profile timestamps"),
-            size: bytes,
-            usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        });
-        let staging = read_buffer(&self.device, bytes);
-        let mut enc = self.device.create_command_encoder(&Default::default());
-        enc.resolve_query_set(&recording.set, 0..used, &resolved, 0);
-        enc.copy_buffer_to_buffer(&resolved, 0, &staging, 0, bytes);
-        self.queue.submit([enc.finish()]);
-        let words = self.read_words(&staging, bytes)?;
-        let tick_ns = self.queue.get_timestamp_period() as f64;
-        for (i, name) in recording.names.into_iter().enumerate() {
-            let stamp = |q: usize| words[2 * q] as u64 | (words[2 * q + 1] as u64) << 32;
+        let stamp = |q: usize| words[2 * q] as u64 | (words[2 * q + 1] as u64) << 32;
+        for (i, name) in self.names.into_iter().enumerate() {
             let ms = stamp(2 * i + 1).saturating_sub(stamp(2 * i)) as f64 * tick_ns * 1e-6;
             match profile.kernels.iter_mut().find(|k| k.name == name) {
                 Some(k) => {
@@ -179,10 +176,10 @@ impl Gpu {
             }
         }
         profile.kernels.sort_by(|a, b| b.ms.total_cmp(&a.ms));
-        Ok((result, profile))
+        profile
     }
 }
 
-/// The device features [`Gpu::profile`] needs; asked for where the adapter has them.
+/// The device features a profile needs; asked for where the adapter has them.
 pub(crate) const PROFILE_FEATURES: wgpu::Features =
     wgpu::Features::TIMESTAMP_QUERY.union(wgpu::Features::TIMESTAMP_QUERY_INSIDE_PASSES);

@@ -26,6 +26,7 @@ mod gpu_decay_train;
 mod gpu_loss;
 mod gpu_lpips;
 mod gpu_parity;
+mod gpu_pool;
 mod gpu_profile;
 mod gpu_train;
 mod gpu_train_loop;

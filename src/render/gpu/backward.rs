@@ -121,11 +121,9 @@ pub(crate) fn encode(
     let k = &backend.kernels;
     let b = &state.buffers;
     let n = state.model.count;
-    let partials = storage(
-        device,
-        PARTIAL_BYTES * state.pairs as u64,
-        "per-tile gradients",
-    );
+    let partials = backend
+        .gpu
+        .scratch(PARTIAL_BYTES * state.pairs as u64, "per-tile gradients");
     // Entries no pixel reached keep a zero record.
     enc.clear_buffer(&partials, 0, None);
     if n == 0 {

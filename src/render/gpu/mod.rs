@@ -37,8 +37,8 @@ use super::{
     Gradients, ImageGradients, RenderBackend, RenderError, RenderStats, Rendered, ViewRequest,
     checked_pinhole, period_of,
 };
-use crate::gpu::compute::{read_buffer, storage, storage_init, uniform};
-use crate::gpu::{AdapterPolicy, Gpu, GpuError};
+use crate::gpu::compute::{read_buffer, storage_init, uniform};
+use crate::gpu::{AdapterPolicy, Gpu, GpuError, Pooled};
 use crate::math::project::PinholeCamera;
 use crate::model::Gaussians;
 use kernels::Kernels;
@@ -86,21 +86,21 @@ pub(crate) struct GpuFrame {
 /// Per-view device buffers the forward fills and the backward reads.
 pub(crate) struct ViewBuffers {
     /// The rendered image (interleaved RGB), for a loss on the device.
-    pub(crate) rgb: wgpu::Buffer,
+    pub(crate) rgb: Pooled,
     /// One `Splat` per Gaussian.
-    splats: wgpu::Buffer,
+    splats: Pooled,
     /// Tiles touched per Gaussian (0 when culled).
-    counts: wgpu::Buffer,
+    counts: Pooled,
     /// Inclusive scan of `counts`: where each Gaussian's entries end in emit order.
-    ends: wgpu::Buffer,
+    ends: Pooled,
     /// Gaussian index of each entry, sorted by (tile, depth).
-    values: wgpu::Buffer,
+    values: Pooled,
     /// Per tile: its run of sorted entries.
-    ranges: wgpu::Buffer,
+    ranges: Pooled,
     /// Per pixel: final transmittance bits and last contributing entry + 1.
-    pixels: wgpu::Buffer,
+    pixels: Pooled,
     /// Screen radius per Gaussian (0 when culled), for densification statistics.
-    pub(crate) radii: wgpu::Buffer,
+    pub(crate) radii: Pooled,
 }
 
 /// The per-view constants (`View` in `shaders/view.wgsl`).
@@ -287,8 +287,8 @@ impl GpuBackend {
 
 /// Per-Gaussian buffers shared by the views of a batch (each view overwrites them).
 struct Scratch {
-    ends: wgpu::Buffer,
-    radii: wgpu::Buffer,
+    ends: Pooled,
+    radii: Pooled,
     scan: Option<Scan>,
 }
 
@@ -379,12 +379,12 @@ impl GpuBackend {
         let k = &self.kernels;
         let n = uploaded.count;
         let scratch = Scratch {
-            ends: storage(device, 4 * n as u64, "tile ends"),
-            radii: storage(device, 4 * n as u64, "radii"),
+            ends: self.gpu.scratch(4 * n as u64, "tile ends"),
+            radii: self.gpu.scratch(4 * n as u64, "radii"),
             scan: None,
         };
         let scratch = Scratch {
-            scan: (n > 0).then(|| Scan::new(device, k, &scratch.ends, n as u32)),
+            scan: (n > 0).then(|| Scan::new(&self.gpu, k, &scratch.ends, n as u32)),
             ..scratch
         };
         let view_uniforms: Vec<wgpu::Buffer> = prepared
@@ -392,12 +392,12 @@ impl GpuBackend {
             .map(|p| uniform(device, &p.uniform))
             .collect();
         // Per view: its splats and tile counts (kept for the backward).
-        let per_view: Vec<(wgpu::Buffer, wgpu::Buffer)> = prepared
+        let per_view: Vec<(Pooled, Pooled)> = prepared
             .iter()
             .map(|_| {
                 (
-                    storage(device, SPLAT_BYTES * n as u64, "splats"),
-                    storage(device, 4 * n as u64, "tile counts"),
+                    self.gpu.scratch(SPLAT_BYTES * n as u64, "splats"),
+                    self.gpu.scratch(4 * n as u64, "tile counts"),
                 )
             })
             .collect();
@@ -448,14 +448,14 @@ impl GpuBackend {
         self.too_large("the (tile, splat) pairs", 4 * max_pairs)?;
 
         // Pass 2: render every view and copy its images into one read-back buffer.
-        let keys = SortBuffers::new(device, max_pairs);
+        let keys = SortBuffers::new(&self.gpu, max_pairs);
         let max_pixels = prepared
             .iter()
             .map(|p| p.uniform.width as u64 * p.uniform.height as u64)
             .max()
             .unwrap_or(1);
-        let out_alpha = storage(device, 4 * max_pixels, "alpha");
-        let out_depth = storage(device, 4 * max_pixels, "depth");
+        let out_alpha = self.gpu.scratch(4 * max_pixels, "alpha");
+        let out_depth = self.gpu.scratch(4 * max_pixels, "depth");
         let layout: Vec<(u64, u64)> = prepared
             .iter()
             .map(|p| (p.uniform.width as u64 * p.uniform.height as u64, n as u64))
@@ -480,16 +480,19 @@ impl GpuBackend {
             let pairs = totals[v];
             let tiles = u.tiles_x * u.tiles_y;
             let (px, g) = layout[v];
+            let scratch_of = |bytes, label| self.gpu.scratch(bytes, label);
             let buffers = ViewBuffers {
-                rgb: storage(device, 12 * px, "rgb"),
+                rgb: scratch_of(12 * px, "rgb"),
                 splats,
                 counts,
-                ends: storage(device, 4 * n as u64, "tile ends of a view"),
-                values: storage(device, 4 * pairs as u64, "sorted entries"),
-                ranges: storage(device, 8 * tiles as u64, "tile ranges"),
-                pixels: storage(device, 8 * px, "pixel state"),
-                radii: storage(device, 4 * n as u64, "radii of a view"),
+                ends: scratch_of(4 * n as u64, "tile ends of a view"),
+                values: scratch_of(4 * pairs as u64, "sorted entries"),
+                ranges: scratch_of(8 * tiles as u64, "tile ranges"),
+                pixels: scratch_of(8 * px, "pixel state"),
+                radii: scratch_of(4 * n as u64, "radii of a view"),
             };
+            // Tiles no entry reaches keep an empty range.
+            enc.clear_buffer(&buffers.ranges, 0, None);
             self.encode_counts(&mut enc, group, &buffers.counts, &scratch, n);
             if n > 0 {
                 enc.copy_buffer_to_buffer(&scratch.ends, 0, &buffers.ends, 0, 4 * n as u64);
@@ -510,7 +513,7 @@ impl GpuBackend {
                     ],
                 );
                 k.emit.dispatch_items(&mut pass, &emit, n as u32);
-                let in_b = encode_sort(device, k, &mut pass, &keys, pairs, tile_bits);
+                let in_b = encode_sort(&self.gpu, k, &mut pass, &keys, pairs, tile_bits);
                 let sorted = if in_b { &keys.b } else { &keys.a };
                 let len = uniform(device, &[pairs, 0, 0, 0]);
                 let rg = k.ranges.bind(device, &[&len, &sorted[0], &buffers.ranges]);

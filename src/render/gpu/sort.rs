@@ -2,32 +2,42 @@
 //! in what order. The work itself is in `shaders/scan.wgsl` and `shaders/sort.wgsl`.
 
 use super::kernels::Kernels;
-use crate::gpu::compute::{WG, storage, uniform};
+use crate::gpu::compute::{WG, uniform};
+use crate::gpu::{Gpu, Pooled};
 
 /// An inclusive prefix sum of `len` u32 in a buffer, prepared once: one level per factor
 /// of 256 (each level scans the block totals of the one before).
 pub struct Scan {
     levels: Vec<(wgpu::BindGroup, u32)>,
+    /// The levels' block sums, held while the bind groups are in use.
+    _sums: Vec<Pooled>,
 }
 
 impl Scan {
-    pub fn new(device: &wgpu::Device, kernels: &Kernels, data: &wgpu::Buffer, len: u32) -> Self {
+    pub fn new(gpu: &Gpu, kernels: &Kernels, data: &wgpu::Buffer, len: u32) -> Self {
+        let device = &gpu.device;
         let mut levels = Vec::new();
-        let (mut current, mut n) = (data.clone(), len);
+        let mut sums: Vec<Pooled> = Vec::new();
+        let mut n = len;
         while n > 0 {
             let blocks = n.div_ceil(WG);
-            let sums = storage(device, 4 * blocks as u64, "scan block sums");
+            let level_sums = gpu.scratch(4 * blocks as u64, "scan block sums");
             let params = uniform(device, &[n, 0, 0, 0]);
+            let current = sums.last().map_or(data, |s| s);
             let group = kernels
                 .scan_blocks
-                .bind(device, &[&params, &current, &sums]);
+                .bind(device, &[&params, current, &level_sums]);
             levels.push((group, blocks));
+            sums.push(level_sums);
             if blocks == 1 {
                 break;
             }
-            (current, n) = (sums, blocks);
+            n = blocks;
         }
-        Self { levels }
+        Self {
+            levels,
+            _sums: sums,
+        }
     }
 
     /// Record the scan: every level's block scans, then the block offsets top-down.
@@ -45,13 +55,13 @@ impl Scan {
 
 /// (tile, depth, value) entries in two sets of buffers the sort ping-pongs between.
 pub struct SortBuffers {
-    pub a: [wgpu::Buffer; 3],
-    pub b: [wgpu::Buffer; 3],
+    pub a: [Pooled; 3],
+    pub b: [Pooled; 3],
 }
 
 impl SortBuffers {
-    pub fn new(device: &wgpu::Device, entries: u64) -> Self {
-        let make = |name| storage(device, 4 * entries, name);
+    pub fn new(gpu: &Gpu, entries: u64) -> Self {
+        let make = |name| gpu.scratch(4 * entries, name);
         Self {
             a: [make("keys tile"), make("keys depth"), make("keys value")],
             b: [
@@ -76,7 +86,7 @@ struct Pass {
 /// eight 4-bit passes over the depth bits, then enough passes over the `tile_bits` low
 /// bits of the tile. Returns whether the sorted entries ended in `b` (else in `a`).
 pub fn encode_sort(
-    device: &wgpu::Device,
+    gpu: &Gpu,
     kernels: &Kernels,
     pass: &mut wgpu::ComputePass<'_>,
     buffers: &SortBuffers,
@@ -86,9 +96,10 @@ pub fn encode_sort(
     if count == 0 {
         return false;
     }
+    let device = &gpu.device;
     let blocks = count.div_ceil(WG);
-    let table = storage(device, 4 * 16 * blocks as u64, "sort digit table");
-    let scan = Scan::new(device, kernels, &table, 16 * blocks);
+    let table = gpu.scratch(4 * 16 * blocks as u64, "sort digit table");
+    let scan = Scan::new(gpu, kernels, &table, 16 * blocks);
     let passes = (0..8)
         .map(|p| (0u32, 4 * p))
         .chain((0..tile_bits.div_ceil(4)).map(|p| (1u32, 4 * p)));

@@ -10,6 +10,7 @@
 
 use super::kernels::TrainKernels;
 use crate::gpu::compute::{WG, grid, read_buffer, storage, storage_init, uniform};
+use crate::gpu::{Gpu, Pooled};
 use crate::metrics::ssim::{C1, C2, RADIUS, SIGMA};
 use crate::render::RenderError;
 use crate::render::gpu::GpuBackend;
@@ -55,6 +56,8 @@ pub(super) struct LossPass {
     /// Workgroups of the per-value passes, as dispatched (x·y of their grid).
     groups: u32,
     bind: wgpu::BindGroup,
+    /// The blurred images and per-value partials, held while `bind` is in use.
+    _scratch: [Pooled; 2],
     /// Per-workgroup sums, then the total (Σ 1 − SSIM, Σ |r − t|, Σ (r − t)², Σ SSIM).
     pub sums: wgpu::Buffer,
     /// `d(loss)/d(rendered)` times the scale, interleaved RGB.
@@ -67,7 +70,7 @@ impl LossPass {
     /// when `None`). `width·height > 0`.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
-        device: &wgpu::Device,
+        gpu: &Gpu,
         kernels: &TrainKernels,
         (width, height): (u32, u32),
         rendered: &wgpu::Buffer,
@@ -94,9 +97,10 @@ impl LossPass {
             pad: [0.0; 2],
             window: window(),
         };
+        let device = &gpu.device;
         let params = uniform(device, &params);
-        let tmp = storage(device, 8 * count as u64, "loss blurred images");
-        let partial = storage(device, 20 * count as u64, "loss partials");
+        let tmp = gpu.scratch(8 * count as u64, "loss blurred images");
+        let partial = gpu.scratch(20 * count as u64, "loss partials");
         let sums = storage(device, 16 * (groups as u64 + 1), "loss sums");
         let grad = match grad {
             Some(g) => g.clone(),
@@ -110,6 +114,7 @@ impl LossPass {
             count,
             groups,
             bind,
+            _scratch: [tmp, partial],
             sums,
             grad,
         }
@@ -261,7 +266,7 @@ fn loss_checked(
         }
     };
     let loss = LossPass::new(
-        device,
+        &backend.gpu,
         k,
         size,
         &rendered_buf,

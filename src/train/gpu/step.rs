@@ -231,10 +231,10 @@ impl GpuAdam {
             let npix = w as u64 * h as u64;
             let target = unpack(device, k, &mut enc, &view.target.packed, 3 * npix as u32);
             // RGB, alpha and depth planes; the loss writes RGB, the rest stay zero.
-            let upstream = storage(device, 20 * npix, "upstream gradients");
+            let upstream = backend.gpu.scratch(20 * npix, "upstream gradients");
             enc.clear_buffer(&upstream, 0, None);
             let loss = LossPass::new(
-                device,
+                &backend.gpu,
                 k,
                 (w, h),
                 &state.buffers.rgb,
