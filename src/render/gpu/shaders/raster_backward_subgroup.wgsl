@@ -48,9 +48,17 @@ fn rasterise_backward(
             let base = buffer * CHUNK * MAX_SUBGROUPS;
             for (var e = 0u; e < count; e++) {
                 let g = entry_gradient(&p, batch[jj - 1u - e], start + jj - 1u - e);
-                let a = subgroupAdd(g.a);
-                let b = subgroupAdd(g.b);
-                let c = subgroupAdd(g.c);
+                // Most entries reach few of a tile's rows: a subgroup none of whose
+                // pixels they reach skips the sums.
+                let reached = any(g.a != vec4<f32>(0.0)) || any(g.b != vec4<f32>(0.0)) || any(g.c != vec2<f32>(0.0));
+                var a = vec4<f32>(0.0);
+                var b = vec4<f32>(0.0);
+                var c = vec2<f32>(0.0);
+                if subgroupAny(reached) {
+                    a = subgroupAdd(g.a);
+                    b = subgroupAdd(g.b);
+                    c = subgroupAdd(g.c);
+                }
                 if lane == 0u {
                     let at = base + e * MAX_SUBGROUPS + subgroup;
                     sums_a[at] = a;
