@@ -169,7 +169,11 @@ impl Gpu {
     /// one of its size bucket is idle. Its contents are undefined; it returns to the pool
     /// when dropped.
     pub fn scratch(&self, bytes: u64, label: &str) -> Pooled {
-        self.pool.take(&self.device, bytes, label)
+        let cap = self
+            .limits
+            .max_storage_buffer_binding_size
+            .min(self.limits.max_buffer_size);
+        self.pool.take(&self.device, bytes, cap, label)
     }
 
     /// Buffers idle in the pool of scratch buffers, and their bytes.

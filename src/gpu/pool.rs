@@ -63,11 +63,23 @@ pub fn bucket(bytes: u64) -> u64 {
     bytes.div_ceil(step) * step
 }
 
+/// The size a request of `bytes` gets: its bucket, unless that is more than `cap` (the
+/// most a kernel may bind; a limit such as 4 GiB − 1 is no bucket), then the exact size.
+fn size_for(bytes: u64, cap: u64) -> u64 {
+    let size = bucket(bytes);
+    if size > cap {
+        bytes.max(256).next_multiple_of(4)
+    } else {
+        size
+    }
+}
+
 impl BufferPool {
     /// A storage buffer (STORAGE, COPY_SRC and COPY_DST) of at least `bytes`, reused when
-    /// one of its bucket is idle; its contents are undefined.
-    pub(crate) fn take(&self, device: &wgpu::Device, bytes: u64, label: &str) -> Pooled {
-        let size = bucket(bytes);
+    /// one of its bucket is idle; its contents are undefined. A bucket larger than `cap`
+    /// (the most a kernel may bind) gives way to the exact size.
+    pub(crate) fn take(&self, device: &wgpu::Device, bytes: u64, cap: u64, label: &str) -> Pooled {
+        let size = size_for(bytes, cap);
         let reused = {
             let mut idle = self.0.lock().unwrap_or_else(PoisonError::into_inner);
             idle.clock += 1;
@@ -117,5 +129,14 @@ mod tests {
             assert!(b <= (bytes.max(256) * 9).div_ceil(8), "{bytes} → {b}");
             assert_eq!(bucket(b), b, "a bucket is its own bucket");
         }
+    }
+
+    #[test]
+    fn no_bucket_is_more_than_a_kernel_may_bind() {
+        let cap = u32::MAX as u64;
+        assert_eq!(size_for(cap - 3, cap), cap - 3);
+        assert_eq!(size_for(3_000_000_000, cap), bucket(3_000_000_000));
+        assert_eq!(size_for(1000, 1024), 1024);
+        assert_eq!(size_for(1025, 1100), 1028);
     }
 }
