@@ -29,9 +29,10 @@ pub enum Slot {
 }
 use Slot::{Read, ReadWrite, Uniform};
 
-/// One pipeline and its bind-group layout.
+/// One pipeline and its bind-group layout. Its pipeline is dispatched only through
+/// [`Kernel::dispatch_grid`] (and the helpers on it), so a profile sees every dispatch.
 pub struct Kernel {
-    pub pipeline: wgpu::ComputePipeline,
+    pipeline: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
     /// The entry point, which names the kernel in a profile.
     name: String,
