@@ -123,15 +123,16 @@ pub fn read_pair_npz(path: &Path, names: &OutputNames) -> Result<PairMaps, NpyEr
     let mut archive = npyz::npz::NpzArchive::open(path).map_err(io)?;
     let found = archive.array_names().collect::<Vec<_>>().join(", ");
     let get = |name: &str, required: bool| -> Result<Option<Array>, NpyError> {
-        let file = unpanicked(path, || archive.by_name(name))?.map_err(io)?;
-        match file {
-            Some(f) => array_from(f, path).map(Some),
-            None if required => Err(NpyError::MissingArray {
+        let member = npyz::npz::file_name_from_array_name(name);
+        match archive.zip_archive().by_name(&member) {
+            Ok(f) => array_from(open_npy(f, path)?, path).map(Some),
+            Err(zip::result::ZipError::FileNotFound) if required => Err(NpyError::MissingArray {
                 path: path.into(),
                 name: name.into(),
                 found: found.clone(),
             }),
-            None => Ok(None),
+            Err(zip::result::ZipError::FileNotFound) => Ok(None),
+            Err(e) => Err(io(std::io::Error::new(std::io::ErrorKind::InvalidData, e))),
         }
     };
     pair_maps(names, path, get)
@@ -179,12 +180,55 @@ pub fn read_npy(path: &Path) -> Result<Array, NpyError> {
         path: path.into(),
         source,
     })?;
-    let file =
-        unpanicked(path, || npyz::NpyFile::new(&bytes[..]))?.map_err(|e| NpyError::Format {
-            path: path.into(),
-            reason: format!("not an .npy file ({e})"),
-        })?;
-    array_from(file, path)
+    array_from(open_npy(&bytes[..], path)?, path)
+}
+
+/// The longest array header numpy reads without being told to trust the file
+/// (`numpy.lib.format`'s `max_header_size`).
+const MAX_HEADER_BYTES: usize = 10_000;
+
+/// An `.npy` stream opened by npyz, after checking the header length it declares: npyz
+/// allocates whatever a damaged length field asks for (fuzz_readers found a 660 MB one).
+fn open_npy<R: std::io::Read>(
+    mut reader: R,
+    path: &Path,
+) -> Result<npyz::NpyFile<impl std::io::Read>, NpyError> {
+    // Magic (6 bytes), version (2), header length (2 bytes in version 1, else 4).
+    let mut start = [0u8; 12];
+    let mut got = 0;
+    while got < start.len() {
+        match reader.read(&mut start[got..]) {
+            Ok(0) => break,
+            Ok(n) => got += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(source) => {
+                return Err(NpyError::Io {
+                    path: path.into(),
+                    source,
+                });
+            }
+        }
+    }
+    if got == start.len() && start.starts_with(b"\x93NUMPY") {
+        let declared = match start[6] {
+            1 => u16::from_le_bytes([start[8], start[9]]) as usize,
+            _ => u32::from_le_bytes([start[8], start[9], start[10], start[11]]) as usize,
+        };
+        if declared > MAX_HEADER_BYTES {
+            return Err(NpyError::Format {
+                path: path.into(),
+                reason: format!(
+                    "its array header claims {declared} bytes (numpy writes at most \
+                     {MAX_HEADER_BYTES}): the file is damaged; export it again"
+                ),
+            });
+        }
+    }
+    let stream = std::io::Read::chain(std::io::Cursor::new(start[..got].to_vec()), reader);
+    unpanicked(path, || npyz::NpyFile::new(stream))?.map_err(|e| NpyError::Format {
+        path: path.into(),
+        reason: format!("not an .npy file ({e})"),
+    })
 }
 
 /// `f`, a call into npyz, with its panics made errors: it multiplies a header's shape

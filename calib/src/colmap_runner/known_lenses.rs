@@ -14,8 +14,8 @@ use super::{ColmapConfig, ColmapError, Workspace, args, io_err};
 use crate::colmap::{ColmapModel, ModelFormat};
 
 impl Workspace {
-    /// One `feature_extractor` run per known-lens video camera (log
-    /// `feature_extractor_known_<camera>`).
+    /// One `feature_extractor` run per known lens, for the video cameras given it (log
+    /// `feature_extractor_known_<first camera>`).
     pub(super) fn extract_known_lenses(
         &self,
         binary: &Path,
@@ -25,16 +25,34 @@ impl Workspace {
     ) -> Result<(), ColmapError> {
         let db = self.database();
         let images = self.image_dir();
+        // Cameras given the very same lens (one calibration for identical cameras) share one
+        // COLMAP camera: the mapper's refinement of it is then constrained by all their
+        // views, not by one image each, and drifts far less from the calibration.
+        let mut groups: Vec<(&crate::colmap::ColmapCamera, Vec<&str>)> = Vec::new();
         for (camera, lens) in &self.known_lenses {
+            match groups
+                .iter_mut()
+                .find(|(l, _)| l.model == lens.model && l.params == lens.params)
+            {
+                Some((_, cameras)) => cameras.push(camera),
+                None => groups.push((lens, vec![camera])),
+            }
+        }
+        for (lens, cameras) in groups {
             let names: Vec<&str> = self
                 .images
                 .iter()
-                .filter(|i| i.video_camera.as_ref() == Some(camera))
+                .filter(|i| {
+                    i.video_camera
+                        .as_deref()
+                        .is_some_and(|c| cameras.contains(&c))
+                })
                 .map(|i| i.colmap_name.as_str())
                 .collect();
             if names.is_empty() {
                 continue;
             }
+            let camera = cameras[0];
             let list = self.root.join("lists").join(format!("known_{camera}.txt"));
             std::fs::write(&list, names.join("\n") + "\n").map_err(io_err(&list))?;
             let params: Vec<String> = lens.params.iter().map(|p| format!("{p:?}")).collect();
@@ -45,7 +63,7 @@ impl Workspace {
                 ("--image_list_path", list.as_os_str()),
                 ("--ImageReader.camera_model", lens.model.name().as_ref()),
                 ("--ImageReader.camera_params", params.as_ref()),
-                ("--ImageReader.single_camera_per_folder", "1".as_ref()),
+                ("--ImageReader.single_camera", "1".as_ref()),
                 ("--SiftExtraction.use_gpu", "0".as_ref()),
                 ("--SiftExtraction.num_threads", threads.as_ref()),
                 (

@@ -141,8 +141,8 @@ pub fn solve(
             adjusted = ws.fix_known_lenses(&binary, model, &video, progress)?;
             found = quality::known_lens_misfits(
                 &adjusted.1,
+                model,
                 &video_names,
-                quality::mean_point_error(model),
                 &QualityLimits::default(),
             );
             (&adjusted.0, &adjusted.1)

@@ -319,9 +319,9 @@ fn known_lenses_are_kept_exactly_and_only_poses_are_solved() {
             100.0 * e.centre / radius
         );
         // Looser than the free-lens solve (0.5°, 1 %): the final bundle adjustment keeps
-        // the stills' lenses where the mapper left them (co-adapted to the video lenses it
-        // refined), which biases the poses. Measured over 25 runs with the known-lens fit
-        // check and RADIAL stills (docs/poses.md): worst camera 0.08–0.42°.
+        // the stills' lenses where the mapper left them (co-adapted to the video lens it
+        // refined), which biases the poses. Measured over 26 runs with the shared known
+        // lens and the median fit check (docs/poses.md): worst camera 0.02–0.19°.
         assert!(e.rotation_deg < 1.5, "{e:?}");
         assert!(e.centre < 0.03 * radius, "{e:?}");
     }

@@ -123,3 +123,24 @@ proptest! {
         within_budget(|| read_points_ply(&path))?;
     }
 }
+
+/// A version-3 header whose 4-byte length field claims 660 MB (a case the fuzzer found):
+/// a clear error naming the file, with no allocation of that size.
+#[test]
+fn a_header_length_past_numpys_limit_is_refused_without_allocating_it() {
+    let mut bytes = b"\x93NUMPY\x03\x00".to_vec();
+    bytes.extend_from_slice(&662_372_470u32.to_le_bytes());
+    bytes.extend_from_slice(b"{'descr': '<f4', 'fortran_order': False, 'shape': (2, ), }\n");
+    bytes.extend_from_slice(&[0; 8]);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("pts1.npy");
+    std::fs::write(&path, &bytes).unwrap();
+    within_budget(|| {
+        let err = npy::read_npy(&path).unwrap_err().to_string();
+        assert!(
+            err.contains("pts1.npy") && err.contains("662372470"),
+            "{err}"
+        );
+    })
+    .unwrap();
+}
