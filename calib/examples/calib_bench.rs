@@ -1,6 +1,6 @@
-//! Timings for BENCHMARKS.md that need no COLMAP run: undistortion through OpenCV (map
-//! build + apply at 1920×1080 and 960×540; frames undistorted inside rayon as the train stage
-//! does, for several OpenCV thread counts) and COLMAP model IO on the committed fixture.
+//! Timings for BENCHMARKS.md that need no COLMAP run: undistortion (map build + apply at
+//! 1920×1080 and 960×540; frames undistorted inside rayon as the train stage does) and
+//! COLMAP model IO on the committed fixture.
 //! `CARGO_TARGET_DIR=... cargo run --release -p calib --example calib_bench`
 
 use std::path::Path;
@@ -47,7 +47,7 @@ fn main() {
             let kind = if matches!(d, Distortion::Fisheye { .. }) {
                 "fisheye"
             } else {
-                "opencv"
+                "radial-tangential"
             };
             println!(
                 "undistort {w}x{h} {kind}: map build {:.1} ms, apply (RGB8) {:.1} ms",
@@ -56,8 +56,8 @@ fn main() {
             );
         }
     }
-    // The train stage loads frames inside rayon (one frame per task) and undistorts each:
-    // OpenCV's own pool (TBB on Debian) then competes with rayon's threads.
+    // The train stage loads frames inside rayon (one frame per task) and undistorts each;
+    // `apply` itself splits rows over rayon too.
     let cam = Camera {
         name: "c".into(),
         intrinsics: Intrinsics::from_hfov(960, 540, 90.0),
@@ -72,32 +72,17 @@ fn main() {
             })
         })
         .collect();
-    let default_threads = opencv::core::get_num_threads().unwrap_or(-1);
-    for threads in [default_threads, 1, 2, default_threads] {
-        opencv::core::set_num_threads(threads).unwrap();
-        let one = best_of(5, || map.apply(&frames[0]).unwrap());
-        let batch = best_of(3, || {
-            frames
-                .par_iter()
-                .map(|f| map.apply(f).unwrap())
-                .collect::<Vec<_>>()
-        });
-        let serial = best_of(3, || {
-            frames
-                .iter()
-                .map(|f| map.apply(f).unwrap())
-                .collect::<Vec<_>>()
-        });
-        println!(
-            "OpenCV threads {threads} (default {default_threads}, rayon {}): one 960x540 frame \
-             {:.2} ms; 32 frames: in a loop {:.2} ms/frame, inside rayon {:.2} ms/frame",
-            rayon::current_num_threads(),
-            one * 1e3,
-            serial * 1e3 / 32.0,
-            batch * 1e3 / 32.0
-        );
-    }
-    opencv::core::set_num_threads(default_threads).unwrap();
+    let batch = best_of(3, || {
+        frames
+            .par_iter()
+            .map(|f| map.apply(f).unwrap())
+            .collect::<Vec<_>>()
+    });
+    println!(
+        "32 frames of 960x540 inside rayon ({} threads): {:.2} ms/frame",
+        rayon::current_num_threads(),
+        batch * 1e3 / 32.0
+    );
     let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fixtures/colmap/tiny");
     let model = ColmapModel::read(&fixture.join("bin")).unwrap();
     let tmp = std::env::temp_dir().join(format!("calib_bench_{}", std::process::id()));

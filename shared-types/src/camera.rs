@@ -113,7 +113,7 @@ fn is_zero(x: &f64) -> bool {
 /// OpenCV's tilted-sensor projection (`computeTiltProjectionMatrix`): the sensor rotated
 /// by `tau_x` about x, then `tau_y` about y, and the point projected back along the
 /// optical axis.
-fn tilt_matrix(tau_x: f64, tau_y: f64) -> DMat3 {
+pub fn tilt_matrix(tau_x: f64, tau_y: f64) -> DMat3 {
     let (sx, cx) = tau_x.sin_cos();
     let (sy, cy) = tau_y.sin_cos();
     // Row-major as OpenCV writes them; glam takes columns, hence the transposes.

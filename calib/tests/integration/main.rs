@@ -16,5 +16,6 @@ mod opencv_rational_calibration;
 mod pose2sim_import;
 mod solve_synthetic;
 mod strecha_real;
+mod undistort_opencv;
 mod undistort_points;
 mod undistort_render;

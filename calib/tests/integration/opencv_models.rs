@@ -12,7 +12,7 @@ use shared_types::{Distortion, Intrinsics};
 /// Realistic lenses at 1920×1080: GoPro-like fisheye, mild and strong radial-tangential, a
 /// wide lens calibrated with OpenCV's rational model (`CALIB_RATIONAL_MODEL`), and the same
 /// with thin-prism and tilted-sensor terms (`CALIB_THIN_PRISM_MODEL`, `CALIB_TILTED_MODEL`).
-fn lenses() -> Vec<(&'static str, Intrinsics, Distortion)> {
+pub(crate) fn lenses() -> Vec<(&'static str, Intrinsics, Distortion)> {
     let k = |fx: f64, fy: f64, cx: f64, cy: f64| Intrinsics {
         width: 1920,
         height: 1080,
