@@ -106,29 +106,15 @@ fn invalid(camera: &Camera, reason: String) -> UndistortError {
 /// fixed-point iterations, not run to convergence: the rectangles below depend on it):
 /// pixel `p` (OpenCV's convention) of a camera with intrinsics `k` → normalised coordinates.
 fn undistort_point_opencv(k: &Intrinsics, d: &Distortion, p: DVec2) -> DVec2 {
-    let Distortion::Opencv {
-        k1,
-        k2,
-        p1,
-        p2,
-        k3,
-        k4,
-        k5,
-        k6,
-        s1,
-        s2,
-        s3,
-        s4,
-        tau_x,
-        tau_y,
-    } = *d
-    else {
-        return d.undistort(DVec2::new(
-            (p.x - (k.cx - 0.5)) / k.fx,
-            (p.y - (k.cy - 0.5)) / k.fy,
-        ));
-    };
     let (x, y) = ((p.x - (k.cx - 0.5)) / k.fx, (p.y - (k.cy - 0.5)) / k.fy);
+    if !matches!(d, Distortion::Opencv { .. }) {
+        return d.undistort(DVec2::new(x, y));
+    }
+    // OpenCV's order, zeros for the terms the lens does not use.
+    let mut c = [0.0; 14];
+    let given = d.coefficients();
+    c[..given.len()].copy_from_slice(&given);
+    let [k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4, tau_x, tau_y] = c;
     let start = if tau_x == 0.0 && tau_y == 0.0 {
         DVec2::new(x, y)
     } else {
