@@ -12,6 +12,12 @@ if [ $# -eq 0 ]; then
   cargo fmt --all --check || { echo "cargo fmt --check: run 'cargo fmt --all'" >&2; status=1; }
   cargo clippy --workspace --all-targets -- -D warnings || status=$?
 fi
+# The engine-only binary (no FFmpeg: what GPU nodes run, docs/cluster.md), kept apart from
+# the full build's target/debug/pipeline; the `engine_only` test runs it.
+cargo build -p pipeline --no-default-features || status=$?
+mkdir -p target/engine-only
+cp target/debug/pipeline target/engine-only/pipeline || status=$?
+export PIPELINE_ENGINE_ONLY="$PWD/target/engine-only/pipeline"
 if cargo nextest --version >/dev/null 2>&1; then
   cargo nextest run --workspace --no-fail-fast "$@" || status=$?
 else

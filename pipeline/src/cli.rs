@@ -220,6 +220,7 @@ pub enum RecordBackend {
     Nokhwa,
 }
 
+#[cfg(feature = "ffmpeg")]
 impl From<RecordBackend> for rig::record::CaptureBackend {
     fn from(b: RecordBackend) -> Self {
         match b {

@@ -17,6 +17,7 @@
 //!   `simulate` and `ablation` are the `simulate`/`demo` and `bench ablation` commands,
 //!   `bench` the `bench sync` and `bench poses` commands (and their resumable results table),
 //!   `compare` the `metrics` command (image metrics between two images or folders).
+#![cfg_attr(not(feature = "ffmpeg"), allow(unused))]
 
 pub mod bench;
 pub mod cli;
@@ -42,6 +43,18 @@ pub mod stages;
 pub mod status;
 
 use std::path::Path;
+
+/// The error of a stage or command that reads or writes videos, in a build without FFmpeg
+/// (`--no-default-features`: the engine-only binary for GPU nodes, which trains, renders,
+/// evaluates and exports a capture prepared by the full build).
+#[cfg(not(feature = "ffmpeg"))]
+pub fn without_ffmpeg(what: &str) -> anyhow::Error {
+    anyhow::anyhow!(
+        "{what} reads or writes videos, and this pipeline was built without FFmpeg (the \
+         engine-only build: train, render, eval and export); run it with the full build \
+         (`cargo build --release -p pipeline`), which can share the capture directory"
+    )
+}
 
 pub use config::CaptureConfig;
 pub use layout::Capture;

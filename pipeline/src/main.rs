@@ -1,4 +1,5 @@
 //! The `pipeline` command. See `pipeline --help`.
+#![cfg_attr(not(feature = "ffmpeg"), allow(unused))]
 
 use std::io::{IsTerminal, Write};
 use std::process::ExitCode;
@@ -356,8 +357,14 @@ fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+#[cfg(not(feature = "ffmpeg"))]
+fn record(_: RecordArgs, _: &Reporter) -> anyhow::Result<ExitCode> {
+    Err(pipeline::without_ffmpeg("recording"))
+}
+
 /// Record webcams (V4L2 or nokhwa) into a new capture directory until Ctrl-C or
 /// `--seconds`; or, with `--list`, list the cameras.
+#[cfg(feature = "ffmpeg")]
 fn record(args: RecordArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     let backend = args
         .backend

@@ -34,6 +34,9 @@ pub fn simulate_into(
     let partial = capture_dir.join(".simulate.partial");
     build_fresh(&partial, |partial| {
         let progress = reporter.progress("simulate");
+        #[cfg(not(feature = "ffmpeg"))]
+        let result: anyhow::Result<()> = Err(crate::without_ffmpeg("simulating a capture"));
+        #[cfg(feature = "ffmpeg")]
         let result = rig::sim::simulate(scene, partial, &progress);
         shared_types::Progress::finish(&progress);
         result.context("simulation failed")

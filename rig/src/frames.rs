@@ -12,9 +12,13 @@ use std::path::{Path, PathBuf};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+#[cfg(feature = "ffmpeg")]
 use crate::ingest::{IngestError, Streams};
+#[cfg(feature = "ffmpeg")]
 use crate::source::{CameraSource, PixelLayout, SourceError};
+#[cfg(feature = "ffmpeg")]
 use crate::sync::SyncResult;
+#[cfg(feature = "ffmpeg")]
 use shared_types::progress::Progress;
 
 /// The `[frames]` section of `capture.toml`.
@@ -124,6 +128,7 @@ pub enum FramesError {
     #[error("sync.json does not match streams.json ({0}); rerun sync")]
     Mismatch(String),
     /// Decoding failed.
+    #[cfg(feature = "ffmpeg")]
     #[error(transparent)]
     Ingest(#[from] IngestError),
     /// Writing failed.
@@ -188,6 +193,7 @@ pub fn working_size(size: (u32, u32), long_side: u32, allow_upscale: bool) -> (u
     )
 }
 
+#[cfg(feature = "ffmpeg")]
 /// Index of the value in increasing `times` nearest to `t`.
 fn nearest(times: &[f64], t: f64) -> usize {
     let i = times.partition_point(|&x| x < t);
@@ -204,6 +210,7 @@ fn nearest(times: &[f64], t: f64) -> usize {
 /// time or rate, not a capture.
 pub const MAX_FRAMES: usize = 2_000_000;
 
+#[cfg(feature = "ffmpeg")]
 /// Plans the output timeline (no decoding): which frame of each camera goes where.
 pub fn plan(
     streams: &Streams,
@@ -319,6 +326,7 @@ pub fn plan(
     })
 }
 
+#[cfg(feature = "ffmpeg")]
 /// A camera whose recording the common span `(start, end)` cuts by more than a quarter
 /// (and a second): cameras started or stopped far apart.
 fn overlap_warnings(
@@ -341,6 +349,7 @@ fn overlap_warnings(
         .collect()
 }
 
+#[cfg(feature = "ffmpeg")]
 /// A camera whose nearest frame is more than half an output frame from the output time
 /// for over a tenth of the frames (a variable frame rate well below the output rate, or
 /// dropped frames).
@@ -362,6 +371,7 @@ fn residual_warnings(sync: &SyncResult, frames: &[AlignedFrame], fps: f64) -> Ve
         .collect()
 }
 
+#[cfg(feature = "ffmpeg")]
 /// Plans the timeline, decodes every camera and writes `out_dir/<camera>/NNNNNN.png` and
 /// `out_dir/frames.json` (cameras in parallel, PNG encoding in parallel).
 pub fn extract(
@@ -382,6 +392,7 @@ pub fn extract(
     Ok(index)
 }
 
+#[cfg(feature = "ffmpeg")]
 fn write_camera(
     streams: &Streams,
     index: &FramesIndex,
@@ -466,6 +477,7 @@ fn write_camera(
     Ok(())
 }
 
+#[cfg(feature = "ffmpeg")]
 /// Writes an RGB8 PNG atomically.
 fn write_png(path: &Path, data: &[u8], (w, h): (u32, u32)) -> Result<(), FramesError> {
     shared_types::atomic::write_with(path, |tmp| {

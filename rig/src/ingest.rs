@@ -10,12 +10,15 @@
 
 use std::path::{Path, PathBuf};
 
+#[cfg(feature = "ffmpeg")]
 use ffmpeg::media::Type;
+#[cfg(feature = "ffmpeg")]
 use ffmpeg_next as ffmpeg;
 use serde::{Deserialize, Serialize};
 
 use crate::media;
 use crate::rotation::Rotation;
+#[cfg(feature = "ffmpeg")]
 use crate::source::{FileSource, PixelLayout, SourceError, decode_err, init_ffmpeg};
 use shared_types::progress::Progress;
 
@@ -83,6 +86,7 @@ pub enum IngestError {
         path: PathBuf,
     },
     /// Decoding failed.
+    #[cfg(feature = "ffmpeg")]
     #[error("camera {camera}: {source}")]
     Source {
         /// Camera name.
@@ -255,6 +259,7 @@ impl CameraStream {
             .collect()
     }
 
+    #[cfg(feature = "ffmpeg")]
     /// Opens the camera's frames for decoding.
     pub fn open(
         &self,
@@ -350,6 +355,7 @@ struct FileProbe {
     audio: Option<AudioInfo>,
 }
 
+#[cfg(feature = "ffmpeg")]
 fn probe_file(path: &Path) -> Result<FileProbe, SourceError> {
     init_ffmpeg();
     let mut input = ffmpeg::format::input(&path).map_err(decode_err(path))?;
@@ -477,6 +483,7 @@ pub(crate) fn frame_rate_regularity(times: &[f64]) -> (usize, bool) {
     (gaps, hi > 1.05 * lo || irregular > d.len() / 20 + 1)
 }
 
+#[cfg(feature = "ffmpeg")]
 /// Probes one camera: its files, per-frame timestamps and stream facts.
 pub fn probe_camera(
     camera: &str,
@@ -548,6 +555,7 @@ pub fn probe_camera(
     })
 }
 
+#[cfg(feature = "ffmpeg")]
 /// An image-sequence camera: every image probed for its size, image `k` at `k / fps`.
 fn probe_images(
     camera: &str,
@@ -610,6 +618,7 @@ fn probe_images(
     })
 }
 
+#[cfg(feature = "ffmpeg")]
 /// Probes every camera folder (`(name, path)`; a path may also be a single video file)
 /// and reports mismatches between cameras in [`Streams::warnings`].
 pub fn ingest(
@@ -683,6 +692,7 @@ pub fn mismatch_warnings(cameras: &[CameraStream]) -> Vec<String> {
     warnings
 }
 
+#[cfg(feature = "ffmpeg")]
 /// Decodes a camera's audio (all chapters) to mono `f32` at its native rate.
 ///
 /// Returns `Ok(None)` when the camera has no audio stream. Each chapter's samples are
@@ -724,6 +734,7 @@ pub fn decode_audio(stream: &CameraStream) -> Result<Option<AudioTrack>, IngestE
     Ok(track)
 }
 
+#[cfg(feature = "ffmpeg")]
 /// Decodes the best audio stream of one file: (start time in the file's clock, mono samples).
 fn decode_audio_file(path: &Path) -> Result<Option<(f64, Vec<f32>)>, SourceError> {
     init_ffmpeg();
@@ -774,6 +785,7 @@ fn decode_audio_file(path: &Path) -> Result<Option<(f64, Vec<f32>)>, SourceError
     Ok(Some((start, samples)))
 }
 
+#[cfg(feature = "ffmpeg")]
 fn stream_start(input: &ffmpeg::format::context::Input, index: usize) -> f64 {
     input
         .stream(index)
@@ -788,6 +800,7 @@ fn stream_start(input: &ffmpeg::format::context::Input, index: usize) -> f64 {
         .unwrap_or(0.0)
 }
 
+#[cfg(feature = "ffmpeg")]
 /// Appends the mono mix (channel mean) of a decoded audio frame.
 fn mix_to_mono(frame: &ffmpeg::frame::Audio, out: &mut Vec<f32>) {
     use ffmpeg::format::Sample;

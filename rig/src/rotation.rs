@@ -5,7 +5,9 @@
 //! `streams.json`. Right angles only, as FFmpeg's own command line applies them; any other
 //! angle is ignored (no camera writes one).
 
+#[cfg(feature = "ffmpeg")]
 use ffmpeg::codec::packet::side_data::Type as SideDataType;
+#[cfg(feature = "ffmpeg")]
 use ffmpeg_next as ffmpeg;
 use serde::{Deserialize, Serialize};
 
@@ -22,6 +24,7 @@ pub enum Rotation {
 
 impl Rotation {
     /// The rotation a video stream's display matrix asks for (`None` without one).
+    #[cfg(feature = "ffmpeg")]
     pub fn of_stream(stream: &ffmpeg::format::stream::Stream) -> Self {
         stream
             .side_data()

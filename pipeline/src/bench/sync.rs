@@ -338,6 +338,12 @@ fn sync_config(method: Method, scene: &Prepared) -> anyhow::Result<SyncConfig> {
 }
 
 /// Run one grid point: the value columns.
+#[cfg(not(feature = "ffmpeg"))]
+fn measure(_: &Point, _: &Prepared) -> anyhow::Result<Vec<String>> {
+    Err(crate::without_ffmpeg("the sync bench"))
+}
+
+#[cfg(feature = "ffmpeg")]
 fn measure(point: &Point, scene: &Prepared) -> anyhow::Result<Vec<String>> {
     let config = sync_config(point.method, scene)?;
     let mut times = Vec::new();

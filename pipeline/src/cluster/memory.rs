@@ -47,6 +47,11 @@ pub fn footprint(work: &Path, capture: &Capture, config: &CaptureConfig) -> Opti
             let options = IngestOptions {
                 image_fps: config.ingest.image_fps,
             };
+            #[cfg(not(feature = "ffmpeg"))]
+            let _ = (cameras, options);
+            #[cfg(not(feature = "ffmpeg"))]
+            return None;
+            #[cfg(feature = "ffmpeg")]
             rig::ingest::ingest(&cameras, &options, &shared_types::progress::NoProgress).ok()?
         }
     };

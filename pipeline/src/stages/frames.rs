@@ -13,6 +13,12 @@ use crate::stages::ingest::read_streams;
 /// `[frames]` settings: the frame extractor's own (working size, frame rate, time range, …).
 pub type FramesSettings = FramesConfig;
 
+#[cfg(not(feature = "ffmpeg"))]
+pub fn run(_: &StageContext, _: &FramesSettings, _: &[String]) -> anyhow::Result<()> {
+    Err(crate::without_ffmpeg("the frames stage"))
+}
+
+#[cfg(feature = "ffmpeg")]
 /// The `frames` stage; `heldout` are the held-out camera names of `[capture] heldout`.
 pub fn run(
     ctx: &StageContext,

@@ -32,6 +32,12 @@ impl Default for IngestSettings {
 }
 
 /// The `ingest` stage.
+#[cfg(not(feature = "ffmpeg"))]
+pub fn run(_: &StageContext, _: &IngestSettings) -> anyhow::Result<()> {
+    Err(crate::without_ffmpeg("the ingest stage"))
+}
+
+#[cfg(feature = "ffmpeg")]
 pub fn run(ctx: &StageContext, settings: &IngestSettings) -> anyhow::Result<()> {
     let cameras: Vec<(String, std::path::PathBuf)> = ctx
         .capture

@@ -107,17 +107,16 @@ pub fn render(
         if w % 2 == 1 || h % 2 == 1 {
             bail!("H.264 needs an even frame size, got {w}×{h}; set [render] size = [even, even]");
         }
-        let file = out_dir.join("render.mp4");
-        video = Some(rig::video::Mp4Writer::create(
-            &file,
+        video = Some(VideoWriter::create(
+            &out_dir.join("render.mp4"),
             w,
             h,
-            &rig::video::VideoOptions::new(spec.fps),
+            spec.fps,
         )?);
     }
     let mut sink = |_: usize, rgb: &image::RgbImage| -> Result<(), String> {
         match video.as_mut() {
-            Some(v) => v.push(rgb.as_raw()).map_err(|e| e.to_string()),
+            Some(v) => v.push(rgb.as_raw()),
             None => Ok(()),
         }
     };
@@ -135,6 +134,47 @@ pub fn render(
         v.finish()?;
     }
     Ok(rendered.frames)
+}
+
+/// What writes `render.mp4`: FFmpeg's H.264, or, in a build without FFmpeg, nothing.
+#[cfg(feature = "ffmpeg")]
+struct VideoWriter(rig::video::Mp4Writer);
+
+#[cfg(feature = "ffmpeg")]
+impl VideoWriter {
+    fn create(file: &Path, w: u32, h: u32, fps: f64) -> anyhow::Result<Self> {
+        let options = rig::video::VideoOptions::new(fps);
+        Ok(Self(rig::video::Mp4Writer::create(file, w, h, &options)?))
+    }
+
+    fn push(&mut self, rgb: &[u8]) -> Result<(), String> {
+        self.0.push(rgb).map_err(|e| e.to_string())
+    }
+
+    fn finish(self) -> anyhow::Result<()> {
+        self.0.finish()?;
+        Ok(())
+    }
+}
+
+/// Never built: a build without FFmpeg refuses `[render] video = true`.
+#[cfg(not(feature = "ffmpeg"))]
+enum VideoWriter {}
+
+#[cfg(not(feature = "ffmpeg"))]
+impl VideoWriter {
+    fn create(_: &Path, _: u32, _: u32, _: f64) -> anyhow::Result<Self> {
+        Err(crate::without_ffmpeg("[render] video = true (render.mp4)")
+            .context("set [render] video = false in capture.toml for PNG frames only"))
+    }
+
+    fn push(&mut self, _: &[u8]) -> Result<(), String> {
+        match *self {}
+    }
+
+    fn finish(self) -> anyhow::Result<()> {
+        match self {}
+    }
 }
 
 /// The `render` stage; `background` is `[train] background`.

@@ -10,6 +10,12 @@ use crate::stage_context::StageContext;
 pub type SyncSettings = SyncConfig;
 
 /// The `sync` stage.
+#[cfg(not(feature = "ffmpeg"))]
+pub fn run(_: &StageContext, _: &SyncSettings) -> anyhow::Result<()> {
+    Err(crate::without_ffmpeg("the sync stage"))
+}
+
+#[cfg(feature = "ffmpeg")]
 pub fn run(ctx: &StageContext, settings: &SyncSettings) -> anyhow::Result<()> {
     let streams = crate::stages::ingest::read_streams(ctx)?;
     let result = rig::sync::synchronise(&streams, settings, ctx.progress)?;

@@ -81,21 +81,12 @@ fn six_camera_capture(
         .collect();
     let extra_truth = truth(extra);
     for (from, to) in [("cam2", "cam4"), ("cam3", "cam5")] {
-        copy_dir(&extra.join("raw").join(from), &root.join("raw").join(to));
+        common::copy_dir(&extra.join("raw").join(from), &root.join("raw").join(to));
         let mut camera = extra_truth.get(from).unwrap().clone();
         camera.name = to.into();
         cameras.push(camera);
     }
     cameras
-}
-
-/// Copy a folder's files (one level).
-fn copy_dir(from: &Path, to: &Path) {
-    fs::create_dir_all(to).unwrap();
-    for entry in fs::read_dir(from).unwrap() {
-        let path = entry.unwrap().path();
-        fs::copy(&path, to.join(path.file_name().unwrap())).unwrap();
-    }
 }
 
 /// The capture: the fixture's four cameras, plus the two extra views' videos as cam4 and

@@ -15,6 +15,7 @@ mod cli;
 mod decay_demo;
 mod demo_quality;
 mod end_to_end;
+mod engine_only;
 mod eval_moving;
 mod fuzz_config;
 mod heldout_real;

@@ -398,19 +398,6 @@ const CHEAP: &str = "[sync]\nmethod = \"timestamps\"\n[init]\nsource = \"random\
     [render]\nframes = 2\n[eval]\nheldout_per_camera = 1\n[export]\nsteps = 1\nviewer = false\n\
     [cluster]\ncpus = 1\n";
 
-fn copy_dir(from: &Path, to: &Path) {
-    fs::create_dir_all(to).unwrap();
-    for entry in fs::read_dir(from).unwrap() {
-        let path = entry.unwrap().path();
-        let target = to.join(path.file_name().unwrap());
-        if path.is_dir() {
-            copy_dir(&path, &target);
-        } else {
-            fs::copy(&path, &target).unwrap();
-        }
-    }
-}
-
 /// Output files that record how long a step took (they differ between any two runs).
 const TIMED: &[&str] = &["init/init.json", "train/log.csv", "export/export.json"];
 
@@ -424,7 +411,7 @@ fn every_stage_runs_as_a_chained_job_and_gives_what_a_local_run_gives() {
     // The engine stages ask for a (fake) GPU: `[engine] backend` is auto.
     tiny_capture(&root, &format!("{CHEAP}gpus = 1\n"));
     let pristine = tmp.path().join("pristine");
-    copy_dir(&root, &pristine);
+    common::copy_dir(&root, &pristine);
 
     let said = submit(&cluster, &[root.to_str().unwrap()]);
     assert!(
@@ -514,7 +501,7 @@ fn two_captures_run_side_by_side() {
     let settings = format!("{CHEAP}setup = [\"sleep 2\"]\n");
     let a = tiny_capture(&tmp.path().join("a"), &settings);
     let b = tmp.path().join("b");
-    copy_dir(&a, &b);
+    common::copy_dir(&a, &b);
     submit(
         &cluster,
         &[a.to_str().unwrap(), b.to_str().unwrap(), "--to", "ingest"],

@@ -31,6 +31,7 @@ pub enum SimError {
         source: std::io::Error,
     },
 
+    #[cfg(feature = "ffmpeg")]
     #[error("cannot encode {path}: {what}: {source}")]
     Encode {
         path: PathBuf,

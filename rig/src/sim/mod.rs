@@ -9,6 +9,7 @@
 
 mod animation;
 pub mod audio;
+#[cfg(feature = "ffmpeg")]
 pub mod encode;
 mod error;
 pub(crate) mod lens;
@@ -262,6 +263,7 @@ fn refuse_existing(dir: &Path) -> Result<(), SimError> {
     Ok(())
 }
 
+#[cfg(feature = "ffmpeg")]
 /// Render `scene` into `capture_dir` (created if missing; must not already hold a capture).
 pub fn simulate(
     scene: &Scene,
@@ -469,6 +471,7 @@ fn rel(ctx: &Context, p: &Path) -> String {
         .replace('\\', "/")
 }
 
+#[cfg(feature = "ffmpeg")]
 fn video_camera(
     ctx: &Context,
     cam: &SimCamera,

@@ -7,6 +7,7 @@
 use super::lens::LensPlan;
 use super::raster::Rendered;
 use super::{CameraRole, Scene, SimError, World, lens_plan, sensor};
+#[cfg(feature = "ffmpeg")]
 use crate::source::{CameraSource, Frame, PixelLayout, SourceError};
 
 /// One video camera of a simulated scene, frame after frame (dropped frames are skipped).
@@ -81,6 +82,7 @@ impl SimSource {
     }
 }
 
+#[cfg(feature = "ffmpeg")]
 impl CameraSource for SimSource {
     fn name(&self) -> &str {
         &self.world.scene.cameras[self.camera].camera.name

@@ -2,6 +2,7 @@
 //! a detected clap (or over the first minute of overlap), with optional correction for
 //! the sound's travel time from a known clap position to each camera.
 
+#[cfg(feature = "ffmpeg")]
 use crate::ingest::AudioTrack;
 use crate::sync::clap::detect_clap;
 use crate::sync::gcc_phat::gcc_phat;
@@ -71,6 +72,7 @@ pub struct AudioOffset {
     pub confidence: f64,
 }
 
+#[cfg(feature = "ffmpeg")]
 /// Linear-interpolation resampling to `rate` (only used when cameras record at different
 /// rates; the correlation peak is still sub-sample at the reference rate).
 fn resample(track: &AudioTrack, rate: u32) -> AudioTrack {
@@ -96,6 +98,7 @@ fn resample(track: &AudioTrack, rate: u32) -> AudioTrack {
     }
 }
 
+#[cfg(feature = "ffmpeg")]
 /// The samples of `track` covering camera-clock times `[from, to)`, with the time of the
 /// first one.
 fn excerpt(track: &AudioTrack, from: f64, to: f64) -> (f64, &[f32]) {
@@ -106,6 +109,7 @@ fn excerpt(track: &AudioTrack, from: f64, to: f64) -> (f64, &[f32]) {
     (track.start_s + a as f64 / rate, &track.samples[a..b])
 }
 
+#[cfg(feature = "ffmpeg")]
 /// Offsets of every track relative to `tracks[reference]` (whose offset is 0).
 ///
 /// `None` for a track that is missing or silent (all `None` when the reference is).

@@ -17,9 +17,14 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+#[cfg(feature = "ffmpeg")]
 use crate::ingest::{CameraStream, IngestError, SourceKind, Streams, decode_audio};
+#[cfg(feature = "ffmpeg")]
 use crate::source::{CameraSource, PixelLayout, SourceError};
-use audio::{AcousticConfig, AudioSyncConfig, audio_offsets};
+#[cfg(feature = "ffmpeg")]
+use audio::audio_offsets;
+use audio::{AcousticConfig, AudioSyncConfig};
+#[cfg(feature = "ffmpeg")]
 use flash::{FrameBrightness, detect_flash};
 use shared_types::progress::Progress;
 
@@ -150,6 +155,7 @@ pub enum SyncError {
     #[error("sync.manual_offsets names {0:?}, which is not one of the cameras ({1})")]
     UnknownCamera(String, String),
     /// Decoding audio or video failed.
+    #[cfg(feature = "ffmpeg")]
     #[error(transparent)]
     Ingest(#[from] IngestError),
     /// Reading or writing a file failed.
@@ -165,6 +171,7 @@ pub enum SyncError {
 /// Per-camera outcome of one method: the offset or why there is none.
 type Attempt = Vec<Result<(f64, f64), String>>;
 
+#[cfg(feature = "ffmpeg")]
 /// Synchronises all cameras of `streams` with `config.method`.
 pub fn synchronise(
     streams: &Streams,
@@ -276,6 +283,7 @@ pub fn synchronise(
     })
 }
 
+#[cfg(feature = "ffmpeg")]
 /// Turns per-camera attempts into offsets, or explains which cameras failed.
 fn accept(
     attempt: &Attempt,
@@ -307,6 +315,7 @@ fn accept(
     }
 }
 
+#[cfg(feature = "ffmpeg")]
 fn audio_attempt(
     streams: &Streams,
     reference: usize,
@@ -387,6 +396,7 @@ fn audio_attempt(
     Ok(attempt)
 }
 
+#[cfg(feature = "ffmpeg")]
 /// Mean luma of every row of every frame of a camera (decoded as narrow grey images).
 pub fn brightness_profile(stream: &CameraStream) -> Result<Vec<FrameBrightness>, SyncError> {
     let width = stream.video.width.clamp(1, 64);
@@ -414,6 +424,7 @@ pub fn brightness_profile(stream: &CameraStream) -> Result<Vec<FrameBrightness>,
     Ok(out)
 }
 
+#[cfg(feature = "ffmpeg")]
 fn flash_attempt(
     streams: &Streams,
     reference: usize,
