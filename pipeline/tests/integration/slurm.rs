@@ -395,7 +395,7 @@ fn tiny_capture(root: &Path, settings: &str) -> PathBuf {
 const CHEAP: &str = "[sync]\nmethod = \"timestamps\"\n[init]\nsource = \"random\"\n\
     [train]\niterations = 10\nbatch_size = 1\ncheckpoint_every = 0\n\
     [train.densify]\nfrom_iteration = 4\nuntil_iteration = 8\nevery = 4\nopacity_reset_every = 0\n\
-    [render]\nframes = 2\n[eval]\nheldout_per_camera = 1\n[export]\nsteps = 1\nviewer = false\n\
+    [render]\nframes = 2\nvideo = false\n[eval]\nheldout_per_camera = 1\n[export]\nsteps = 1\nviewer = false\n\
     [cluster]\ncpus = 1\n";
 
 /// Output files that record how long a step took (they differ between any two runs).
@@ -408,8 +408,14 @@ fn every_stage_runs_as_a_chained_job_and_gives_what_a_local_run_gives() {
     };
     let tmp = tempfile::tempdir().unwrap();
     let root = tmp.path().join("take01");
-    // The engine stages ask for a (fake) GPU: `[engine] backend` is auto.
-    tiny_capture(&root, &format!("{CHEAP}gpus = 1\n"));
+    // The engine stages ask for a (fake) GPU: `[engine] backend` is auto. They run the
+    // engine-only build (no FFmpeg) as a GPU node would, where scripts/test.sh built it.
+    let engine_only = std::env::var("PIPELINE_ENGINE_ONLY").ok();
+    let gpu_pipeline = engine_only
+        .as_ref()
+        .map(|p| format!("gpu_pipeline = {p:?}\n"))
+        .unwrap_or_default();
+    tiny_capture(&root, &format!("{CHEAP}gpus = 1\n{gpu_pipeline}"));
     let pristine = tmp.path().join("pristine");
     common::copy_dir(&root, &pristine);
 
@@ -440,6 +446,18 @@ fn every_stage_runs_as_a_chained_job_and_gives_what_a_local_run_gives() {
         assert!(record.contains("JobState=COMPLETED"), "{record}");
         let gpu = ["train", "render", "eval"].contains(&job.stage.as_str());
         assert_eq!(record.contains("gpu:1"), gpu, "{}: {record}", job.stage);
+        if let Some(engine) = &engine_only {
+            let script = root
+                .join("work/.cluster")
+                .join(format!("{}.sbatch", job.stage));
+            let script = fs::read_to_string(&script).unwrap();
+            assert_eq!(
+                script.contains(engine.as_str()),
+                gpu,
+                "{}: {script}",
+                job.stage
+            );
+        }
         // The stages that hold every frame ask for memory sized to the capture (its
         // recordings, probed at submit); the others take the cluster's default per CPU.
         let sized = ["train", "eval"].contains(&job.stage.as_str());
