@@ -12,7 +12,8 @@ PACKAGES=(
   # FFmpeg libraries (decode/encode video and audio) and the ffmpeg CLI used by tests
   libavcodec-dev libavformat-dev libavutil-dev libavdevice-dev libavfilter-dev
   libswscale-dev libswresample-dev ffmpeg
-  # camera models / undistortion, pose solving
+  # OpenCV: the reference the tests hold the camera models and undistortion to (the
+  # product links none); COLMAP: pose solving
   libopencv-dev colmap
   # wgpu on machines without a GPU (lavapipe)
   mesa-vulkan-drivers libvulkan1
