@@ -14,10 +14,11 @@ if [ $# -eq 0 ]; then
 fi
 # The engine-only binary (no FFmpeg: what GPU nodes run, docs/cluster.md), kept apart from
 # the full build's target/debug/pipeline; the `engine_only` test runs it.
+target="$(realpath -m "${CARGO_TARGET_DIR:-target}")"
 cargo build -p pipeline --no-default-features || status=$?
-mkdir -p target/engine-only
-cp target/debug/pipeline target/engine-only/pipeline || status=$?
-export PIPELINE_ENGINE_ONLY="$PWD/target/engine-only/pipeline"
+mkdir -p "$target/engine-only"
+cp "$target/debug/pipeline" "$target/engine-only/pipeline" || status=$?
+export PIPELINE_ENGINE_ONLY="$target/engine-only/pipeline"
 if cargo nextest --version >/dev/null 2>&1; then
   cargo nextest run --workspace --no-fail-fast "$@" || status=$?
 else
