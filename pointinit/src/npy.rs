@@ -193,23 +193,17 @@ fn open_npy<R: std::io::Read>(
     mut reader: R,
     path: &Path,
 ) -> Result<npyz::NpyFile<impl std::io::Read>, NpyError> {
+    use std::io::Read;
     // Magic (6 bytes), version (2), header length (2 bytes in version 1, else 4).
-    let mut start = [0u8; 12];
-    let mut got = 0;
-    while got < start.len() {
-        match reader.read(&mut start[got..]) {
-            Ok(0) => break,
-            Ok(n) => got += n,
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-            Err(source) => {
-                return Err(NpyError::Io {
-                    path: path.into(),
-                    source,
-                });
-            }
-        }
-    }
-    if got == start.len() && start.starts_with(b"\x93NUMPY") {
+    let mut start = Vec::with_capacity(12);
+    (&mut reader)
+        .take(12)
+        .read_to_end(&mut start)
+        .map_err(|source| NpyError::Io {
+            path: path.into(),
+            source,
+        })?;
+    if start.len() == 12 && start.starts_with(b"\x93NUMPY") {
         let declared = match start[6] {
             1 => u16::from_le_bytes([start[8], start[9]]) as usize,
             _ => u32::from_le_bytes([start[8], start[9], start[10], start[11]]) as usize,
@@ -224,7 +218,7 @@ fn open_npy<R: std::io::Read>(
             });
         }
     }
-    let stream = std::io::Read::chain(std::io::Cursor::new(start[..got].to_vec()), reader);
+    let stream = std::io::Cursor::new(start).chain(reader);
     unpanicked(path, || npyz::NpyFile::new(stream))?.map_err(|e| NpyError::Format {
         path: path.into(),
         reason: format!("not an .npy file ({e})"),

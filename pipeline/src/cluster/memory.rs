@@ -39,23 +39,28 @@ pub fn footprint(work: &Path, capture: &Capture, config: &CaptureConfig) -> Opti
     }
     let streams = match Streams::read_json(&work.join("ingest").join("streams.json")) {
         Ok(s) => s,
-        Err(_) => {
-            let cameras: Vec<(String, std::path::PathBuf)> = capture
-                .all_cameras()
-                .map(|c| (c.name.clone(), c.dir.clone()))
-                .collect();
-            let options = IngestOptions {
-                image_fps: config.ingest.image_fps,
-            };
-            #[cfg(not(feature = "ffmpeg"))]
-            let _ = (cameras, options);
-            #[cfg(not(feature = "ffmpeg"))]
-            return None;
-            #[cfg(feature = "ffmpeg")]
-            rig::ingest::ingest(&cameras, &options, &shared_types::progress::NoProgress).ok()?
-        }
+        Err(_) => probe_recordings(capture, config)?,
     };
     Some(from_streams(&streams, &config.frames))
+}
+
+/// The capture's recordings as ingest probes them (nothing decoded); `None` when they
+/// cannot be read, or in a build without FFmpeg, which cannot probe videos.
+#[cfg(feature = "ffmpeg")]
+fn probe_recordings(capture: &Capture, config: &CaptureConfig) -> Option<Streams> {
+    let cameras: Vec<(String, std::path::PathBuf)> = capture
+        .all_cameras()
+        .map(|c| (c.name.clone(), c.dir.clone()))
+        .collect();
+    let options = IngestOptions {
+        image_fps: config.ingest.image_fps,
+    };
+    rig::ingest::ingest(&cameras, &options, &shared_types::progress::NoProgress).ok()
+}
+
+#[cfg(not(feature = "ffmpeg"))]
+fn probe_recordings(_: &Capture, _: &CaptureConfig) -> Option<Streams> {
+    None
 }
 
 fn from_index(index: &FramesIndex) -> Footprint {

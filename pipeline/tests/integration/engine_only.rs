@@ -11,24 +11,6 @@ use std::process::Command;
 
 use crate::common;
 
-/// The tiny simulated capture (4 cameras, 160×120, 15 frames, its true calibration),
-/// every stage cheap, PNG frames only from `render`.
-fn tiny_capture(root: &Path) {
-    let scene = rig::sim::Scene::from_file(&common::fixture("tiny.toml")).unwrap();
-    let quiet = pipeline::report::Reporter::new(pipeline::report::OutputMode::Quiet);
-    pipeline::simulate::simulate_into(&scene, root, &quiet).unwrap();
-    pipeline::simulate::write_truth_calibration(root).unwrap();
-    std::fs::write(
-        root.join("capture.toml"),
-        "[sync]\nmethod = \"timestamps\"\n[init]\nsource = \"random\"\n\
-         [train]\niterations = 10\nbatch_size = 1\ncheckpoint_every = 0\n\
-         [train.densify]\nfrom_iteration = 4\nuntil_iteration = 8\nevery = 4\nopacity_reset_every = 0\n\
-         [render]\nframes = 2\nvideo = false\n[eval]\nheldout_per_camera = 1\n\
-         [export]\nsteps = 1\nviewer = false\n",
-    )
-    .unwrap();
-}
-
 fn engine_only_binary() -> Option<PathBuf> {
     match std::env::var_os("PIPELINE_ENGINE_ONLY") {
         Some(p) => Some(PathBuf::from(p)),
@@ -84,7 +66,7 @@ fn the_engine_only_build_trains_renders_evaluates_and_exports_what_the_full_buil
 
     let tmp = tempfile::tempdir().unwrap();
     let full_dir = tmp.path().join("full");
-    tiny_capture(&full_dir);
+    common::tiny_capture(&full_dir, common::CHEAP);
     let full = Path::new(env!("CARGO_BIN_EXE_pipeline"));
     let dir = full_dir.to_str().unwrap();
     let (ok, text) = run(full, &["run", dir, "--to", "init"]);

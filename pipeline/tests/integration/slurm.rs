@@ -379,24 +379,10 @@ fn submit(cluster: &Cluster, args: &[&str]) -> String {
     text
 }
 
-/// The tiny simulated capture (4 cameras, 160×120, 15 frames, its true calibration) with
-/// `settings` as capture.toml.
-fn tiny_capture(root: &Path, settings: &str) -> PathBuf {
-    let scene = rig::sim::Scene::from_file(&common::fixture("tiny.toml")).unwrap();
-    let quiet = pipeline::report::Reporter::new(pipeline::report::OutputMode::Quiet);
-    pipeline::simulate::simulate_into(&scene, root, &quiet).unwrap();
-    pipeline::simulate::write_truth_calibration(root).unwrap();
-    fs::write(root.join("capture.toml"), settings).unwrap();
-    root.to_path_buf()
+/// Every stage cheap (`common::CHEAP`), one CPU per job.
+fn cheap() -> String {
+    format!("{}[cluster]\ncpus = 1\n", common::CHEAP)
 }
-
-/// Every stage cheap: clock sync, random initial points, 10 training iterations, two
-/// rendered frames; one CPU per job.
-const CHEAP: &str = "[sync]\nmethod = \"timestamps\"\n[init]\nsource = \"random\"\n\
-    [train]\niterations = 10\nbatch_size = 1\ncheckpoint_every = 0\n\
-    [train.densify]\nfrom_iteration = 4\nuntil_iteration = 8\nevery = 4\nopacity_reset_every = 0\n\
-    [render]\nframes = 2\nvideo = false\n[eval]\nheldout_per_camera = 1\n[export]\nsteps = 1\nviewer = false\n\
-    [cluster]\ncpus = 1\n";
 
 /// Output files that record how long a step took (they differ between any two runs).
 const TIMED: &[&str] = &["init/init.json", "train/log.csv", "export/export.json"];
@@ -415,7 +401,7 @@ fn every_stage_runs_as_a_chained_job_and_gives_what_a_local_run_gives() {
         .as_ref()
         .map(|p| format!("gpu_pipeline = {p:?}\n"))
         .unwrap_or_default();
-    tiny_capture(&root, &format!("{CHEAP}gpus = 1\n{gpu_pipeline}"));
+    common::tiny_capture(&root, &format!("{}gpus = 1\n{gpu_pipeline}", cheap()));
     let pristine = tmp.path().join("pristine");
     common::copy_dir(&root, &pristine);
 
@@ -516,8 +502,8 @@ fn two_captures_run_side_by_side() {
     let tmp = tempfile::tempdir().unwrap();
     // Each job sleeps 2 s before its stage: one after the other, the two ingests would
     // start at least 2 s apart.
-    let settings = format!("{CHEAP}setup = [\"sleep 2\"]\n");
-    let a = tiny_capture(&tmp.path().join("a"), &settings);
+    let settings = format!("{}setup = [\"sleep 2\"]\n", cheap());
+    let a = common::tiny_capture(&tmp.path().join("a"), &settings);
     let b = tmp.path().join("b");
     common::copy_dir(&a, &b);
     submit(
@@ -540,8 +526,8 @@ fn a_failed_stage_cancels_its_dependents_and_a_fixed_resubmit_runs_only_the_rest
     };
     let tmp = tempfile::tempdir().unwrap();
     // Without `method = "timestamps"` sync fails: the tiny scene has no clap or flash.
-    let broken = CHEAP.replace("method = \"timestamps\"", "method = \"auto\"");
-    let root = tiny_capture(&tmp.path().join("take"), &broken);
+    let broken = cheap().replace("method = \"timestamps\"", "method = \"auto\"");
+    let root = common::tiny_capture(&tmp.path().join("take"), &broken);
     let dir = root.to_str().unwrap();
     submit(&cluster, &[dir, "--to", "poses"]);
     let rows = cluster.wait_for_jobs(&root, Duration::from_secs(30));
@@ -579,7 +565,7 @@ fn a_failed_stage_cancels_its_dependents_and_a_fixed_resubmit_runs_only_the_rest
 
     // Fixed: only the failed stage and the stages after it are submitted again.
     let ingest_made = Manifest::read(&root.join("work/ingest")).unwrap().started;
-    fs::write(root.join("capture.toml"), CHEAP).unwrap();
+    fs::write(root.join("capture.toml"), cheap()).unwrap();
     let said = submit(&cluster, &[dir, "--to", "poses"]);
     assert!(said.contains("up to date: ingest"), "{said}");
     let rows = cluster.wait_for_jobs(&root, Duration::from_secs(30));
@@ -604,9 +590,9 @@ fn cancel_leaves_no_job_behind_and_a_capture_with_jobs_is_not_run_twice() {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
-    let root = tiny_capture(
+    let root = common::tiny_capture(
         &tmp.path().join("take"),
-        &format!("{CHEAP}setup = [\"sleep 60\"]\n"),
+        &format!("{}setup = [\"sleep 60\"]\n", cheap()),
     );
     let dir = root.to_str().unwrap();
     submit(&cluster, &[dir, "--to", "frames"]);

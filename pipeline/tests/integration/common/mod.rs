@@ -53,6 +53,24 @@ pub fn tree(root: &Path) -> Vec<String> {
     out
 }
 
+/// Every stage cheap: clock sync, random initial points, 10 training iterations, two
+/// rendered PNG frames (no MP4), one held-out view per camera, one export step.
+pub const CHEAP: &str = "[sync]\nmethod = \"timestamps\"\n[init]\nsource = \"random\"\n\
+    [train]\niterations = 10\nbatch_size = 1\ncheckpoint_every = 0\n\
+    [train.densify]\nfrom_iteration = 4\nuntil_iteration = 8\nevery = 4\nopacity_reset_every = 0\n\
+    [render]\nframes = 2\nvideo = false\n[eval]\nheldout_per_camera = 1\n[export]\nsteps = 1\nviewer = false\n";
+
+/// The tiny simulated capture (4 cameras, 160×120, 15 frames, its true calibration) with
+/// `settings` as capture.toml.
+pub fn tiny_capture(root: &Path, settings: &str) -> PathBuf {
+    let scene = rig::sim::Scene::from_file(&fixture("tiny.toml")).unwrap();
+    let quiet = pipeline::report::Reporter::new(pipeline::report::OutputMode::Quiet);
+    pipeline::simulate::simulate_into(&scene, root, &quiet).unwrap();
+    pipeline::simulate::write_truth_calibration(root).unwrap();
+    std::fs::write(root.join("capture.toml"), settings).unwrap();
+    root.to_path_buf()
+}
+
 /// A copy of the folder `from` (files and subfolders) at `to`.
 pub fn copy_dir(from: &Path, to: &Path) {
     std::fs::create_dir_all(to).unwrap();
