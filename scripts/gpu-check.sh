@@ -1,16 +1,22 @@
 #!/usr/bin/env bash
 # The GPU check: does the wgpu engine work on this machine's GPU, and how fast is it?
 #
-#   scripts/gpu-check.sh [--demo]      build (needs cargo) and run on this machine's GPU;
-#                                      --demo also trains the demo on the GPU at `best` and
-#                                      at `full` (needs the whole toolchain of
-#                                      scripts/setup.sh, and minutes more)
-#   scripts/gpu-check.sh --bundle DIR  build here and write what the check runs into DIR
-#                                      (about 30 MB): stripped, xz-compressed test and
-#                                      benchmark binaries that need only libc and a Vulkan
-#                                      loader (no OpenCV, FFmpeg or COLMAP), the LPIPS
-#                                      weights; copy DIR to a GPU machine that has no cargo
-#   scripts/gpu-check.sh --from DIR    run a bundle (from the repository's root)
+#   scripts/gpu-check.sh [--demo]           build (needs cargo) and run on this machine's GPU;
+#                                           --demo also trains the demo on the GPU at `best`
+#                                           and at `full` (needs the whole toolchain of
+#                                           scripts/setup.sh, and minutes more)
+#   scripts/gpu-check.sh --bundle DIR       build here and write what the check runs into DIR
+#                                           (about 30 MB): stripped, xz-compressed test and
+#                                           benchmark binaries that need only libc and a
+#                                           Vulkan loader (no OpenCV, FFmpeg or COLMAP), the
+#                                           LPIPS weights; copy DIR to a GPU machine that has
+#                                           no cargo
+#   scripts/gpu-check.sh --bundle-demo DIR  build here and write the demo's part into DIR
+#                                           (about 40 MB): the engine-only `pipeline` and the
+#                                           demo capture prepared up to `init`
+#   scripts/gpu-check.sh --from DIR         run a bundle (from the repository's root): the
+#                                           tests and benchmarks of --bundle, the demo of
+#                                           --bundle-demo, or both where DIR holds both
 #
 # What it runs, in this order, and prints as one table at the end:
 #   1. the adapter and driver (nvidia-smi where there is one, and the adapter wgpu picks);
@@ -24,11 +30,13 @@
 #   4. where one training iteration's device time goes, kernel by kernel, at 100k and 1M
 #      (timestamp queries; profile.md);
 #   5. peak GPU memory while the benchmarks ran (nvidia-smi, sampled every 200 ms);
-#   6. with --demo: `pipeline demo --backend gpu` at `best` and `full`, held-out PSNR /
-#      SSIM / LPIPS and the train stage's wall time.
+#   6. the demo (--demo, or a bundle from --bundle-demo): the demo capture prepared up to
+#      `init` trained with `--backend gpu` at `best` and at `full`, held-out PSNR / SSIM /
+#      LPIPS and the train stage's wall time, and peak GPU memory while it trained.
 # It takes a few minutes on a data-centre GPU. Logs and the table go to $GPU_CHECK_OUT
 # (default target/gpu-check/). SPLAT4D_GPU_SOFTWARE=1 runs it on a software adapter
-# (lavapipe) at the small sizes only, to try the script without a GPU.
+# (lavapipe) at the small sizes only, to try the script without a GPU (the demo then
+# trains on the CPU at `preview`).
 set -euo pipefail
 
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -82,28 +90,11 @@ bundle() {
   du -sh "$dir"
 }
 
-# Run the check with the executables in $bin; $1 is the source tree they were built in.
-check() {
-  local source_root="$1"
-  mkdir -p "$out"
-  : >"$out/table.md"
-  row() { printf '| %s | %s |\n' "$1" "$2" >>"$out/table.md"; }
-  echo "gpu-check: logs in $out"
-
-  if command -v nvidia-smi >/dev/null; then
-    row "GPU (nvidia-smi)" "$(nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader | head -1)"
-  fi
-  if [ ! -d "$source_root" ] && [ "$source_root" != "$root" ]; then
-    # A bundle built elsewhere: its tests look for fixtures under the tree it was built in.
-    mkdir -p "$(dirname "$source_root")"
-    ln -s "$root" "$source_root"
-  fi
-  export LPIPS_WEIGHTS="${LPIPS_WEIGHTS:-$weights}"
-
+# The engine's GPU tests and benchmarks with the executables in $bin; $1 is 1 on a
+# software adapter. Returns the tests' exit status.
+engine() {
+  local software="$1" tests_rc=0
   echo "gpu-check: the engine's GPU tests"
-  local tests_rc=0
-  local software=0
-  case "${SPLAT4D_GPU_SOFTWARE:-}" in 1 | true) software=1 ;; esac
   # On a real GPU also the tests too slow for lavapipe (a 300-iteration training against
   # the CPU's, the decay's device path against the host's, LPIPS timing).
   local ignored=(--include-ignored)
@@ -155,33 +146,119 @@ for line in sys.stdin:
         ns, dev = (int(x.replace(",", "")) for x in m.group(2, 3))
         print(f"| {m.group(1)} | {ns / 1e6:.2f} ms (± {dev / 1e6:.2f}) |")
 ' >>"$out/table.md"
+  return "$tests_rc"
+}
 
-  if [ -n "${pipeline_bin:-}" ]; then
-    for preset in best full; do
-      echo "gpu-check: the demo at $preset"
-      if "$pipeline_bin" --quiet demo "$out/demo" --backend gpu --preset "$preset" >"$out/demo-$preset.log" 2>&1; then
-        row "demo at \`$preset\` (held-out PSNR / SSIM / LPIPS, train wall time)" "$(python3 - "$out/demo/work" <<'PY'
+# Train the demo capture $demo_capture (prepared up to `init`) with $pipeline_bin at
+# `best` and at `full` on the GPU; $1 is 1 on a software adapter, where it trains on the
+# CPU at `preview` instead (to try the script).
+demo() {
+  local software="$1" backend=gpu presets=(best full)
+  if [ "$software" = 1 ]; then
+    backend=cpu
+    presets=(preview)
+  fi
+  local sampler=""
+  if command -v nvidia-smi >/dev/null; then
+    nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits -lms 200 >"$out/demo-memory.log" &
+    sampler=$!
+  fi
+  local preset
+  for preset in "${presets[@]}"; do
+    echo "gpu-check: the demo at $preset"
+    local log="$out/demo-$preset.log"
+    local stage
+    for stage in train eval; do
+      "$pipeline_bin" run "$demo_capture" --only "$stage" --backend "$backend" --preset "$preset" >>"$log" 2>&1 || break
+    done
+    local trained_on
+    trained_on="$(grep -m1 -o 'training backend: .*' "$log" | sed 's/^training backend: //' || true)"
+    if grep -q '✓ eval: done' "$log"; then
+      row "demo at \`$preset\` on ${trained_on:-$backend} (held-out PSNR / SSIM / LPIPS, moving region, train wall time)" "$(python3 - "$demo_capture/work" <<'PY'
 import json, sys
 work = sys.argv[1]
-m = json.load(open(f"{work}/eval/metrics.json"))["heldout"]["mean"]
-s = json.load(open(f"{work}/train/stage.json"))["duration_s"]
+held = json.load(open(f"{work}/eval/metrics.json"))["heldout"]
+m = held["mean"]
+seconds = json.load(open(f"{work}/train/stage.json"))["duration_s"]
 lpips = m.get("lpips")
 lpips = f"{lpips:.3f}" if isinstance(lpips, float) else "–"
-print(f"{m['psnr']:.2f} dB / {m['ssim']:.3f} / {lpips}, {s:.0f} s")
+moving = held.get("moving", {}).get("mean", {}).get("psnr")
+moving = f"{moving:.2f} dB" if isinstance(moving, float) else "–"
+print(f"{m['psnr']:.2f} dB / {m['ssim']:.3f} / {lpips}, moving {moving}, {seconds:.0f} s")
 PY
 )"
-      else
-        row "demo at \`$preset\`" "failed (see demo-$preset.log)"
-      fi
-    done
+    else
+      row "demo at \`$preset\` on $backend" "failed (see demo-$preset.log)"
+    fi
+  done
+  if [ -n "$sampler" ]; then
+    kill "$sampler" 2>/dev/null || true
+    row "peak GPU memory while the demo trained" "$(sort -n "$out/demo-memory.log" | tail -1) MiB"
+  fi
+}
+
+# The demo's part of a bundle in $1: the engine-only `pipeline` (no FFmpeg, OpenCV or
+# COLMAP: what a GPU node runs, docs/cluster.md) and the demo capture prepared up to
+# `init` by the whole build, with what training and eval read. Leaves the engine-only
+# build in target/release (the next `cargo build --release -p pipeline` rebuilds it).
+bundle_demo() {
+  local dir="$1" target="${CARGO_TARGET_DIR:-$root/target}"
+  mkdir -p "$dir"
+  local prep="$target/gpu-check-demo"
+  (cd "$root" && cargo build --release -p pipeline)
+  rm -rf "$prep"
+  "$target/release/pipeline" --quiet demo "$prep/demo" --to init
+  (cd "$root" && cargo build --release -p pipeline --no-default-features)
+  strip -o "$dir/pipeline" "$target/release/pipeline"
+  xz -9 -T0 -f "$dir/pipeline"
+  # Not the COLMAP workspace and the point maps (read by poses and init, which have run)
+  # nor the simulator's depth and clean held-out renders (eval scores the filmed ones).
+  tar -C "$prep" -cf - --exclude demo/work/poses/colmap --exclude demo/pointmaps \
+    --exclude demo/groundtruth/depth --exclude demo/groundtruth/heldout demo |
+    xz -9 -T0 >"$dir/demo.tar.xz"
+  if [ -f "$root/weights/lpips-alex-v0.1.safetensors" ]; then
+    cp "$root/weights/lpips-alex-v0.1.safetensors" "$dir/"
+  fi
+  du -sh "$dir"
+}
+
+# Run the check with the executables in $bin; $1 is the source tree they were built in.
+check() {
+  local source_root="$1"
+  mkdir -p "$out"
+  : >"$out/table.md"
+  row() { printf '| %s | %s |\n' "$1" "$2" >>"$out/table.md"; }
+  echo "gpu-check: logs in $out"
+
+  if command -v nvidia-smi >/dev/null; then
+    row "GPU (nvidia-smi)" "$(nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader | head -1)"
+  fi
+  if [ ! -d "$source_root" ] && [ "$source_root" != "$root" ]; then
+    # A bundle built elsewhere: its tests look for fixtures under the tree it was built in.
+    mkdir -p "$(dirname "$source_root")"
+    ln -s "$root" "$source_root"
+  fi
+  export LPIPS_WEIGHTS="${LPIPS_WEIGHTS:-$weights}"
+
+  local tests_rc=0
+  local software=0
+  case "${SPLAT4D_GPU_SOFTWARE:-}" in 1 | true) software=1 ;; esac
+  if [ -x "$bin/integration" ]; then
+    engine "$software" || tests_rc=$?
+  fi
+
+  if [ -n "${pipeline_bin:-}" ]; then
+    demo "$software"
   fi
 
   echo
   echo "| check | result |"
   echo "|---|---|"
   cat "$out/table.md"
-  echo
-  cat "$out/profile.md"
+  if [ -f "$out/profile.md" ]; then
+    echo
+    cat "$out/profile.md"
+  fi
   return "$tests_rc"
 }
 
@@ -190,23 +267,47 @@ case "${1:-}" in
   [ $# -eq 2 ] || { echo "usage: $0 --bundle DIR" >&2; exit 2; }
   bundle "$2"
   ;;
+--bundle-demo)
+  [ $# -eq 2 ] || { echo "usage: $0 --bundle-demo DIR" >&2; exit 2; }
+  bundle_demo "$2"
+  ;;
 --from)
   [ $# -eq 2 ] || { echo "usage: $0 --from DIR" >&2; exit 2; }
   dir="$(cd "$2" && pwd)"
   bin="${TMPDIR:-/tmp}/gpu-check-bin"
-  mkdir -p "$bin"
-  for f in integration render_gpu lpips; do
-    [ -f "$dir/bin/$f.xz" ] || { echo "gpu-check: $dir/bin/$f.xz is missing; make the bundle with --bundle" >&2; exit 2; }
-    xz -dc "$dir/bin/$f.xz" >"$bin/$f"
-    chmod +x "$bin/$f"
-  done
+  mkdir -p "$bin" "$out"
+  if [ ! -f "$dir/bin/integration.xz" ] && [ ! -f "$dir/pipeline.xz" ]; then
+    echo "gpu-check: $dir holds no bundle; make one with --bundle and/or --bundle-demo" >&2
+    exit 2
+  fi
+  if [ -f "$dir/bin/integration.xz" ]; then
+    for f in integration render_gpu lpips; do
+      [ -f "$dir/bin/$f.xz" ] || { echo "gpu-check: $dir/bin/$f.xz is missing; make the bundle again with --bundle" >&2; exit 2; }
+      xz -dc "$dir/bin/$f.xz" >"$bin/$f"
+      chmod +x "$bin/$f"
+    done
+  fi
+  if [ -f "$dir/pipeline.xz" ]; then
+    [ -f "$dir/demo.tar.xz" ] || { echo "gpu-check: $dir/demo.tar.xz is missing; make the bundle again with --bundle-demo" >&2; exit 2; }
+    pipeline_bin="$bin/pipeline"
+    xz -dc "$dir/pipeline.xz" >"$pipeline_bin"
+    chmod +x "$pipeline_bin"
+    rm -rf "$out/demo"
+    xz -dc "$dir/demo.tar.xz" | tar -C "$out" -xf -
+    demo_capture="$out/demo"
+  fi
   weights="$dir/lpips-alex-v0.1.safetensors"
-  check "$(cat "$dir/source-root")"
+  source_root="$root"
+  [ -f "$dir/source-root" ] && source_root="$(cat "$dir/source-root")"
+  check "$source_root"
   ;;
 "" | --demo)
   if [ "${1:-}" = --demo ]; then
     (cd "$root" && cargo build --release -p pipeline)
-    pipeline_bin="$root/target/release/pipeline"
+    pipeline_bin="${CARGO_TARGET_DIR:-$root/target}/release/pipeline"
+    demo_capture="$out/demo"
+    rm -rf "$demo_capture"
+    "$pipeline_bin" --quiet demo "$demo_capture" --to init
   fi
   mapfile -t exes < <(build)
   built "${exes[@]}"
@@ -217,7 +318,7 @@ case "${1:-}" in
   check "$root"
   ;;
 *)
-  sed -n '2,28p' "$0" | sed 's/^# \{0,1\}//'
+  sed -n '2,39p' "$0" | sed 's/^# \{0,1\}//'
   exit 2
   ;;
 esac

@@ -78,6 +78,10 @@ pub enum Command {
         /// Training preset (overrides the demo's schedule; README "Presets").
         #[arg(long, value_enum)]
         preset: Option<crate::presets::Preset>,
+        /// Stop after this stage: `--to init` prepares what training reads, to train
+        /// elsewhere (a GPU node, `scripts/gpu-check.sh --bundle-demo`).
+        #[arg(long, value_parser = PossibleValuesParser::new(pipeline().stage_names()))]
+        to: Option<String>,
     },
     /// Record up to four webcams at once into a new capture directory (raw/camN/capture.mov
     /// and each frame's capture time). Stop with Ctrl-C or --seconds. Cameras come through

@@ -81,7 +81,8 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             out_dir,
             backend,
             preset,
-        } => demo(&out_dir, backend, preset, reporter),
+            to,
+        } => demo(&out_dir, backend, preset, to.as_deref(), reporter),
         Command::Render(args) => render(args, reporter),
         Command::Metrics(args) => metrics(args, reporter),
         Command::Bench(BenchCommand::Ablation {
@@ -455,13 +456,19 @@ fn say_preset(preset: Option<pipeline::presets::Preset>, reporter: &Reporter) {
 /// Simulate the built-in scene (once) and run every stage on it. Stages that are not
 /// implemented yet are reported but do not make the demo fail; a failing stage does.
 /// On a hardware GPU the demo trains at the paper's schedule (preset `full`) unless a
-/// preset was chosen; it says which backend and schedule it uses.
+/// preset was chosen; it says which backend and schedule it uses. `to` stops it after
+/// that stage.
 fn demo(
     out_dir: &std::path::Path,
     backend: Option<pipeline::engine_inputs::BackendChoice>,
     preset: Option<pipeline::presets::Preset>,
+    to: Option<&str>,
     reporter: &Reporter,
 ) -> anyhow::Result<ExitCode> {
+    let names = stages::pipeline().stage_names();
+    let position = |stage: &str| names.iter().position(|n| *n == stage);
+    // Whether the run goes as far as `stage`.
+    let reaches = |stage: &str| to.is_none_or(|t| position(t) >= position(stage));
     if out_dir.join("raw").exists() {
         reporter.say(&format!(
             "reusing the simulated capture in {} (delete it to simulate again)",
@@ -507,7 +514,7 @@ fn demo(
         }
     ));
     drop(trainer);
-    if !out_dir.join("pointmaps").exists() {
+    if reaches("init") && !out_dir.join("pointmaps").exists() {
         // No MASt3R weights ship with the tool: the demo stands in for the point-map model
         // with the simulator's true depth at the init moments (docs/init.md), which are
         // aligned frames: the stages up to `frames` run first.
@@ -536,7 +543,11 @@ fn demo(
             maps.display()
         ));
     }
-    let summary = stages::pipeline().run(&capture, &config, &Selection::default(), reporter)?;
+    let selection = Selection {
+        to: to.map(str::to_owned),
+        ..Selection::default()
+    };
+    let summary = stages::pipeline().run(&capture, &config, &selection, reporter)?;
     report_summary(&summary, reporter);
     reporter.say(&format!(
         "outputs are in {}; `pipeline status {}` shows each stage",

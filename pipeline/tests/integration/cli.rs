@@ -99,6 +99,7 @@ fn demo_has_a_default_output_directory() {
         out_dir,
         backend,
         preset,
+        to,
     } = parse(&["demo"]).unwrap().command
     else {
         panic!()
@@ -106,10 +107,12 @@ fn demo_has_a_default_output_directory() {
     assert_eq!(out_dir.to_str(), Some("4c4d-demo"));
     assert_eq!(backend, None, "no --backend: capture.toml decides");
     assert_eq!(preset, None, "no --preset: capture.toml decides");
+    assert_eq!(to, None, "no --to: every stage");
     let Cmd::Demo {
         out_dir,
         backend,
         preset,
+        to,
     } = parse(&[
         "--json",
         "demo",
@@ -118,6 +121,8 @@ fn demo_has_a_default_output_directory() {
         "cpu",
         "--preset",
         "preview",
+        "--to",
+        "init",
     ])
     .unwrap()
     .command
@@ -127,11 +132,49 @@ fn demo_has_a_default_output_directory() {
     assert_eq!(out_dir.to_str(), Some("/tmp/x"));
     assert_eq!(backend, Some(pipeline::engine_inputs::BackendChoice::Cpu));
     assert_eq!(preset, Some(pipeline::presets::Preset::Preview));
+    assert_eq!(to.as_deref(), Some("init"));
+    assert!(
+        parse(&["demo", "--to", "training"]).is_err(),
+        "an unknown stage is refused"
+    );
     assert!(parse(&["run", "x", "--preset", "fastest"]).is_err());
     assert!(
         parse(&["demo", "--backend", "cuda"]).is_err(),
         "an unknown backend is refused"
     );
+}
+
+#[test]
+fn demo_stops_after_the_stage_given_by_to_and_reuses_its_capture() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("demo");
+    let demo = |to: &str| {
+        let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+            .arg("demo")
+            .arg(&dir)
+            .args(["--to", to])
+            .output()
+            .unwrap();
+        let said = String::from_utf8_lossy(&out.stdout).into_owned()
+            + &String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "demo --to {to} failed:\n{said}");
+        said
+    };
+    let first = demo("ingest");
+    assert!(first.contains("simulating the demo capture"), "{first}");
+    assert!(dir.join("work/ingest/stage.json").is_file());
+    for later in ["sync", "frames", "init", "train"] {
+        assert!(!dir.join("work").join(later).exists(), "{later} ran: {first}");
+    }
+    assert!(
+        !dir.join("pointmaps").exists(),
+        "the init's point maps are written only when the demo goes as far as init"
+    );
+    let second = demo("sync");
+    assert!(second.contains("reusing the simulated capture"), "{second}");
+    assert!(second.contains("1 ran, 1 up to date"), "{second}");
+    assert!(dir.join("work/sync/stage.json").is_file());
+    assert!(!dir.join("work/frames").exists(), "{second}");
 }
 
 #[test]
