@@ -164,7 +164,10 @@ fn demo_stops_after_the_stage_given_by_to_and_reuses_its_capture() {
     assert!(first.contains("simulating the demo capture"), "{first}");
     assert!(dir.join("work/ingest/stage.json").is_file());
     for later in ["sync", "frames", "init", "train"] {
-        assert!(!dir.join("work").join(later).exists(), "{later} ran: {first}");
+        assert!(
+            !dir.join("work").join(later).exists(),
+            "{later} ran: {first}"
+        );
     }
     assert!(
         !dir.join("pointmaps").exists(),
