@@ -12,7 +12,7 @@
 #                                           LPIPS weights; copy DIR to a GPU machine that has
 #                                           no cargo
 #   scripts/gpu-check.sh --bundle-demo DIR  build here and write the demo's part into DIR
-#                                           (about 40 MB): the engine-only `pipeline` and the
+#                                           (about 50 MB): the engine-only `pipeline` and the
 #                                           demo capture prepared up to `init`
 #   scripts/gpu-check.sh --from DIR         run a bundle (from the repository's root): the
 #                                           tests and benchmarks of --bundle, the demo of
@@ -90,6 +90,16 @@ bundle() {
   du -sh "$dir"
 }
 
+# Sample the GPU's used memory (MiB) into $1 every 200 ms in the background; `sampler`
+# is its process id (empty without nvidia-smi).
+sample_memory() {
+  sampler=""
+  if command -v nvidia-smi >/dev/null; then
+    nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits -lms 200 >"$1" &
+    sampler=$!
+  fi
+}
+
 # The engine's GPU tests and benchmarks with the executables in $bin; $1 is 1 on a
 # software adapter. Returns the tests' exit status.
 engine() {
@@ -112,11 +122,8 @@ engine() {
     lpips_filter='lpips_alex/gpu_'
   fi
 
-  local sampler=""
-  if command -v nvidia-smi >/dev/null; then
-    nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits -lms 200 >"$out/memory.log" &
-    sampler=$!
-  fi
+  local sampler
+  sample_memory "$out/memory.log"
   echo "gpu-check: benchmarks"
   local opts=(--warm-up-time 1 --measurement-time 2 --sample-size 10 --noplot --output-format bencher)
   # SPLAT4D_GPU_PROFILE=1: the benchmark first prints one training iteration's device
@@ -158,15 +165,13 @@ demo() {
     backend=cpu
     presets=(preview)
   fi
-  local sampler=""
-  if command -v nvidia-smi >/dev/null; then
-    nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits -lms 200 >"$out/demo-memory.log" &
-    sampler=$!
-  fi
+  local sampler
+  sample_memory "$out/demo-memory.log"
   local preset
   for preset in "${presets[@]}"; do
     echo "gpu-check: the demo at $preset"
     local log="$out/demo-$preset.log"
+    : >"$log"
     local stage
     for stage in train eval; do
       "$pipeline_bin" run "$demo_capture" --only "$stage" --backend "$backend" --preset "$preset" >>"$log" 2>&1 || break
