@@ -211,17 +211,22 @@ pub struct TrainRecord {
     /// The colour the model was trained on (`[train] background` resolved; `"mean"`
     /// becomes the training images' mean colour): every render of the model uses it.
     pub background: [f32; 3],
+    /// Each training camera's exposure gain its frames were divided by
+    /// (`splat4d::train::exposure`; empty: the frames as filmed).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub exposure: Vec<splat4d::train::exposure::CameraGain>,
 }
 
 /// Where the train stage records its [`TrainRecord`].
 pub const TRAIN_RECORD: &str = "train.json";
 
-/// The background a capture's model was trained on: `work/train/train.json`, or, for a
-/// model trained before the record existed, `[train] background` when it is a colour.
-pub fn trained_background(
+/// What a capture's model was trained on: `work/train/train.json`, or, for a model trained
+/// before the record existed, `[train] background` when it is a colour (and no exposure
+/// gains).
+pub fn trained_record(
     work_dir: &Path,
     setting: splat4d::train::Background,
-) -> anyhow::Result<[f32; 3]> {
+) -> anyhow::Result<TrainRecord> {
     let path = work_dir.join("train").join(TRAIN_RECORD);
     match std::fs::read(&path) {
         Ok(bytes) => {
@@ -231,10 +236,13 @@ pub fn trained_background(
                     path.display()
                 )
             })?;
-            Ok(record.background)
+            Ok(record)
         }
         Err(_) => match setting {
-            splat4d::train::Background::Colour(c) => Ok(c),
+            splat4d::train::Background::Colour(c) => Ok(TrainRecord {
+                background: c,
+                exposure: Vec::new(),
+            }),
             splat4d::train::Background::Mean => bail!(
                 "{} is missing, so the mean-colour background the model was trained on is unknown; rerun the train stage (`pipeline run DIR --only train --force`)",
                 path.display()

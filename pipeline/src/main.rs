@@ -304,7 +304,8 @@ fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
         pipeline::engine_inputs::render_backend(args.backend.unwrap_or(config.engine.backend))?;
     let work = capture.work_dir();
     let model = pipeline::engine_inputs::load_trained_model(&work)?;
-    let background = pipeline::engine_inputs::trained_background(&work, config.train.background)?;
+    let background =
+        pipeline::engine_inputs::trained_record(&work, config.train.background)?.background;
     let (index, cameras, heldout) = pipeline::stages::render::path_cameras(&work)?;
     let video = args
         .out

@@ -92,6 +92,10 @@ pub struct EvalView {
     /// Where moving or deforming objects are in the image: an 8-bit grey image of the
     /// same size, inside where ≥ 128. `None`: no mask for this view.
     pub mask: Option<PathBuf>,
+    /// The camera's exposure gain per RGB channel: the render is multiplied by it before it
+    /// is compared (a training camera whose frames were equalised,
+    /// [`crate::train::exposure`]; 1 for any other view).
+    pub gain: [f32; 3],
 }
 
 /// Metrics of one view.
@@ -382,7 +386,14 @@ pub fn evaluate(
                     })?;
             let rendered: Vec<Vec<f32>> = renders
                 .iter()
-                .map(|r| r.rgb.iter().map(|v| v.clamp(0.0, 1.0)).collect())
+                .zip(chunk)
+                .map(|(r, view)| {
+                    r.rgb
+                        .iter()
+                        .enumerate()
+                        .map(|(k, v)| (v * view.gain[k % 3]).clamp(0.0, 1.0))
+                        .collect()
+                })
                 .collect();
             // LPIPS of the whole batch at once: the native network runs the views in parallel,
             // on the renderer's GPU when it has one.

@@ -11,6 +11,7 @@ pub mod checkpoint;
 pub mod dataset;
 pub mod densify;
 mod device_step;
+pub mod exposure;
 pub mod gpu;
 pub mod log;
 pub mod loss;
@@ -78,6 +79,10 @@ pub struct TrainConfig {
     /// Largest allowed ratio of a Gaussian's longest spatial axis to its middle one
     /// (needles are reshaped into ribbons after every step; 0: no limit).
     pub max_anisotropy: f64,
+    /// Divide each camera's frames by its exposure and white-balance gain, measured on the
+    /// initial points' static surfaces, before training ([`exposure`]; the caller applies
+    /// it, as the pipeline's train stage does).
+    pub match_exposure: bool,
     pub lr: LearningRates,
     pub densify: DensifyConfig,
     /// Write a checkpoint every this many iterations (0: only at the end).
@@ -104,6 +109,7 @@ impl Default for TrainConfig {
             init_flatness: 0.0,
             init_velocity: true,
             max_anisotropy: 0.0,
+            match_exposure: true,
             lr: LearningRates::default(),
             densify: DensifyConfig::default(),
             checkpoint_every: 1000,

@@ -39,6 +39,7 @@ fn setup() -> Setup {
             time: t,
             image_path: path,
             mask: None,
+            gain: [1.0; 3],
         }
     };
     let heldout = vec![
@@ -554,6 +555,7 @@ fn views_are_rendered_on_the_background_the_model_was_trained_on() {
         time: 0.5,
         image_path: path,
         mask: None,
+        gain: [1.0; 3],
     }];
     let psnr = |background: [f32; 3], name: &str| {
         let report = evaluate(
@@ -572,4 +574,45 @@ fn views_are_rendered_on_the_background_the_model_was_trained_on() {
     let (right, black) = (psnr(grey, "grey"), psnr([0.0; 3], "black"));
     assert!(right > 40.0, "8-bit rounding only: {right}");
     assert!(black < right - 10.0, "{black} vs {right}");
+}
+
+#[test]
+fn a_training_view_is_compared_as_its_camera_filmed_it() {
+    // A camera that films at half the brightness; its frames were equalised for training,
+    // so the render is multiplied by its gain before it meets the frame.
+    let dir = tempfile::tempdir().unwrap();
+    let model = scene();
+    let cam = rig(64, 48).remove(0);
+    let path = dir.path().join("dark.png");
+    save_render(&model, &cam, 0.5, &path);
+    let mut dark = image::open(&path).unwrap().into_rgb8();
+    for p in dark.pixels_mut() {
+        p.0 = p.0.map(|v| (v as f32 * 0.5).round() as u8);
+    }
+    dark.save(&path).unwrap();
+    let view = |gain| EvalView {
+        camera: cam.clone(),
+        time: 0.5,
+        image_path: path.clone(),
+        mask: None,
+        gain,
+    };
+    let report = evaluate(
+        &CpuBackend,
+        &model,
+        &[],
+        &[view([0.5; 3]), view([1.0; 3])],
+        &dir.path().join("eval"),
+        None,
+        [0.0; 3],
+        &NoProgress,
+    )
+    .unwrap();
+    let (gained, as_rendered) = (&report.train.frames[0], &report.train.frames[1]);
+    assert!(gained.psnr > 40.0, "8-bit rounding only: {}", gained.psnr);
+    assert!(
+        as_rendered.psnr < gained.psnr - 10.0,
+        "{}",
+        as_rendered.psnr
+    );
 }

@@ -113,6 +113,7 @@ fn render_and_eval_timing() {
                 time: t,
                 image_path: path,
                 mask: None,
+                gain: [1.0; 3],
             });
         }
     }

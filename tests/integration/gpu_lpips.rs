@@ -278,6 +278,7 @@ fn evaluate_with_the_gpu_renderer_computes_lpips_on_the_gpu() {
                 time: i as f64 / 4.0,
                 image_path: path,
                 mask: None,
+                gain: [1.0; 3],
             }
         })
         .collect();

@@ -16,9 +16,10 @@ use serde::{Deserialize, Serialize};
 use shared_types::{Camera, CameraSet, WorldToCamera};
 use splat4d::TimeMapping;
 use splat4d::eval::EvalView;
+use splat4d::train::exposure::{CameraGain, gain_of};
 
 use crate::engine_inputs::{
-    EngineSettings, load_frame, load_trained_model, pinhole_cameras, time_mapping,
+    EngineSettings, TrainRecord, load_frame, load_trained_model, pinhole_cameras, time_mapping,
 };
 use crate::heldout::HELDOUT_FILE;
 use crate::layout::Capture;
@@ -184,6 +185,7 @@ pub fn heldout_views(
                 time,
                 image_path,
                 mask,
+                gain: [1.0; 3],
             });
         }
     }
@@ -264,6 +266,7 @@ fn frame_views(
             time: mapping.model_time(view.timestamp_s),
             image_path,
             mask,
+            gain: [1.0; 3],
         });
     }
     Ok(views)
@@ -322,7 +325,9 @@ fn train_picks(frames: usize, cameras: usize, n: usize) -> Vec<(usize, usize)> {
 }
 
 /// A spread of the training views (undistorted copies in `gt_dir` where needed), with
-/// their `masks` where there are any.
+/// their `masks` where there are any and their cameras' exposure `gains` (renders are
+/// compared as each camera filmed them).
+#[allow(clippy::too_many_arguments)]
 fn train_views(
     ctx: &StageContext,
     settings: &EvalSettings,
@@ -331,6 +336,7 @@ fn train_views(
     mapping: &TimeMapping,
     gt_dir: &Path,
     masks: Option<&MaskSource>,
+    gains: &[CameraGain],
 ) -> anyhow::Result<Vec<EvalView>> {
     let cameras = pinhole_cameras(index, poses, &ctx.stage_dir("poses").join("cameras.json"))?;
     let picks = train_picks(
@@ -338,7 +344,7 @@ fn train_views(
         index.cameras.len(),
         settings.train_views,
     );
-    frame_views(
+    let mut views = frame_views(
         &ctx.stage_dir("frames"),
         index,
         &cameras,
@@ -346,7 +352,11 @@ fn train_views(
         mapping,
         gt_dir,
         masks,
-    )
+    )?;
+    for view in &mut views {
+        view.gain = gain_of(gains, &view.camera.name);
+    }
+    Ok(views)
 }
 
 /// The LPIPS network: the file of `[eval] lpips` (a path relative to the capture) when it
@@ -403,12 +413,13 @@ pub fn any_heldout_views(
 }
 
 /// The `eval` stage; `heldout_cameras` are the held-out camera names of `[capture] heldout`,
-/// `background` is `[train] background` (views are rendered on what the model was trained on).
+/// `trained` is what the model was trained on (views are rendered on its background, the
+/// training views as their cameras filmed them).
 pub fn run(
     ctx: &StageContext,
     settings: &EvalSettings,
     heldout_cameras: &[String],
-    background: [f32; 3],
+    trained: &TrainRecord,
     engine: &EngineSettings,
 ) -> anyhow::Result<()> {
     let model = load_trained_model(&ctx.capture.work_dir())?;
@@ -439,6 +450,7 @@ pub fn run(
         &mapping,
         &gt_dir.join("train"),
         masks.as_ref(),
+        &trained.exposure,
     )?;
     log_masks(masks.as_ref(), &heldout, &train);
     let lpips = load_lpips(ctx.capture, settings)?;
@@ -451,7 +463,7 @@ pub fn run(
         &train,
         &ctx.out_dir,
         lpips.as_ref(),
-        background,
+        trained.background,
         ctx.progress,
     )?;
     let show = |set: &str, m: &splat4d::eval::SetMetrics| {

@@ -108,10 +108,11 @@ pub fn pipeline() -> Pipeline {
                 .output_one_of(&render::OUTPUTS)
                 .on_engine()
                 .run(|ctx, config| {
-                    let background = crate::engine_inputs::trained_background(
+                    let background = crate::engine_inputs::trained_record(
                         &ctx.capture.work_dir(),
                         config.train.background,
-                    )?;
+                    )?
+                    .background;
                     render::run(ctx, &config.render, background, &config.engine)
                 }),
             StageDef::new(
@@ -124,7 +125,7 @@ pub fn pipeline() -> Pipeline {
             .outputs(&["metrics.json", "per_frame.csv"])
             .on_engine()
             .run(|ctx, config| {
-                let background = crate::engine_inputs::trained_background(
+                let trained = crate::engine_inputs::trained_record(
                     &ctx.capture.work_dir(),
                     config.train.background,
                 )?;
@@ -132,7 +133,7 @@ pub fn pipeline() -> Pipeline {
                     ctx,
                     &config.eval,
                     &config.capture.heldout,
-                    background,
+                    &trained,
                     &config.engine,
                 )
             }),
@@ -140,10 +141,11 @@ pub fn pipeline() -> Pipeline {
                 .after(&["frames", "poses", "train"])
                 .outputs(&["export.json"])
                 .run(|ctx, config| {
-                    let background = crate::engine_inputs::trained_background(
+                    let background = crate::engine_inputs::trained_record(
                         &ctx.capture.work_dir(),
                         config.train.background,
-                    )?;
+                    )?
+                    .background;
                     export::run(ctx, &config.export, background)
                 }),
         ],

@@ -85,8 +85,26 @@ pub fn run(
 ) -> anyhow::Result<()> {
     let cameras_file = ctx.stage_dir("poses").join("cameras.json");
     ctx.progress.message("loading frames");
-    let dataset = load_dataset(&ctx.stage_dir("frames"), &cameras_file, ctx.progress)?;
+    let mut dataset = load_dataset(&ctx.stage_dir("frames"), &cameras_file, ctx.progress)?;
     let points = initial_points(ctx)?;
+    let exposure = if settings.match_exposure {
+        ctx.progress.message("matching exposure");
+        let gains = splat4d::train::exposure::estimate(&dataset, &points);
+        splat4d::train::exposure::equalise(&mut dataset, &gains);
+        let text: Vec<String> = gains
+            .iter()
+            .map(|g| {
+                format!(
+                    "{} [{:.3}, {:.3}, {:.3}]",
+                    g.camera, g.gain[0], g.gain[1], g.gain[2]
+                )
+            })
+            .collect();
+        tracing::info!("exposure gains (frames divided by): {}", text.join(", "));
+        gains
+    } else {
+        Vec::new()
+    };
     tracing::info!(
         "training on {} views from {} points{}",
         dataset.views.len(),
@@ -133,6 +151,7 @@ pub fn run(
     );
     let record = crate::engine_inputs::TrainRecord {
         background: summary.background,
+        exposure,
     };
     write_json(&ctx.output(crate::engine_inputs::TRAIN_RECORD), &record)
         .context("cannot write train.json")?;

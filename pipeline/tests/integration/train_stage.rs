@@ -1,6 +1,7 @@
 //! The train and export stages on a small simulated capture (sync-audio, 160×120) with an
 //! imported calibration: exact timestamps, the trained model, a clean stop with a
-//! checkpoint that the next run continues bit-identically, and the exports.
+//! checkpoint that the next run continues bit-identically, cameras of unequal exposure
+//! equalised, and the exports.
 //! One test in its own binary: it uses the process-wide stop request.
 
 use crate::common;
@@ -29,7 +30,19 @@ fn only(stage: &str, force: bool) -> Selection {
 fn train_stops_cleanly_resumes_identically_and_exports() {
     let tmp = tempfile::tempdir().unwrap();
     let root = tmp.path().join("capture");
-    let scene = rig::sim::Scene::from_file(&fixture("sync-audio.toml")).unwrap();
+    let mut scene = rig::sim::Scene::from_file(&fixture("sync-audio.toml")).unwrap();
+    // Two cameras film brighter and darker than the others (geometric mean 1): training
+    // sees their frames equalised.
+    let exposures = [1.0, 1.25, 0.8, 1.0];
+    let video: Vec<&mut rig::sim::SimCamera> = scene
+        .cameras
+        .iter_mut()
+        .filter(|c| c.role == rig::sim::CameraRole::Video)
+        .collect();
+    assert_eq!(video.len(), exposures.len());
+    for (cam, e) in video.into_iter().zip(exposures) {
+        cam.exposure = e;
+    }
     simulate::simulate_into(&scene, &root, &Reporter::new(OutputMode::Quiet)).unwrap();
     simulate::write_truth_calibration(&root).unwrap();
     fs::write(
@@ -102,6 +115,21 @@ fn train_stops_cleanly_resumes_identically_and_exports() {
     );
     let model = splat4d::load_model(&root.join("work/train/model.bin")).unwrap();
     assert!(!model.is_empty());
+    // The exposure gains the frames were divided by, measured on the init's static points.
+    let record: engine_inputs::TrainRecord =
+        serde_json::from_str(&fs::read_to_string(root.join("work/train/train.json")).unwrap())
+            .unwrap();
+    assert_eq!(record.exposure.len(), exposures.len());
+    for (g, e) in record.exposure.iter().zip(exposures) {
+        for v in g.gain {
+            assert!(
+                (v as f64 / e - 1.0).abs() < 0.03,
+                "{}: {:?} against {e}",
+                g.camera,
+                g.gain
+            );
+        }
+    }
     assert_eq!(model.time, mapping);
     // What the decay did: the default neural decay's warm-up (500 steps) outlasts the 24
     // steps, so f_θ never trained; the opacity histogram counts every Gaussian.
