@@ -1,13 +1,15 @@
 //! Initial Gaussians from a point cloud (`xyz`, `rgb`, optional time): isotropic spatial
 //! scales from the mean squared distance to the 3 nearest neighbours (a k-d tree), time
-//! uniform over the sequence when the cloud has none, opacity 0.1, DC colour from rgb.
+//! uniform over the sequence when the cloud has none, opacity 0.1, DC colour from rgb;
+//! temporal σ `time_scale_fraction` × the duration, at least a static point's time span, at
+//! most a third of the time between moments for a point seen at one moment.
 //! With `flatness > 0`, points on a locally planar patch of the cloud start as disks in
 //! that plane (normal from the principal axes of their 10 nearest neighbours) instead of
 //! balls: dense point-map clouds sample surfaces, and a ball on a wall smears its colour
 //! over the wall in views the training cameras never saw. With `velocity`, points of
 //! moving objects start moving as the neighbouring moments show ([`super::motion`]).
 
-use super::motion::{moment_velocities, moving_gaussian};
+use super::motion::{moment_spacing, moment_velocities, moving_gaussian};
 use crate::math::numerics::logit;
 use crate::model::{ColourDegrees, Gaussians, TimeMapping};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -15,6 +17,10 @@ use rayon::prelude::*;
 use std::num::NonZero;
 
 pub use shared_types::PointCloud;
+
+/// Longest temporal σ of a point seen at one moment, as a fraction of the time between the
+/// cloud's moments.
+const MOMENT_LIFETIME: f64 = 1.0 / 3.0;
 
 /// Why a point cloud cannot seed a model.
 #[derive(Debug, thiserror::Error)]
@@ -120,7 +126,14 @@ pub fn gaussians_from_points(
         1.0
     };
     let sigma_t = (duration * options.time_scale_fraction).max(1e-6);
-    // Moments closer than 2 % of the clip are one moment.
+    // Moments closer than 2 % of the clip are one moment. A point seen at one moment lives
+    // around it: at most a third of the time to the next moment, so that neighbouring
+    // moments' copies of a moving object do not overlap into ghosts.
+    let sigma_moving = match (&cloud.time, &cloud.time_span) {
+        (Some(t), Some(span)) => moment_spacing(t, span, 0.02 * duration as f32)
+            .map_or(sigma_t, |gap| sigma_t.min(MOMENT_LIFETIME * gap as f64).max(1e-6)),
+        _ => sigma_t,
+    };
     let velocities = match (&cloud.time, &cloud.time_span) {
         (Some(t), Some(span)) if options.velocity => {
             moment_velocities(&cloud.xyz, t, span, 0.02 * duration as f32)
@@ -140,7 +153,12 @@ pub fn gaussians_from_points(
         let rgb = cloud.rgb[i].map(|c| c as f32 / 255.0);
         // A point seen over a span of the clip (static) lives at least that long.
         let span = cloud.time_span.as_ref().map_or(0.0, |s| s[i] as f64);
-        let log_t = sigma_t.max(span).ln() as f32;
+        let sigma = if cloud.time_span.is_some() && span == 0.0 {
+            sigma_moving
+        } else {
+            sigma_t
+        };
+        let log_t = sigma.max(span).ln() as f32;
         let i_new = model.push([x, y, z, t], [s, s, s, log_t], logit_o, rgb);
         if let Some(normal) = normals[i] {
             // The disk's thin axis (local z) along the normal: ql = qr = q rotates in 3D.
@@ -442,5 +460,48 @@ mod tests {
         assert!((sigma_t(1) - 0.4).abs() < 1e-5);
         assert!((sigma_t(2) - 0.4).abs() < 1e-5);
         assert_eq!(g.means[2][3], 0.3);
+    }
+
+    #[test]
+    fn points_of_one_moment_live_a_third_of_the_time_to_the_next() {
+        // Moving points at four moments 0.5 apart, and a static point over the clip.
+        let mut time: Vec<f32> = [0.0f32, 0.5, 1.0, 1.5]
+            .iter()
+            .flat_map(|&t| [t, t + 0.01])
+            .collect();
+        let mut span = vec![0.0f32; time.len()];
+        time.push(1.0);
+        span.push(2.0);
+        let n = time.len();
+        let cloud = PointCloud {
+            xyz: (0..n).map(|i| [i as f32 * 0.1, 0.0, 0.0]).collect(),
+            rgb: vec![[0; 3]; n],
+            time: Some(time),
+            time_span: Some(span),
+        };
+        let tm = TimeMapping {
+            start_seconds: 0.0,
+            units_per_second: 1.0,
+            duration: 2.0,
+        };
+        let sigmas = |fraction: f64| {
+            let options = InitOptions {
+                time_scale_fraction: fraction,
+                ..InitOptions::default()
+            };
+            let g = gaussians_from_points(&cloud, tm, &options).unwrap();
+            (0..n)
+                .map(|i| f64::from(g.log_scales[i][3]).exp())
+                .collect::<Vec<_>>()
+        };
+        // 0.2 × 2.0 = 0.4 is longer than a third of the 0.5 between moments.
+        let s = sigmas(0.2);
+        for v in &s[..n - 1] {
+            assert!((v - 0.5 / 3.0).abs() < 1e-5, "{v}");
+        }
+        assert!((s[n - 1] - 2.0).abs() < 1e-5);
+        // A shorter setting stays.
+        let s = sigmas(0.05);
+        assert!((s[0] - 0.1).abs() < 1e-5, "{}", s[0]);
     }
 }

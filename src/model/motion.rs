@@ -16,22 +16,14 @@ const SMOOTHING: usize = 8;
 /// is taken as no match (the object left the view, or another appeared).
 const MATCH_GATE: f32 = 3.0;
 
-/// Velocity (model units per model time) of each point of `xyz` seen at one moment:
-/// points with `span` 0 at `time`; `None` for static points (span > 0) and where no moment
-/// before or after it has a match. Moments less than `min_gap` apart are one. Needs at
-/// least two moments.
-pub fn moment_velocities(
-    xyz: &[[f32; 3]],
-    time: &[f32],
-    span: &[f32],
-    min_gap: f32,
-) -> Vec<Option<[f32; 3]>> {
-    let n = xyz.len();
-    let mut out = vec![None; n];
-    // The moments: the moving points' times form clusters (one per point-map moment, each
-    // spread by the cameras' sub-frame offsets); a gap over a third of the largest one, and
-    // over `min_gap`, starts the next.
-    let mut moving: Vec<usize> = (0..n).filter(|&i| span[i] == 0.0).collect();
+/// The moments of a cloud's moving points (`span` 0), each the indices of its points in
+/// time order: their times form clusters (one per point-map or swept moment, each spread by
+/// the cameras' sub-frame offsets); a gap over a third of the largest one, and over
+/// `min_gap`, starts the next.
+pub fn moments(time: &[f32], span: &[f32], min_gap: f32) -> Vec<Vec<usize>> {
+    let mut moving: Vec<usize> = (0..time.len().min(span.len()))
+        .filter(|&i| span[i] == 0.0)
+        .collect();
     moving.sort_by(|&a, &b| time[a].total_cmp(&time[b]));
     let largest_gap = moving
         .windows(2)
@@ -46,6 +38,37 @@ pub fn moment_velocities(
         }
         last = time[i];
     }
+    moments
+}
+
+/// The median time between consecutive [`moments`] (by their points' mean times); `None`
+/// with fewer than two moments.
+pub fn moment_spacing(time: &[f32], span: &[f32], min_gap: f32) -> Option<f32> {
+    let centres: Vec<f32> = moments(time, span, min_gap)
+        .iter()
+        .map(|ids| ids.iter().map(|&i| time[i]).sum::<f32>() / ids.len() as f32)
+        .collect();
+    let mut gaps: Vec<f32> = centres.windows(2).map(|w| w[1] - w[0]).collect();
+    if gaps.is_empty() {
+        return None;
+    }
+    gaps.sort_by(f32::total_cmp);
+    Some(gaps[gaps.len() / 2])
+}
+
+/// Velocity (model units per model time) of each point of `xyz` seen at one moment:
+/// points with `span` 0 at `time`; `None` for static points (span > 0) and where no moment
+/// before or after it has a match. Moments less than `min_gap` apart are one. Needs at
+/// least two moments.
+pub fn moment_velocities(
+    xyz: &[[f32; 3]],
+    time: &[f32],
+    span: &[f32],
+    min_gap: f32,
+) -> Vec<Option<[f32; 3]>> {
+    let n = xyz.len();
+    let mut out = vec![None; n];
+    let moments = moments(time, span, min_gap);
     if moments.len() < 2 {
         return out;
     }
@@ -200,6 +223,19 @@ pub fn quaternions_of(r: &Mat4<f64>) -> ([f64; 4], [f64; 4]) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn moment_spacing_is_the_median_gap_between_moment_centres() {
+        // Three moments, each spread by sub-frame offsets, and a static point.
+        let time = [0.0, 0.01, 0.5, 0.51, 1.0, 1.02, 0.7];
+        let span = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+        let moments = moments(&time, &span, 0.02);
+        assert_eq!(moments, vec![vec![0, 1], vec![2, 3], vec![4, 5]]);
+        let gap = moment_spacing(&time, &span, 0.02).unwrap();
+        assert!((gap - 0.505).abs() < 1e-6, "{gap}");
+        // One moment: no spacing.
+        assert_eq!(moment_spacing(&time[..2], &span[..2], 0.02), None);
+    }
     use crate::math::slice::slice;
 
     fn unit(q: [f64; 4]) -> [f64; 4] {
