@@ -129,14 +129,16 @@ pub fn gaussians_from_points(
     // Moments closer than 2 % of the clip are one moment. A point seen at one moment lives
     // around it: at most a third of the time to the next moment, so that neighbouring
     // moments' copies of a moving object do not overlap into ghosts.
+    let min_gap = 0.02 * duration as f32;
     let sigma_moving = match (&cloud.time, &cloud.time_span) {
-        (Some(t), Some(span)) => moment_spacing(t, span, 0.02 * duration as f32)
-            .map_or(sigma_t, |gap| sigma_t.min(MOMENT_LIFETIME * gap as f64).max(1e-6)),
+        (Some(t), Some(span)) => moment_spacing(t, span, min_gap).map_or(sigma_t, |gap| {
+            sigma_t.min(MOMENT_LIFETIME * gap as f64).max(1e-6)
+        }),
         _ => sigma_t,
     };
     let velocities = match (&cloud.time, &cloud.time_span) {
         (Some(t), Some(span)) if options.velocity => {
-            moment_velocities(&cloud.xyz, t, span, 0.02 * duration as f32)
+            moment_velocities(&cloud.xyz, t, span, min_gap)
         }
         _ => vec![None; n],
     };

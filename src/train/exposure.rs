@@ -117,17 +117,23 @@ pub fn estimate(dataset: &Dataset, points: &PointCloud) -> Vec<CameraGain> {
 /// 0..255); views of cameras without a gain are unchanged.
 pub fn equalise(dataset: &mut Dataset, gains: &[CameraGain]) {
     use rayon::prelude::*;
+    // One lookup table per camera and channel: 0..255 divided by the gain.
+    let tables: Vec<(&str, [[u8; 256]; 3])> = gains
+        .iter()
+        .filter(|g| g.gain != [1.0; 3])
+        .map(|g| {
+            let table = std::array::from_fn(|ch| {
+                std::array::from_fn(|v| (v as f32 / g.gain[ch]).round().clamp(0.0, 255.0) as u8)
+            });
+            (g.camera.as_str(), table)
+        })
+        .collect();
     dataset.views.par_iter_mut().for_each(|view| {
-        let Some(g) = gains.iter().find(|g| g.camera == view.camera.name) else {
+        let Some((_, table)) = tables.iter().find(|(name, _)| *name == view.camera.name) else {
             return;
         };
-        let luts: [Vec<u8>; 3] = std::array::from_fn(|ch| {
-            (0..=255u32)
-                .map(|v| (v as f32 / g.gain[ch]).round().clamp(0.0, 255.0) as u8)
-                .collect()
-        });
         for (k, v) in view.image.data.iter_mut().enumerate() {
-            *v = luts[k % 3][*v as usize];
+            *v = table[k % 3][*v as usize];
         }
     });
 }
@@ -265,7 +271,7 @@ mod tests {
             for x in 0..W {
                 let ray = camera.pixel_ray(glam::DVec2::new(x as f64 + 0.5, y as f64 + 0.5));
                 let p = centre + ray * (-centre.z / ray.z);
-                let walker = k % 3 == 0 && x < W / 2;
+                let walker = k.is_multiple_of(3) && x < W / 2;
                 let t = texture(p.x, p.y);
                 for ch in 0..3 {
                     let v = if walker { 0.0 } else { t[ch] * gain[ch] };
