@@ -85,6 +85,7 @@ pub fn split_poses(out_dir: &Path, heldout: &[String], origin: &str) -> anyhow::
         if held {
             file.points_file = None;
             file.num_points = 0;
+            file.stills.clear();
         }
         file
     };
@@ -209,6 +210,7 @@ mod tests {
             },
             points_file: Some("points3d.ply".into()),
             num_points: 7,
+            stills: Vec::new(),
         };
         write_json(&dir.join("cameras.json"), &file).unwrap();
     }

@@ -127,6 +127,10 @@ pub struct InitConfig {
     /// Plane sweep: also sweep level planes and planes facing each camera's side, for
     /// floors and walls seen at a grazing angle (three times the work).
     pub sweep_slanted: bool,
+    /// Plane sweep: also sweep the static scene as the cameras' static plates and the
+    /// stills the poses stage registered show it (each view against its best-placed
+    /// partners): stills see surfaces that only one video camera frames.
+    pub sweep_stills: bool,
     /// Frames per camera, spread over the clip, whose per-pixel median is the camera's
     /// static plate; points of several moments are then told static or moving by where
     /// they land on each moment's moving pixels ([`crate::plates`]). 0: by `static_radius`
@@ -169,6 +173,7 @@ impl Default for InitConfig {
             sweep_min_score: 0.7,
             sweep_min_views: 2,
             sweep_slanted: true,
+            sweep_stills: true,
             min_neighbours: 0,
             plates: 48,
             motion_threshold: crate::plates::MOTION_THRESHOLD,

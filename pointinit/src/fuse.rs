@@ -136,6 +136,29 @@ pub fn cap(points: Vec<FusedPoint>, max: usize, seed: u64) -> Vec<FusedPoint> {
     keep.into_iter().map(|i| points[i]).collect()
 }
 
+/// Keep at most `max` points as [`cap`] does, with the moving points (span 0) given
+/// `moving_share` of the places and the static points the rest; places one side cannot
+/// fill go to the other. Static points first, then moving ones.
+pub fn cap_shared(
+    points: Vec<FusedPoint>,
+    max: usize,
+    moving_share: f64,
+    seed: u64,
+) -> Vec<FusedPoint> {
+    if points.len() <= max {
+        return points;
+    }
+    let (moving, fixed): (Vec<FusedPoint>, Vec<FusedPoint>) =
+        points.into_iter().partition(|p| p.time_span == 0.0);
+    let moving_places =
+        ((max as f64 * moving_share.clamp(0.0, 1.0)).round() as usize).min(moving.len());
+    let static_places = (max - moving_places).min(fixed.len());
+    let moving_places = (max - static_places).min(moving.len());
+    let mut kept = cap(fixed, static_places, seed);
+    kept.extend(cap(moving, moving_places, seed.wrapping_add(1)));
+    kept
+}
+
 /// As a `points.ply` cloud (`time` and `time_span` always present).
 pub fn to_cloud(points: &[FusedPoint]) -> PointCloud {
     PointCloud {
@@ -304,6 +327,37 @@ mod tests {
         let a = cap(many.clone(), 10, 3);
         assert_eq!(a.len(), 10);
         assert_eq!(a, cap(many, 10, 3));
+    }
+
+    #[test]
+    fn the_shared_cap_gives_moving_points_their_share() {
+        let p = |x: f64, span: f64| FusedPoint {
+            xyz: DVec3::new(x, 0.0, 0.0),
+            rgb: [0.0; 3],
+            time: 0.0,
+            time_span: span,
+        };
+        let moving = |ps: &[FusedPoint]| ps.iter().filter(|p| p.time_span == 0.0).count();
+        // 900 static and 100 moving points: a plain cap would keep about 10 % moving.
+        let points: Vec<FusedPoint> = (0..1000)
+            .map(|i| p(i as f64, if i % 10 == 0 { 0.0 } else { 1.0 }))
+            .collect();
+        let kept = cap_shared(points.clone(), 200, 0.3, 7);
+        assert_eq!((kept.len(), moving(&kept)), (200, 60));
+        // Places the moving points cannot fill go to the static ones, and back.
+        let kept = cap_shared(points.clone(), 200, 0.9, 7);
+        assert_eq!((kept.len(), moving(&kept)), (200, 100));
+        let few_static: Vec<FusedPoint> = points
+            .iter()
+            .map(|q| p(q.xyz.x, 0.0))
+            .take(950)
+            .chain(points[1..51].iter().copied())
+            .collect();
+        let kept = cap_shared(few_static, 200, 0.1, 7);
+        assert_eq!(kept.len(), 200);
+        assert_eq!(kept.len() - moving(&kept), 45);
+        // Under the cap nothing is dropped.
+        assert_eq!(cap_shared(points.clone(), 1000, 0.3, 7), points);
     }
 
     #[test]

@@ -4,7 +4,7 @@
 
 use std::path::PathBuf;
 
-use shared_types::CameraSet;
+use shared_types::{Camera, CameraSet};
 
 /// One image of a training camera: its first frame (distorted, at the cameras' working
 /// size) and that frame's time (the model's time axis; written to each point).
@@ -30,6 +30,16 @@ pub struct InitInputs {
     /// Frames of every training camera spread over the clip, for the cameras' static
     /// plates (`[init] plates` of them per camera; empty: no plates).
     pub plate_frames: Vec<ViewImage>,
+    /// Stills of the static scene with their cameras (lens and size their own), for the
+    /// static sweep (`[init] sweep_stills`; empty: none).
+    pub stills: Vec<StillImage>,
+}
+
+/// A still photo of the scene and its camera (`work/poses/cameras.json` → `stills`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct StillImage {
+    pub camera: Camera,
+    pub path: PathBuf,
 }
 
 /// The training cameras' frames at one moment.

@@ -40,7 +40,7 @@ pub mod sweep;
 
 pub use config::{InitConfig, Pairs, PairsKeyword, Source};
 pub use error::InitError;
-pub use inputs::{InitInputs, Moment, ViewImage};
+pub use inputs::{InitInputs, Moment, StillImage, ViewImage};
 pub use moments::MomentReport;
 pub use report::{InitReport, PairReport, UsedSource};
 pub use stage::run_init;

@@ -61,6 +61,11 @@ impl Plates {
         self.plates.is_empty()
     }
 
+    /// Each camera with its plate (the frames' size, the camera's lens).
+    pub fn images(&self) -> &[(Camera, RgbImage)] {
+        &self.plates
+    }
+
     /// The moving masks of `moment`'s frames, one per camera with a plate and a frame.
     fn moment_masks(&self, moment: &Moment) -> Result<Vec<(&Camera, Mask)>, InitError> {
         self.plates

@@ -61,6 +61,10 @@ pub struct InitReport {
     /// Each swept moment (empty when the sweep did not run).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub sweeps: Vec<sweep::SweepReport>,
+    /// The sweep of the static scene in the static plates and the stills (`None`: no
+    /// stills, or `[init] sweep_stills` off).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub still_sweep: Option<sweep::SweepReport>,
     /// Static/moving split of the triangulated points (zero unless triangulated).
     #[serde(default)]
     pub statics: StaticCounts,

@@ -14,18 +14,20 @@ use shared_types::{CameraSet, Progress};
 use crate::config::{InitConfig, Source};
 use crate::error::InitError;
 use crate::fuse::{self, FusedPoint};
-use crate::inputs::{InitInputs, Moment};
+use crate::inputs::{InitInputs, Moment, StillImage};
 use crate::onnx::PointMapModel;
 use crate::pairs::pointmap_points;
 use crate::plates::Plates;
 use crate::report::{InitReport, PlatesReport, UsedSource};
 use crate::statics::{self, StaticCounts};
-use crate::views::{View, load_views};
+use crate::views::{View, load_views, pinhole_view, undistorted};
 use crate::{moment_maps, moments, sweep};
 
 /// Radius (× the voxel edge) within which a swept point needs `[init] min_neighbours`
 /// other points.
 const ISOLATION_RADIUS: f64 = 3.0;
+/// Partners of each view in the sweep of the static scene (plates and stills).
+const STATIC_PARTNERS: usize = 3;
 
 /// Run the init stage: write `<out_dir>/points.ply` and report what was done.
 pub fn run_init(
@@ -256,18 +258,34 @@ pub fn run_init(
             .collect();
         isolated = before - timed.len();
     }
+    let mut still_sweep = None;
+    // The moving points' share of the moments' points, which the cap keeps.
+    let mut moving_share = None;
     if let Some(source) = timed_source {
-        let tags = plate_tags(inputs, config, &timed, chosen, progress)?;
-        let (pts, counts) = split_moments(
-            &timed,
-            chosen,
-            config,
-            &sparse_extra(config, &sparse_xyz, &sparse.rgb),
-            radius,
-            voxel,
-            tags.as_ref().map(|(t, _)| t.as_slice()),
-        );
-        plates_report = tags.map(|(_, r)| r);
+        let plates = plates_of(inputs, config, progress)?;
+        let tagged = match &plates {
+            Some(plates) => Some(plate_tags(
+                plates,
+                inputs.plate_frames.len(),
+                &timed,
+                chosen,
+            )?),
+            None => None,
+        };
+        let tags = tagged.as_ref().map(|(t, _)| t.as_slice());
+        let mut extra = sparse_extra(config, &sparse_xyz, &sparse.rgb);
+        let (mut pts, mut counts) =
+            split_moments(&timed, chosen, config, &extra, radius, voxel, tags);
+        moving_share = Some(counts.dynamic_points as f64 / pts.len().max(1) as f64);
+        if source == UsedSource::Swept && config.sweep_stills && !inputs.stills.is_empty() {
+            // The stills' points join the static ones; the moving points keep the share
+            // of the cap the moments alone give them.
+            let (points, report) = sweep_stills(plates.as_ref(), &inputs.stills, config)?;
+            extra.extend(points);
+            still_sweep = Some(report);
+            (pts, counts) = split_moments(&timed, chosen, config, &extra, radius, voxel, tags);
+        }
+        plates_report = tagged.map(|(_, r)| r);
         raw_points = Some(timed.len() + counts.sparse_merged);
         statics = counts;
         fused = pts;
@@ -329,7 +347,10 @@ pub fn run_init(
         points_before
     };
     let points_after_voxel = downsampled.len();
-    let kept = fuse::cap(downsampled, config.max_points, config.seed);
+    let kept = match moving_share {
+        Some(share) => fuse::cap_shared(downsampled, config.max_points, share, config.seed),
+        None => fuse::cap(downsampled, config.max_points, config.seed),
+    };
     std::fs::create_dir_all(out_dir).map_err(|source| InitError::Io {
         path: out_dir.into(),
         source,
@@ -342,6 +363,7 @@ pub fn run_init(
         pairs,
         moments: moment_reports,
         sweeps,
+        still_sweep,
         statics,
         plates: plates_report,
         isolated,
@@ -354,15 +376,13 @@ pub fn run_init(
     })
 }
 
-/// Static tags of `points` (found at `moments`) from the cameras' static plates, and what
-/// the plates did; `None` when `[init] plates` is 0 or the caller gave no frames for them.
-fn plate_tags(
+/// The cameras' static plates from `[init] plates` frames each; `None` when that is 0 or
+/// the caller gave no frames for them.
+fn plates_of(
     inputs: &InitInputs,
     config: &InitConfig,
-    points: &[statics::TimedPoint],
-    moments: &[Moment],
     progress: &dyn Progress,
-) -> Result<Option<(Vec<bool>, PlatesReport)>, InitError> {
+) -> Result<Option<Plates>, InitError> {
     if config.plates == 0 || inputs.plate_frames.is_empty() {
         return Ok(None);
     }
@@ -372,25 +392,74 @@ fn plate_tags(
         &inputs.plate_frames,
         config.motion_threshold,
     )?;
-    if plates.is_empty() {
-        return Ok(None);
-    }
+    Ok((!plates.is_empty()).then_some(plates))
+}
+
+/// Static tags of `points` (found at `moments`) from the cameras' static `plates` (of
+/// `frames` frames in all), and what the plates did.
+fn plate_tags(
+    plates: &Plates,
+    frames: usize,
+    points: &[statics::TimedPoint],
+    moments: &[Moment],
+) -> Result<(Vec<bool>, PlatesReport), InitError> {
     let (tags, moving_fraction) = plates.static_tags(points, moments)?;
-    let frames_per_camera = inputs.plate_frames.len() / plates.len();
+    let frames_per_camera = frames / plates.len();
     tracing::info!(
         "point init: static plates of {} cameras ({} frames each); {:.1} % of the moments' pixels move",
         plates.len(),
         frames_per_camera,
         100.0 * moving_fraction.iter().sum::<f64>() / moving_fraction.len().max(1) as f64
     );
-    Ok(Some((
+    Ok((
         tags,
         PlatesReport {
             cameras: plates.len(),
             frames_per_camera,
             moving_fraction,
         },
-    )))
+    ))
+}
+
+/// The static scene swept ([`sweep::sweep_static`]) in the cameras' static `plates` and
+/// the `stills`, each view against its [`STATIC_PARTNERS`] best-placed partners: the
+/// confirmed points (coloured) and what the sweep did.
+fn sweep_stills(
+    plates: Option<&Plates>,
+    stills: &[StillImage],
+    config: &InitConfig,
+) -> Result<(Vec<sweep::ColouredPoint>, sweep::SweepReport), InitError> {
+    let start = Instant::now();
+    let mut views = Vec::new();
+    for (camera, plate) in plates.map_or(&[][..], |p| p.images()) {
+        let what = format!("the static plate of {}", camera.name);
+        let (camera, image) = undistorted(camera, plate.clone(), config.fit, &what)?;
+        views.push(View {
+            camera,
+            image,
+            time: 0.0,
+        });
+    }
+    for still in stills {
+        let (camera, image) = pinhole_view(&still.camera, &still.path, config.fit)?;
+        views.push(View {
+            camera,
+            image,
+            time: 0.0,
+        });
+    }
+    let refs: Vec<&View> = views.iter().collect();
+    let (points, mut report) = sweep::sweep_static(&refs, STATIC_PARTNERS, &config.sweep_options());
+    report.seconds = start.elapsed().as_secs_f64();
+    tracing::info!(
+        "point init: the static scene swept in {} plates and {} stills: {} of {} pixels matched, {} confirmed",
+        plates.map_or(0, Plates::len),
+        stills.len(),
+        report.matched,
+        report.pixels,
+        report.points
+    );
+    Ok((points, report))
 }
 
 /// Sweep every moment of `moments` ([`sweep::sweep_moment`]): each moment's report and

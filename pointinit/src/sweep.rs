@@ -43,6 +43,9 @@ const MIN_PLANES: usize = 16;
 /// Pixels the round trip through another camera's depth map may move.
 const PIXEL_TOLERANCE: f64 = 1.0;
 
+/// A swept point: where it is, and its reference pixel's colour (`0..255`).
+pub type ColouredPoint = (DVec3, [f32; 3]);
+
 /// Sweep settings (from `[init]`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SweepOptions {
@@ -371,12 +374,13 @@ fn plane_scores(
         .collect()
 }
 
-/// The depth map of `views[reference]` against every other view (`greys`: each view's
+/// The depth map of `views[reference]` against the views `partners` (`greys`: each view's
 /// [`grey`] image).
 fn depth_map(
     views: &[&View],
     greys: &[Vec<f32>],
     reference: usize,
+    partners: &[usize],
     (target, radius): (DVec3, f64),
     up: Option<DVec3>,
     options: &SweepOptions,
@@ -387,12 +391,10 @@ fn depth_map(
     let stats = Reference::new(ref_img, w, h);
     let rays = rays(&r.camera);
     let origin = r.camera.world_to_camera.centre();
-    let others: Vec<(&Camera, &[f32])> = views
+    let others: Vec<(&Camera, &[f32])> = partners
         .iter()
-        .zip(greys)
-        .enumerate()
-        .filter(|(k, _)| *k != reference)
-        .map(|(_, (v, g))| (&v.camera, g.as_slice()))
+        .filter(|&&k| k != reference)
+        .map(|&k| (&views[k].camera, greys[k].as_slice()))
         .collect();
     let d = target_depth(&r.camera, target, radius);
     let other_cameras: Vec<&Camera> = others.iter().map(|(c, _)| *c).collect();
@@ -522,22 +524,100 @@ fn shrunk(view: &View, size: u32) -> View {
     }
 }
 
-/// Sweep one moment's views: every confirmed depth as a coloured point of moment `moment`
-/// at `time`, and the counts.
+/// Sweep one moment's views (each against every other): every confirmed depth as a
+/// coloured point of moment `moment` at `time`, and the counts.
 pub fn sweep_moment(
     views: &[&View],
     moment: usize,
     time: f64,
     options: &SweepOptions,
 ) -> (Vec<TimedPoint>, SweepReport) {
+    let all: Vec<usize> = (0..views.len()).collect();
+    let (points, report) = sweep_views(views, |_| all.clone(), options);
+    let points = points
+        .into_iter()
+        .map(|(xyz, rgb)| TimedPoint {
+            xyz,
+            rgb,
+            moment,
+            time,
+        })
+        .collect();
+    (points, SweepReport { time, ..report })
+}
+
+/// Sweep views of the static scene (the cameras' static plates and the stills), each
+/// against the `partners` views best placed to match it ([`partners`]): every confirmed
+/// depth as a coloured point, and the counts.
+pub fn sweep_static(
+    views: &[&View],
+    partners: usize,
+    options: &SweepOptions,
+) -> (Vec<ColouredPoint>, SweepReport) {
+    let cameras: Vec<Camera> = views.iter().map(|v| v.camera.clone()).collect();
+    let (target, radius) = (rig_target(&cameras), rig_radius(&cameras));
+    sweep_views(
+        views,
+        |r| self::partners(&cameras, r, partners, (target, radius)),
+        options,
+    )
+}
+
+/// Triangulation angles (degrees) at which a partner view matches a reference best: wide
+/// enough for depth, narrow enough that the surface still looks alike.
+const PARTNER_ANGLES: (f64, f64) = (5.0, 40.0);
+/// Largest angle (degrees) between a partner's viewing direction and the reference's.
+const PARTNER_AXIS_ANGLE: f64 = 60.0;
+
+/// The (at most `count`) cameras that best partner `cameras[reference]` in a sweep:
+/// looking within [`PARTNER_AXIS_ANGLE`] of its direction, and seeing the point it looks
+/// at (at the rig's target depth) under a triangulation angle nearest the middle of
+/// [`PARTNER_ANGLES`] (inside it first).
+pub fn partners(
+    cameras: &[Camera],
+    reference: usize,
+    count: usize,
+    (target, radius): (DVec3, f64),
+) -> Vec<usize> {
+    let r = &cameras[reference];
+    let axis = |c: &Camera| c.world_to_camera.rotation().transpose() * DVec3::Z;
+    let centre = r.world_to_camera.centre();
+    let looked_at = centre + target_depth(r, target, radius) * axis(r);
+    let (lo, hi) = PARTNER_ANGLES;
+    let mut scored: Vec<(f64, usize)> = cameras
+        .iter()
+        .enumerate()
+        .filter(|(k, c)| {
+            *k != reference && axis(c).angle_between(axis(r)).to_degrees() <= PARTNER_AXIS_ANGLE
+        })
+        .map(|(k, c)| {
+            let angle = (centre - looked_at)
+                .angle_between(c.world_to_camera.centre() - looked_at)
+                .to_degrees();
+            let outside = if angle < lo {
+                lo - angle
+            } else {
+                (angle - hi).max(0.0)
+            };
+            (outside * 1e3 + (angle - 0.5 * (lo + hi)).abs(), k)
+        })
+        .collect();
+    scored.sort_by(|a, b| a.0.total_cmp(&b.0));
+    scored.into_iter().take(count).map(|(_, k)| k).collect()
+}
+
+/// Sweep `views`, each reference `r` against the views `partners(r)`: every depth that
+/// another view's depth map confirms as a coloured point, and the counts.
+fn sweep_views(
+    views: &[&View],
+    partners: impl Fn(usize) -> Vec<usize>,
+    options: &SweepOptions,
+) -> (Vec<ColouredPoint>, SweepReport) {
     let small: Vec<View> = views.iter().map(|v| shrunk(v, options.size)).collect();
     let views: Vec<&View> = small.iter().collect();
     let views = views.as_slice();
     let cameras: Vec<Camera> = views.iter().map(|v| v.camera.clone()).collect();
-    let mut report = SweepReport {
-        time,
-        ..SweepReport::default()
-    };
+    let mut report = SweepReport::default();
     if views.len() < 2 {
         return (Vec::new(), report);
     }
@@ -545,7 +625,17 @@ pub fn sweep_moment(
     let greys: Vec<Vec<f32>> = views.iter().map(|v| grey(&v.image)).collect();
     let up = scene_up(&cameras).filter(|_| options.slanted);
     let maps: Vec<DepthMap> = (0..views.len())
-        .map(|r| depth_map(views, &greys, r, (target, radius), up, options))
+        .map(|r| {
+            depth_map(
+                views,
+                &greys,
+                r,
+                &partners(r),
+                (target, radius),
+                up,
+                options,
+            )
+        })
         .collect();
     let mut points = Vec::new();
     for (r, map) in maps.iter().enumerate() {
@@ -568,12 +658,7 @@ pub fn sweep_moment(
             let c = views[r]
                 .image
                 .get_pixel((i % map.width) as u32, (i / map.width) as u32);
-            points.push(TimedPoint {
-                xyz: x,
-                rgb: [c[0] as f32, c[1] as f32, c[2] as f32],
-                moment,
-                time,
-            });
+            points.push((x, [c[0] as f32, c[1] as f32, c[2] as f32]));
         }
     }
     report.points = points.len();
@@ -710,7 +795,7 @@ mod tests {
             slanted,
         };
         let up = scene_up(&cameras).filter(|_| slanted);
-        let map = depth_map(&refs, &greys, 0, (target, 1.0), up, &options);
+        let map = depth_map(&refs, &greys, 0, &[1, 2], (target, 1.0), up, &options);
         let truth = &views[0].1;
         let mut errors: Vec<f64> = map
             .depth
@@ -746,6 +831,69 @@ mod tests {
             "fronto-parallel only: {fronto} pixels (median error {fronto_error:.4}); \
              with level planes: {slanted} pixels (median error {slanted_error:.4})"
         );
+    }
+
+    #[test]
+    fn partners_see_what_the_reference_looks_at_from_a_useful_angle() {
+        let intr = shared_types::Intrinsics::from_hfov(64, 48, 60.0);
+        let target = DVec3::ZERO;
+        // Camera k at `degrees` around the target, 3 m away, looking at it.
+        let around = |degrees: f64| {
+            let a = degrees.to_radians();
+            let eye = DVec3::new(3.0 * a.sin(), -3.0 * a.cos(), 0.0);
+            calib::test_support::looking_at("c", intr, eye, target)
+        };
+        let away = calib::test_support::looking_at(
+            "away",
+            intr,
+            DVec3::new(0.5, -3.0, 0.0),
+            DVec3::new(0.5, -6.0, 0.0),
+        );
+        // 0°: the reference; then 20° (inside the useful angles), 2° (too close), 60°
+        // (too wide), and a camera beside the reference looking the other way.
+        let cameras = [around(0.0), around(60.0), around(2.0), away, around(20.0)];
+        assert_eq!(partners(&cameras, 0, 2, (target, 1.0)), [4, 2]);
+        assert_eq!(partners(&cameras, 0, 9, (target, 1.0)), [4, 2, 1]);
+    }
+
+    #[test]
+    fn the_static_sweep_confirms_a_floor_seen_by_a_video_camera_and_a_still() {
+        let target = DVec3::new(0.0, 2.0, 0.0);
+        // A video camera and a still of another size, 0.5 m to its side.
+        let video = calib::test_support::looking_at(
+            "cam0",
+            shared_types::Intrinsics::from_hfov(160, 120, 60.0),
+            DVec3::new(-0.2, 0.0, 0.6),
+            target,
+        );
+        let still = calib::test_support::looking_at(
+            "still.jpg",
+            shared_types::Intrinsics::from_hfov(200, 150, 55.0),
+            DVec3::new(0.2, 0.0, 0.65),
+            target,
+        );
+        let (a, _) = floor_view(&video);
+        let (b, _) = floor_view(&still);
+        let options = SweepOptions {
+            size: 160,
+            max_planes: 256,
+            min_score: 0.7,
+            min_views: 2,
+            slanted: true,
+        };
+        let (points, report) = sweep_static(&[&a, &b], 1, &options);
+        assert_eq!(report.points, points.len());
+        // Both views shrunk to 160 px on their long side.
+        assert_eq!(report.pixels, 160 * 120 * 2);
+        let mut heights: Vec<f64> = points.iter().map(|(x, _)| x.z.abs()).collect();
+        heights.sort_by(f64::total_cmp);
+        let median = heights[heights.len() / 2];
+        eprintln!(
+            "{} points, median height above the floor {median:.4} m",
+            points.len()
+        );
+        assert!(points.len() > report.pixels / 20, "{report:?}");
+        assert!(median < 0.005, "{median}");
     }
 
     #[test]

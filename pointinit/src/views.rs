@@ -79,12 +79,23 @@ pub(crate) fn pinhole_view(
     fit: Fit,
 ) -> Result<(Camera, RgbImage), InitError> {
     let rgb = read_frame(cam, path)?;
+    undistorted(cam, rgb, fit, &path.display().to_string())
+}
+
+/// `image` of `cam` undistorted to the camera's pinhole twin when it has a lens, with
+/// that pinhole camera; `what` names the image in an error.
+pub(crate) fn undistorted(
+    cam: &Camera,
+    image: RgbImage,
+    fit: Fit,
+    what: &str,
+) -> Result<(Camera, RgbImage), InitError> {
     if cam.distortion.is_none() {
-        return Ok((cam.clone(), rgb));
+        return Ok((cam.clone(), image));
     }
     let map = UndistortMap::new(cam, fit);
     let out = map
-        .apply(&rgb)
-        .map_err(|e| InitError::Config(format!("undistorting {}: {e}", path.display())))?;
+        .apply(&image)
+        .map_err(|e| InitError::Config(format!("undistorting {what}: {e}")))?;
     Ok((map.pinhole().clone(), out))
 }

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
-use shared_types::CameraSet;
+use shared_types::{Camera, CameraSet};
 
 use super::error::PosesError;
 use super::normalise::Normalisation;
@@ -35,6 +35,11 @@ pub struct PosesFile {
     /// `points3d.ply` beside this file (normalised frame), if there are points.
     pub points_file: Option<String>,
     pub num_points: usize,
+    /// The stills the solve registered, each named by its file name in `stills/`, with
+    /// its own lens and size (normalised frame): more views of the static scene for the
+    /// init's sweep. Empty for an imported calibration.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub stills: Vec<Camera>,
 }
 
 impl PosesFile {

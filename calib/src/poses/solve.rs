@@ -15,7 +15,7 @@ use crate::colmap::{ColmapCamera, ColmapModel};
 use crate::colmap_runner::diagnose::Diagnosis;
 use crate::colmap_runner::quality::{self, Degeneracy, QualityLimits};
 use crate::colmap_runner::{
-    ColmapError, MatchGraph, StillsCameras, VideoCameras, Workspace, find_colmap,
+    ColmapError, MatchGraph, StillsCameras, VideoCameras, Workspace, WorkspaceImage, find_colmap,
 };
 use crate::convert;
 
@@ -163,6 +163,7 @@ pub fn solve(
         }
         progress.finish();
         let (cameras, points) = cameras_from_model(model, &video, inputs.working_size)?;
+        let stills = still_cameras(model, &ws.images)?;
         let rel_model = model_dir
             .strip_prefix(out_dir)
             .unwrap_or(model_dir)
@@ -173,7 +174,7 @@ pub fn solve(
             registered_images: model.images.len(),
             timings,
         };
-        return write_outputs(out_dir, cameras, points, source, config.radius);
+        return write_outputs(out_dir, cameras, points, stills, source, config.radius);
     }
     progress.finish();
     Err(match last_error {
@@ -226,6 +227,23 @@ pub fn pick_model(
         .filter(|g| !g.is_empty())
         .collect();
     Err(PosesError::SplitModels { groups, diagnosis })
+}
+
+/// The registered stills among the workspace's `images` as cameras of `model` (COLMAP's
+/// frame), each named by its file name, at its own size and lens.
+fn still_cameras(
+    model: &ColmapModel,
+    images: &[WorkspaceImage],
+) -> Result<Vec<Camera>, PosesError> {
+    images
+        .iter()
+        .filter(|i| i.video_camera.is_none())
+        .filter_map(|i| {
+            let name = i.source.file_name()?.to_string_lossy().into_owned();
+            let image = model.image_by_name(&i.colmap_name)?;
+            Some(convert::camera_from_image(model, image, &name).map_err(PosesError::from))
+        })
+        .collect()
 }
 
 /// Engine cameras for the video cameras (names, COLMAP image names) of a COLMAP model, with

@@ -60,7 +60,7 @@ pub fn write_imported(
     let source = PoseSource::Import {
         path: from.to_path_buf(),
     };
-    write_outputs(out_dir, cameras, Vec::new(), source, radius)
+    write_outputs(out_dir, cameras, Vec::new(), Vec::new(), source, radius)
 }
 
 /// Intrinsics for the working size: a resize (same aspect ratio up to a pixel of rounding)
@@ -85,24 +85,29 @@ pub fn scale_intrinsics(
     }
 }
 
-/// Normalise `cameras` and `points` (the video cameras at mean distance `radius` from
-/// their centre) and write `points3d.ply` (when there are points) and `cameras.json`.
+/// Normalise `cameras`, `points` and `stills` (the video cameras at mean distance
+/// `radius` from their centre) and write `points3d.ply` (when there are points) and
+/// `cameras.json`.
 pub(super) fn write_outputs(
     out_dir: &Path,
     cameras: Vec<Camera>,
     points: Vec<SparsePoint>,
+    stills: Vec<Camera>,
     source: PoseSource,
     radius: f64,
 ) -> Result<PosesOutput, PosesError> {
     let xyz: Vec<DVec3> = points.iter().map(|p| DVec3::from_array(p.xyz)).collect();
     let norm = normalisation_for(&cameras, &xyz, radius);
-    let cameras: Vec<Camera> = cameras
-        .into_iter()
-        .map(|c| Camera {
-            world_to_camera: norm.apply_to_pose(&c.world_to_camera),
-            ..c
-        })
-        .collect();
+    let normalised = |cameras: Vec<Camera>| -> Vec<Camera> {
+        cameras
+            .into_iter()
+            .map(|c| Camera {
+                world_to_camera: norm.apply_to_pose(&c.world_to_camera),
+                ..c
+            })
+            .collect()
+    };
+    let (cameras, stills) = (normalised(cameras), normalised(stills));
     let points: Vec<SparsePoint> = points
         .into_iter()
         .map(|p| SparsePoint {
@@ -129,6 +134,7 @@ pub(super) fn write_outputs(
         source,
         points_file: points_ply.as_ref().map(|_| "points3d.ply".to_string()),
         num_points: points.len(),
+        stills,
     };
     let cameras_json = out_dir.join("cameras.json");
     shared_types::atomic::write_json(&cameras_json, &file).map_err(|source| PosesError::Io {
@@ -209,6 +215,16 @@ mod tests {
             ),
             ..cam.clone()
         };
+        // A still 1 m beyond cam1 (cameras at 0 and 2 m, 1 m from their centre: scale 1).
+        let still = Camera {
+            name: "still_00.jpg".into(),
+            intrinsics: Intrinsics::from_hfov(80, 60, 50.0),
+            world_to_camera: WorldToCamera::from_parts(
+                glam::DMat3::IDENTITY,
+                glam::DVec3::new(-3.0, 0.0, 0.0),
+            ),
+            ..cam.clone()
+        };
         let out = write_outputs(
             &dir,
             vec![cam, other],
@@ -216,6 +232,7 @@ mod tests {
                 xyz: [1.0, 0.0, 3.0],
                 rgb: [9, 9, 9],
             }],
+            vec![still],
             PoseSource::Import {
                 path: "x.json".into(),
             },
@@ -225,6 +242,14 @@ mod tests {
         let back = PosesFile::read(&out.cameras_json).unwrap();
         assert_eq!(back.normalisation, out.file.normalisation);
         assert_eq!(back.num_points, 1);
+        // The still in the cameras' normalised frame: 3 m from cam0 → 3 units.
+        assert_eq!(back.stills.len(), 1);
+        let (c0, s0) = (
+            back.set.cameras[0].world_to_camera.centre(),
+            back.stills[0].world_to_camera.centre(),
+        );
+        assert!(((s0 - c0).length() - 3.0).abs() < 1e-9, "{c0} {s0}");
+        assert_eq!(back.stills[0].intrinsics.width, 80);
         let set: CameraSet =
             serde_json::from_str(&std::fs::read_to_string(&out.cameras_json).unwrap()).unwrap();
         assert_eq!(set.cameras.len(), 2);

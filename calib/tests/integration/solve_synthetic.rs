@@ -2,7 +2,7 @@
 
 use crate::common;
 
-use calib::poses::{self, PosesConfig, PosesError, PosesInputs};
+use calib::poses::{self, PosesConfig, PosesError, PosesFile, PosesInputs};
 use shared_types::{CameraSet, Distortion, NoProgress};
 
 #[test]
@@ -100,6 +100,29 @@ fn solves_the_rendered_rig_within_half_a_degree() {
     }
     assert!(out.file.num_points > 100);
     assert!(out.points_ply.as_ref().unwrap().is_file());
+    // The stills are posed too, named by their files, in the same normalised frame: the
+    // video cameras' similarity to the truth puts each still where it was filmed.
+    let file_name = |p: &std::path::Path| p.file_name().unwrap().to_string_lossy().into_owned();
+    let mut stills = PosesFile::read(&out.cameras_json).unwrap().stills;
+    stills.sort_by(|a, b| a.name.cmp(&b.name));
+    let mut names: Vec<String> = rig.still_paths.iter().map(|p| file_name(p)).collect();
+    names.sort();
+    assert_eq!(
+        stills.iter().map(|c| c.name.clone()).collect::<Vec<_>>(),
+        names
+    );
+    let (similarity, _, radius) = calib::similarity::compare(cams, &rig.video).unwrap();
+    for (path, truth) in rig.still_paths.iter().zip(&rig.stills) {
+        let still = stills.iter().find(|c| c.name == file_name(path)).unwrap();
+        assert_eq!(
+            (still.intrinsics.width, still.intrinsics.height),
+            (480, 360)
+        );
+        let error = (similarity.apply(still.world_to_camera.centre())
+            - truth.world_to_camera.centre())
+        .length();
+        assert!(error < 0.02 * radius, "{}: {error}", still.name);
+    }
 }
 
 fn inputs_for(rig: &common::RenderedRig) -> PosesInputs {

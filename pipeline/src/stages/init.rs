@@ -8,8 +8,9 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use calib::poses::PosesFile;
-use pointinit::{InitConfig, InitInputs, Moment, ViewImage};
+use pointinit::{InitConfig, InitInputs, Moment, StillImage, ViewImage};
 use rig::frames::FramesIndex;
+use shared_types::Camera;
 use shared_types::atomic::write_json;
 
 use crate::engine_inputs::time_mapping;
@@ -80,12 +81,14 @@ pub fn run(ctx: &StageContext, settings: &InitSettings) -> anyhow::Result<()> {
         .into_iter()
         .flat_map(|i| views_of(&index.frames[i]))
         .collect();
+    let stills = stills_of(&poses.stills, &ctx.capture.stills);
     let inputs = InitInputs {
         cameras: poses.set,
         images,
         sparse,
         moments,
         plate_frames,
+        stills,
     };
     let mut report = pointinit::run_init(&inputs, &config, &ctx.out_dir, ctx.progress)?;
     // Recorded relative to work/init/: the stage is built in a temporary folder.
@@ -94,6 +97,30 @@ pub fn run(ctx: &StageContext, settings: &InitSettings) -> anyhow::Result<()> {
     }
     write_json(&ctx.output("init.json"), &report).context("cannot write init.json")?;
     Ok(())
+}
+
+/// The stills the poses stage registered (`cameras`, named by file name) with their files
+/// among the capture's `stills/` (`files`); a still whose file is gone is left out, with a
+/// warning.
+fn stills_of(cameras: &[Camera], files: &[PathBuf]) -> Vec<StillImage> {
+    cameras
+        .iter()
+        .filter_map(|camera| {
+            let file = files
+                .iter()
+                .find(|f| f.file_name().is_some_and(|n| *n == *camera.name));
+            if file.is_none() {
+                tracing::warn!(
+                    "the still {} was posed but is no longer in stills/; the init sweeps without it",
+                    camera.name
+                );
+            }
+            file.map(|path| StillImage {
+                camera: camera.clone(),
+                path: path.clone(),
+            })
+        })
+        .collect()
 }
 
 /// Indices into `index.frames` of the moments: the aligned frames with exported point maps
@@ -138,7 +165,11 @@ pub fn moment_frames(frames: usize, count: usize) -> Vec<usize> {
 
 #[cfg(test)]
 mod tests {
-    use super::moment_frames;
+    use std::path::PathBuf;
+
+    use shared_types::{Camera, Distortion, Intrinsics, WorldToCamera};
+
+    use super::{moment_frames, stills_of};
 
     #[test]
     fn moments_are_spread_over_the_frames_and_clamped() {
@@ -147,5 +178,25 @@ mod tests {
         assert_eq!(moment_frames(10, 1), [0]);
         assert!(moment_frames(0, 6).is_empty());
         assert!(moment_frames(10, 0).is_empty());
+    }
+
+    #[test]
+    fn posed_stills_are_found_by_file_name_and_missing_ones_left_out() {
+        let still = |name: &str| Camera {
+            name: name.into(),
+            intrinsics: Intrinsics::from_hfov(64, 48, 60.0),
+            distortion: Distortion::None,
+            world_to_camera: WorldToCamera::IDENTITY,
+        };
+        let files = [
+            PathBuf::from("/c/stills/a.jpg"),
+            PathBuf::from("/c/stills/b.png"),
+        ];
+        let found = stills_of(&[still("b.png"), still("gone.jpg"), still("a.jpg")], &files);
+        let got: Vec<(&str, &PathBuf)> = found
+            .iter()
+            .map(|s| (s.camera.name.as_str(), &s.path))
+            .collect();
+        assert_eq!(got, [("b.png", &files[1]), ("a.jpg", &files[0])]);
     }
 }

@@ -78,6 +78,7 @@ fn without_point_maps_the_sparse_points_are_used_then_a_random_cloud() {
         sparse: Some(sparse),
         moments: vec![],
         plate_frames: Vec::new(),
+        stills: Vec::new(),
     };
     let out = tmp.path().join("init");
     let exact = InitConfig {
@@ -148,6 +149,7 @@ fn bad_settings_and_inputs_are_typed_errors() {
         sparse: None,
         moments: vec![],
         plate_frames: Vec::new(),
+        stills: Vec::new(),
     };
     let out = tmp.path().join("init");
     let onnx = InitConfig {

@@ -140,6 +140,7 @@ fn the_whole_path_recovers_the_scale_and_the_predicted_points() {
         sparse: None,
         moments: vec![],
         plate_frames: Vec::new(),
+        stills: Vec::new(),
     };
     let out = tmp.path().join("init");
     let report = run_init(&inputs, &init_config(fixture()), &out, &NoProgress).unwrap();
@@ -194,6 +195,7 @@ fn the_model_runs_at_each_moment_and_a_still_scene_is_static() {
         sparse: None,
         moments: vec![moment(0, 0.0), moment(9, 1.0)],
         plate_frames: Vec::new(),
+        stills: Vec::new(),
     };
     let out = tmp.path().join("init");
     let config = InitConfig {
@@ -294,6 +296,7 @@ fn corrupt_and_missing_models_are_typed_errors() {
         sparse: None,
         moments: vec![],
         plate_frames: Vec::new(),
+        stills: Vec::new(),
     };
     let out = tmp.path().join("init");
     let e = run_init(&inputs, &init_config(p), &out, &NoProgress).unwrap_err();

@@ -166,6 +166,7 @@ fn inputs(t: &Truth, sparse: bool) -> InitInputs {
         sparse: sparse.then(|| t.sparse.clone()),
         moments: vec![],
         plate_frames: Vec::new(),
+        stills: Vec::new(),
     }
 }
 
@@ -376,6 +377,7 @@ fn point_maps_of_several_moments_split_static_from_moving() {
     let inputs = InitInputs {
         moments: moments.clone(),
         plate_frames: Vec::new(),
+        stills: Vec::new(),
         ..inputs(t, false)
     };
     let out = t.dir.join("out_moments");

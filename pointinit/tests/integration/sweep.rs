@@ -7,7 +7,7 @@ use crate::common;
 
 use common::sim_moments::{FPS, median, moments, on_moving_mask, simulate, surface_distance};
 use glam::DVec3;
-use pointinit::{InitConfig, InitInputs, Source, UsedSource, run_init};
+use pointinit::{InitConfig, InitInputs, Source, StillImage, UsedSource, run_init};
 use shared_types::NoProgress;
 
 /// Aligned frames used as moments (tiny: 15 frames at 15 fps, cameras start together).
@@ -22,6 +22,7 @@ fn swept_points_lie_on_the_true_surfaces_and_moving_ones_on_the_moving_objects()
         sparse: None,
         moments: moments(&c, &FRAMES),
         plate_frames: Vec::new(),
+        stills: Vec::new(),
     };
     let config = InitConfig {
         source: Source::Sweep,
@@ -104,4 +105,89 @@ fn swept_points_lie_on_the_true_surfaces_and_moving_ones_on_the_moving_objects()
     );
     assert!(report.moments.is_empty(), "{:?}", report.moments);
     assert!(report.points_written > 20_000, "{}", report.points_written);
+}
+
+#[test]
+fn stills_add_static_points_on_the_true_surfaces() {
+    let c = simulate();
+    let gt: shared_types::CameraSet = serde_json::from_str(
+        &std::fs::read_to_string(c.dir.join("capture/groundtruth/cameras.json")).unwrap(),
+    )
+    .unwrap();
+    let stills: Vec<StillImage> = gt
+        .cameras
+        .iter()
+        .filter(|cam| cam.name.starts_with("still"))
+        .map(|cam| StillImage {
+            camera: cam.clone(),
+            path: c.dir.join(format!("capture/stills/{}.jpg", cam.name)),
+        })
+        .collect();
+    assert!(stills.len() >= 4, "{}", stills.len());
+    let moments = moments(&c, &FRAMES);
+    // The two moments' frames make each camera's static plate.
+    let plate_frames = moments.iter().flat_map(|m| m.views.clone()).collect();
+    let inputs = InitInputs {
+        cameras: c.cameras.clone(),
+        images: vec![],
+        sparse: None,
+        moments,
+        plate_frames,
+        stills,
+    };
+    let config = InitConfig {
+        source: Source::Sweep,
+        moments: FRAMES.len(),
+        sweep_size: 160,
+        ..InitConfig::default()
+    };
+    let out = c.dir.join("init-stills");
+    let report = run_init(&inputs, &config, &out, &NoProgress).unwrap();
+    let still_sweep = report.still_sweep.clone().expect("the stills were swept");
+    eprintln!("{still_sweep:?}; {:?}", report.statics);
+    // The stills' points are static extras, dropped only beside a moving point.
+    let s = &report.statics;
+    assert!(still_sweep.points > 10_000, "{still_sweep:?}");
+    assert_eq!(s.sparse_merged + s.sparse_dropped, still_sweep.points);
+    assert!(s.sparse_dropped < still_sweep.points / 10, "{s:?}");
+    // Static points' (count, median distance to the true surfaces, share within 3 cm).
+    let triangles = rig::sim::surface_triangles(&c.scene, 0.0);
+    let accuracy = |dir: &std::path::Path| {
+        let cloud = shared_types::points::read_points_ply(&dir.join("points.ply")).unwrap();
+        let spans = cloud.time_span.unwrap();
+        let statics: Vec<f64> = (0..cloud.xyz.len())
+            .filter(|&i| spans[i] > 0.0)
+            .map(|i| surface_distance(&triangles, DVec3::from_array(cloud.xyz[i].map(f64::from))))
+            .collect();
+        let near = statics.iter().filter(|d| **d < 0.03).count() as f64 / statics.len() as f64;
+        (statics.len(), median(statics), near)
+    };
+    // Without the stills the same moments give fewer static points, as accurate.
+    let without_dir = c.dir.join("init-no-stills");
+    let without = run_init(
+        &InitInputs {
+            stills: Vec::new(),
+            ..inputs
+        },
+        &config,
+        &without_dir,
+        &NoProgress,
+    )
+    .unwrap();
+    assert!(without.still_sweep.is_none());
+    let (n, med, near) = accuracy(&out);
+    let (n0, med0, near0) = accuracy(&without_dir);
+    eprintln!(
+        "static points: {n} with the stills, median {med:.4} m from the true surfaces, {:.1} % within 3 cm; \
+         {n0} without, {med0:.4} m, {:.1} %",
+        100.0 * near,
+        100.0 * near0
+    );
+    assert!(
+        n as f64 > 1.3 * n0 as f64,
+        "{n} with the stills, {n0} without"
+    );
+    // The stills' points are a little less accurate than the moments' (at this size the
+    // stills' partners are closer together than the rig's cameras), still on the surfaces.
+    assert!(med < 0.02 && near > 0.7, "{med} {near}");
 }

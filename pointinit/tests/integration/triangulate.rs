@@ -35,6 +35,7 @@ fn moments_triangulated_with_true_cameras_lie_on_the_true_surfaces() {
         sparse: None,
         moments: moments(&c, &FRAMES),
         plate_frames: Vec::new(),
+        stills: Vec::new(),
     };
     let config = InitConfig {
         source: Source::Triangulate,
