@@ -33,7 +33,8 @@ pub struct StaticCounts {
     /// Moving points before and after the per-moment voxel downsampling.
     pub dynamic_tagged: usize,
     pub dynamic_points: usize,
-    /// Sparse points merged in as static, and those dropped beside a moving point.
+    /// Extra static points (the pose solve's sparse points, the stills' sweep) merged in,
+    /// and those dropped beside a moving point.
     pub sparse_merged: usize,
     pub sparse_dropped: usize,
 }
