@@ -263,23 +263,18 @@ pub fn run_init(
     let mut moving_share = None;
     if let Some(source) = timed_source {
         let plates = plates_of(inputs, config, progress)?;
-        let tagged = match &plates {
-            Some(plates) => Some(plate_tags(
-                plates,
-                inputs.plate_frames.len(),
-                &timed,
-                chosen,
-            )?),
-            None => None,
-        };
+        let tagged = plates
+            .as_ref()
+            .map(|p| plate_tags(p, inputs.plate_frames.len(), &timed, chosen))
+            .transpose()?;
         let tags = tagged.as_ref().map(|(t, _)| t.as_slice());
         let mut extra = sparse_extra(config, &sparse_xyz, &sparse.rgb);
         let (mut pts, mut counts) =
             split_moments(&timed, chosen, config, &extra, radius, voxel, tags);
         moving_share = Some(counts.dynamic_points as f64 / pts.len().max(1) as f64);
         if source == UsedSource::Swept && config.sweep_stills && !inputs.stills.is_empty() {
-            // The stills' points join the static ones; the moving points keep the share
-            // of the cap the moments alone give them.
+            // The stills' points join the static ones (split again, a second's work);
+            // the moving points keep the share of the cap the moments alone give them.
             let (points, report) = sweep_stills(plates.as_ref(), &inputs.stills, config)?;
             extra.extend(points);
             still_sweep = Some(report);

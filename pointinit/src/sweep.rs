@@ -532,8 +532,7 @@ pub fn sweep_moment(
     time: f64,
     options: &SweepOptions,
 ) -> (Vec<TimedPoint>, SweepReport) {
-    let all: Vec<usize> = (0..views.len()).collect();
-    let (points, report) = sweep_views(views, |_| all.clone(), options);
+    let (points, report) = sweep_views(views, None, options);
     let points = points
         .into_iter()
         .map(|(xyz, rgb)| TimedPoint {
@@ -554,13 +553,7 @@ pub fn sweep_static(
     partners: usize,
     options: &SweepOptions,
 ) -> (Vec<ColouredPoint>, SweepReport) {
-    let cameras: Vec<Camera> = views.iter().map(|v| v.camera.clone()).collect();
-    let (target, radius) = (rig_target(&cameras), rig_radius(&cameras));
-    sweep_views(
-        views,
-        |r| self::partners(&cameras, r, partners, (target, radius)),
-        options,
-    )
+    sweep_views(views, Some(partners), options)
 }
 
 /// Triangulation angles (degrees) at which a partner view matches a reference best: wide
@@ -606,11 +599,12 @@ pub fn partners(
     scored.into_iter().take(count).map(|(_, k)| k).collect()
 }
 
-/// Sweep `views`, each reference `r` against the views `partners(r)`: every depth that
-/// another view's depth map confirms as a coloured point, and the counts.
+/// Sweep `views`, each against every other view, or against its `partners` best-placed
+/// ones ([`partners`]): every depth that another view's depth map confirms as a coloured
+/// point, and the counts.
 fn sweep_views(
     views: &[&View],
-    partners: impl Fn(usize) -> Vec<usize>,
+    partners: Option<usize>,
     options: &SweepOptions,
 ) -> (Vec<ColouredPoint>, SweepReport) {
     let small: Vec<View> = views.iter().map(|v| shrunk(v, options.size)).collect();
@@ -626,15 +620,11 @@ fn sweep_views(
     let up = scene_up(&cameras).filter(|_| options.slanted);
     let maps: Vec<DepthMap> = (0..views.len())
         .map(|r| {
-            depth_map(
-                views,
-                &greys,
-                r,
-                &partners(r),
-                (target, radius),
-                up,
-                options,
-            )
+            let others = match partners {
+                Some(count) => self::partners(&cameras, r, count, (target, radius)),
+                None => (0..views.len()).collect(),
+            };
+            depth_map(views, &greys, r, &others, (target, radius), up, options)
         })
         .collect();
     let mut points = Vec::new();
