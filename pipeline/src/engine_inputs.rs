@@ -215,6 +215,24 @@ pub struct TrainRecord {
     /// (`splat4d::train::exposure`; empty: the frames as filmed).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub exposure: Vec<splat4d::train::exposure::CameraGain>,
+    /// The model was trained on a learned backdrop (`[train] background = "learned"`,
+    /// `work/train/backdrop.bin`), drawn behind it with `background` only as its start.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub backdrop: bool,
+}
+
+impl TrainRecord {
+    /// The learned backdrop the model was trained on, when it was.
+    pub fn load_backdrop(
+        &self,
+        work_dir: &Path,
+    ) -> anyhow::Result<Option<splat4d::render::backdrop::Backdrop>> {
+        if !self.backdrop {
+            return Ok(None);
+        }
+        let path = work_dir.join("train").join(splat4d::train::BACKDROP_FILE);
+        Ok(Some(splat4d::render::backdrop::load_backdrop(&path)?))
+    }
 }
 
 /// Where the train stage records its [`TrainRecord`].
@@ -242,9 +260,10 @@ pub fn trained_record(
             splat4d::train::Background::Colour(c) => Ok(TrainRecord {
                 background: c,
                 exposure: Vec::new(),
+                backdrop: false,
             }),
-            splat4d::train::Background::Mean => bail!(
-                "{} is missing, so the mean-colour background the model was trained on is unknown; rerun the train stage (`pipeline run DIR --only train --force`)",
+            splat4d::train::Background::Mean | splat4d::train::Background::Learned => bail!(
+                "{} is missing, so the background the model was trained on is unknown; rerun the train stage (`pipeline run DIR --only train --force`)",
                 path.display()
             ),
         },

@@ -304,8 +304,8 @@ fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
         pipeline::engine_inputs::render_backend(args.backend.unwrap_or(config.engine.backend))?;
     let work = capture.work_dir();
     let model = pipeline::engine_inputs::load_trained_model(&work)?;
-    let background =
-        pipeline::engine_inputs::trained_record(&work, config.train.background)?.background;
+    let trained = pipeline::engine_inputs::trained_record(&work, config.train.background)?;
+    let backdrop = trained.load_backdrop(&work)?;
     let (index, cameras, heldout) = pipeline::stages::render::path_cameras(&work)?;
     let video = args
         .out
@@ -330,7 +330,8 @@ fn render(args: RenderArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
         let frames = pipeline::stages::render::render(
             backend.as_ref(),
             &model,
-            background,
+            trained.background,
+            backdrop.as_ref(),
             &cameras,
             &heldout,
             &settings,

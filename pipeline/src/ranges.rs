@@ -116,6 +116,7 @@ pub const RANGES: &[(&str, Range)] = &[
     ("train.seed", COUNT),
     ("train.lambda_ssim", FRACTION),
     ("train.background", FRACTION),
+    ("train.backdrop_size", within(16.0, 8192.0)),
     ("train.colour_degrees.spatial", within(0.0, 3.0)),
     ("train.colour_degrees.temporal", within(0.0, 2.0)),
     ("train.degree_every", SOME),

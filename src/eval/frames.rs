@@ -11,6 +11,7 @@ use super::images::{alpha8, depth_colour, depth_range, rgb8, write_png};
 use crate::camera::Camera;
 use crate::model::Gaussians;
 use crate::progress::Progress;
+use crate::render::backdrop::Backdrop;
 use crate::render::{RenderBackend, RenderOptions};
 
 /// Which images to write for every frame.
@@ -54,7 +55,8 @@ pub struct RenderedPath {
     pub depth_range: Option<(f32, f32)>,
 }
 
-/// Render every `(camera, model time)` of `path` on `background` into `out_dir`
+/// Render every `(camera, model time)` of `path` on `background` (or the learned
+/// `backdrop` the model was trained on) into `out_dir`
 /// (`rgb/`, `depth/`, `alpha/` as asked, frames `000000.png`, …), giving each colour
 /// frame to `sink` when there is one. Each PNG is written under a temporary name first.
 #[allow(clippy::too_many_arguments)]
@@ -65,11 +67,16 @@ pub fn render_path(
     out_dir: &Path,
     outputs: FrameOutputs,
     background: [f32; 3],
+    backdrop: Option<&Backdrop>,
     progress: &dyn Progress,
     mut sink: Option<FrameSink<'_>>,
 ) -> Result<RenderedPath, EvalError> {
     let options = RenderOptions {
-        background,
+        background: if backdrop.is_some() {
+            [0.0; 3]
+        } else {
+            background
+        },
         ..RenderOptions::default()
     };
     let mut folders = Vec::new();
@@ -90,12 +97,15 @@ pub fn render_path(
     progress.start(path.len() as u64, "frames");
     let mut range = None;
     for (i, (camera, t)) in path.iter().enumerate() {
-        let r = backend
+        let mut r = backend
             .render(model, camera, *t as f32, &options)
             .map_err(|source| EvalError::Render {
                 view: format!("frame {i} ({})", camera.name),
                 source,
             })?;
+        if let Some(b) = backdrop {
+            b.draw(camera, &mut r);
+        }
         let name = format!("{i:06}.png");
         let colour = rgb8(&r);
         if outputs.rgb {

@@ -20,6 +20,7 @@ use crate::metrics::lpips::{ImagePair, Lpips, LpipsDevice, LpipsError};
 use crate::metrics::{MetricsError, image_metrics, masked_metrics};
 use crate::model::Gaussians;
 use crate::progress::Progress;
+use crate::render::backdrop::{Backdrop, UvCache};
 use crate::render::{RenderBackend, RenderError, RenderOptions, ViewRequest};
 use images::{error_heat_map, rgb8_from, side_by_side, write_atomic, write_png};
 
@@ -302,7 +303,7 @@ struct SetRun<'a> {
 /// render | error heat map) for a few frames of each set. LPIPS is computed only when
 /// `lpips` is given (on the renderer's device when that is a GPU, else on the CPU);
 /// otherwise it is reported as [`LPIPS_SKIPPED`]. Views are rendered on
-/// `background`, the colour the model was trained on.
+/// `background`, the colour the model was trained on, or on its learned `backdrop`.
 #[allow(clippy::too_many_arguments)]
 pub fn evaluate(
     backend: &dyn RenderBackend,
@@ -312,6 +313,7 @@ pub fn evaluate(
     out_dir: &Path,
     lpips: Option<&Lpips>,
     background: [f32; 3],
+    backdrop: Option<&Backdrop>,
     progress: &dyn Progress,
 ) -> Result<EvalReport, EvalError> {
     if heldout.is_empty() && train.is_empty() {
@@ -345,6 +347,7 @@ pub fn evaluate(
         None => LpipsDevice::Cpu,
     };
     let mut grids = Vec::new();
+    let mut uv_cache = UvCache::default();
     for set in &sets {
         let wanted_grids = grid_indices(set.views.len());
         let mut frames = Vec::with_capacity(set.views.len());
@@ -372,18 +375,28 @@ pub fn evaluate(
                     camera,
                     t: view.time as f32,
                     options: RenderOptions {
-                        background,
+                        background: if backdrop.is_some() {
+                            [0.0; 3]
+                        } else {
+                            background
+                        },
                         ..RenderOptions::default()
                     },
                 })
                 .collect();
-            let renders =
+            let mut renders =
                 backend
                     .render_batch(model, &requests)
                     .map_err(|source| EvalError::Render {
                         view: label(first),
                         source,
                     })?;
+            if let Some(b) = backdrop {
+                for (r, camera) in renders.iter_mut().zip(&cameras) {
+                    let uvs = uv_cache.get(b, camera);
+                    b.composite(&uvs, &mut r.rgb, &r.alpha);
+                }
+            }
             let rendered: Vec<Vec<f32>> = renders
                 .iter()
                 .zip(chunk)

@@ -84,6 +84,10 @@ pub struct ExportOptions {
     /// from the training record.
     #[serde(skip)]
     pub background: [f32; 3],
+    /// The learned backdrop the model was trained on, when it was: the viewer draws it
+    /// instead of `background`. Taken from the training record, like `background`.
+    #[serde(skip)]
+    pub backdrop: Option<crate::render::backdrop::Backdrop>,
 }
 
 impl Default for ExportOptions {
@@ -99,6 +103,7 @@ impl Default for ExportOptions {
             viewer: true,
             viewer_bundle: None,
             background: [0.0; 3],
+            backdrop: None,
         }
     }
 }
@@ -300,8 +305,7 @@ pub fn export_all(
             cameras,
             times,
             &bundle,
-            opts.min_opacity,
-            opts.background,
+            opts,
             &out_dir.join("viewer"),
         )?;
         report.viewer_index = Some(index);

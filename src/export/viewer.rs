@@ -13,7 +13,9 @@ use super::web4d::{WebHeader, write_web_model};
 use super::{ExportError, write_atomic};
 use crate::CameraSet;
 use crate::model::{ColourDegrees, Gaussians, TimeMapping};
+use crate::render::backdrop::Backdrop;
 use glam::{DMat3, DVec3};
+use image::ImageEncoder;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 /// Environment variable that points at a built viewer bundle (a folder with `index.html`).
@@ -122,25 +124,72 @@ pub struct ViewerScene {
     pub up: [f64; 3],
     /// RGB in `[0, 1]` the page draws behind the splats: the training background.
     pub background: [f32; 3],
+    /// The learned backdrop, drawn instead of `background` when the model has one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub backdrop: Option<ViewerBackdrop>,
 }
 
-/// Write `dir` (the viewer folder): the bundle, `model.4dgs` for the span of `times`, and
-/// `scene.json`. Returns the path of `index.html`.
+/// `scene.json`'s backdrop: a sphere and its texture (`file`, equirectangular, longitude
+/// along x from `axes[0]` towards `axes[1]`, the top row along `axes[2]`; see
+/// `render::backdrop`).
+#[derive(Clone, Debug, Serialize)]
+pub struct ViewerBackdrop {
+    pub file: String,
+    pub centre: [f64; 3],
+    pub radius: f64,
+    pub axes: [[f64; 3]; 3],
+}
+
+/// Write the backdrop's texture (its pyramid summed, 8 bits) as `dir/backdrop.png`.
+fn write_backdrop(backdrop: &Backdrop, dir: &Path) -> Result<ViewerBackdrop, ExportError> {
+    let baked = backdrop.baked();
+    let (w, h) = (baked.width as u32, baked.width as u32 / 2);
+    let bytes: Vec<u8> = baked
+        .texels
+        .as_flattened()
+        .iter()
+        .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+        .collect();
+    let file = "backdrop.png";
+    let path = dir.join(file);
+    let mut png = Vec::new();
+    image::codecs::png::PngEncoder::new(&mut png)
+        .write_image(&bytes, w, h, image::ExtendedColorType::Rgb8)
+        .map_err(|e| ExportError::Io {
+            path: path.clone(),
+            source: std::io::Error::other(e),
+        })?;
+    write_atomic(&path, &png)?;
+    Ok(ViewerBackdrop {
+        file: file.into(),
+        centre: backdrop.centre.to_array(),
+        radius: backdrop.radius,
+        axes: backdrop.axes.map(|a| a.to_array()),
+    })
+}
+
+/// Write `dir` (the viewer folder): the bundle, `model.4dgs` for the span of `times`
+/// (splats below `opts.min_opacity` left out), `backdrop.png` when `opts` has a learned
+/// backdrop, and `scene.json` (with `opts.background`). Returns the path of `index.html`.
 pub fn write_viewer(
     model: &Gaussians<f32>,
     cameras: &CameraSet,
     times: &[f64],
     bundle: &Path,
-    min_opacity: f64,
-    background: [f32; 3],
+    opts: &super::ExportOptions,
     dir: &Path,
 ) -> Result<PathBuf, ExportError> {
     copy_bundle(bundle, dir)?;
+    let backdrop = opts
+        .backdrop
+        .as_ref()
+        .map(|b| write_backdrop(b, dir))
+        .transpose()?;
     let lo = times.iter().copied().fold(f64::INFINITY, f64::min);
     let hi = times.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let file = "model.4dgs";
     let path = dir.join(file);
-    let header: WebHeader = write_web_model(model, [lo, hi], min_opacity, &path)?;
+    let header: WebHeader = write_web_model(model, [lo, hi], opts.min_opacity, &path)?;
     let bytes = std::fs::metadata(&path)
         .map_err(|source| ExportError::Io {
             path: path.clone(),
@@ -175,7 +224,8 @@ pub fn write_viewer(
         start_camera: 0,
         centre: look_centre(cameras, mean).to_array(),
         up: mean_up(cameras).to_array(),
-        background,
+        background: opts.background,
+        backdrop,
     };
     let scene_path = dir.join("scene.json");
     crate::atomic::write_json(&scene_path, &scene).map_err(|source| ExportError::Io {

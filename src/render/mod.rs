@@ -8,6 +8,7 @@
 //! renderer that is the oracle for the CPU one. All follow the per-Gaussian math in
 //! [`crate::math`] (slice → colour → project) and the blending rules of [`cpu::blend`].
 
+pub mod backdrop;
 pub mod cpu;
 pub mod gpu;
 pub mod reference;

@@ -1,19 +1,23 @@
-//! The colour composited behind the Gaussians while training, and the one every render of
-//! the trained model is drawn on. Where four cameras leave part of a held-out view unseen,
-//! that part shows this colour: the training images' mean colour (the default) is the
-//! least wrong guess there, black the most wrong for a bright room.
+//! What is composited behind the Gaussians while training, and what every render of the
+//! trained model is drawn on. Where four cameras leave part of a held-out view unseen, that
+//! part shows it: the training images' mean colour (the default) is the least wrong flat
+//! guess there, black the most wrong for a bright room; a learned backdrop
+//! ([`crate::render::backdrop`]) draws the far walls the cameras saw, from wherever one looks.
 
 use serde::{Deserialize, Serialize};
 
 use crate::train::Dataset;
 
-/// `[train] background`: `"mean"` or an `[r, g, b]` colour in `0..1`.
+/// `[train] background`: `"mean"`, `"learned"` or an `[r, g, b]` colour in `0..1`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(try_from = "Spelling", into = "Spelling")]
 pub enum Background {
     /// The mean colour of every training image, resolved when training starts.
     #[default]
     Mean,
+    /// A backdrop learned with the Gaussians: a texture on a sphere around the rig at the
+    /// static scene's far walls, starting from the mean colour.
+    Learned,
     /// A fixed colour.
     Colour([f32; 3]),
 }
@@ -31,8 +35,9 @@ impl TryFrom<Spelling> for Background {
     fn try_from(s: Spelling) -> Result<Self, String> {
         match s {
             Spelling::Word(w) if w == "mean" => Ok(Self::Mean),
+            Spelling::Word(w) if w == "learned" => Ok(Self::Learned),
             Spelling::Word(w) => Err(format!(
-                "unknown background {w:?}: use \"mean\" or a colour [r, g, b] in 0..1"
+                "unknown background {w:?}: use \"mean\", \"learned\" or a colour [r, g, b] in 0..1"
             )),
             Spelling::Colour(c) => Ok(Self::Colour(c)),
         }
@@ -43,18 +48,19 @@ impl From<Background> for Spelling {
     fn from(b: Background) -> Self {
         match b {
             Background::Mean => Spelling::Word("mean".into()),
+            Background::Learned => Spelling::Word("learned".into()),
             Background::Colour(c) => Spelling::Colour(c),
         }
     }
 }
 
 impl Background {
-    /// The colour this background is for `dataset` (`Mean`: its images' mean colour; black
-    /// for an empty dataset).
+    /// The colour this background is for `dataset` (`Mean`: its images' mean colour, black
+    /// for an empty dataset; `Learned`: the same, where its backdrop starts).
     pub fn resolve(&self, dataset: &Dataset) -> [f32; 3] {
         match *self {
             Self::Colour(c) => c,
-            Self::Mean => mean_colour(dataset),
+            Self::Mean | Self::Learned => mean_colour(dataset),
         }
     }
 }
@@ -96,13 +102,18 @@ mod tests {
     #[test]
     fn the_keyword_and_colours_parse_and_round_trip() {
         assert_eq!(parse("background = \"mean\""), Ok(Background::Mean));
+        assert_eq!(parse("background = \"learned\""), Ok(Background::Learned));
         assert_eq!(
             parse("background = [0.5, 0.25, 1.0]"),
             Ok(Background::Colour([0.5, 0.25, 1.0]))
         );
         assert!(parse("background = \"grey\"").is_err());
         assert!(parse("background = [0.5, 0.25]").is_err());
-        for b in [Background::Mean, Background::Colour([0.1, 0.2, 0.3])] {
+        for b in [
+            Background::Mean,
+            Background::Learned,
+            Background::Colour([0.1, 0.2, 0.3]),
+        ] {
             let json = serde_json::to_string(&b).unwrap();
             assert_eq!(serde_json::from_str::<Background>(&json).unwrap(), b);
         }

@@ -6,6 +6,7 @@
 //! Randomness is drawn from a ChaCha8 stream chosen by `(seed, iteration)`, so a run
 //! resumed from a checkpoint replays exactly the batches and splits of the original.
 
+mod backdrop_fit;
 pub mod background;
 pub mod checkpoint;
 pub mod dataset;
@@ -30,6 +31,7 @@ use crate::decay::mlp::{Mlp, MlpAdam};
 use crate::metrics::{mse, psnr_from_mse};
 use crate::model::init::{InitOptions, SeedError, gaussians_from_points};
 use crate::model::{ColourDegrees, Gaussians};
+use crate::render::backdrop::{Backdrop, BackdropAdam, save_backdrop};
 use crate::render::{RenderBackend, RenderError, RenderOptions};
 use crate::train::densify::{DensifyConfig, DensifyStats, densify_and_prune, reset_opacity};
 use crate::train::device_step::DeviceStep;
@@ -59,8 +61,11 @@ pub struct TrainConfig {
     /// Weight λ of `(1 − SSIM)` in the loss.
     pub lambda_ssim: f64,
     /// What is composited behind the Gaussians (`"mean"`: the training images' mean
-    /// colour; [`Background`]).
+    /// colour; `"learned"`: a learned backdrop; [`Background`]).
     pub background: Background,
+    /// With `background = "learned"`: texels around the backdrop's finest level (a power
+    /// of two; 32 keeps only a smooth colour per direction).
+    pub backdrop_size: usize,
     /// Colour storage (spatial SH degree ≤ 3, temporal degree ≤ 2).
     pub colour_degrees: ColourDegrees,
     /// The active colour degree grows every this many iterations (0: DC only).
@@ -102,6 +107,7 @@ impl Default for TrainConfig {
             seed: 0,
             lambda_ssim: 0.2,
             background: Background::Mean,
+            backdrop_size: 1024,
             colour_degrees: ColourDegrees::FULL,
             degree_every: 1000,
             init_opacity: 0.1,
@@ -180,6 +186,8 @@ pub enum TrainError {
     Device(RenderError),
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
+    #[error(transparent)]
+    Backdrop(#[from] crate::render::backdrop::BackdropFileError),
     #[error("cannot write {path}: {source}")]
     Io {
         path: PathBuf,
@@ -307,6 +315,8 @@ pub struct TrainSummary {
     pub placement: &'static str,
     /// The background colour the model was trained on (`[train] background` resolved).
     pub background: [f32; 3],
+    /// The learned backdrop's file, when the model was trained on one.
+    pub backdrop: Option<PathBuf>,
 }
 
 fn validate(config: &TrainConfig, dataset: &Dataset) -> Result<(), TrainError> {
@@ -331,6 +341,9 @@ fn validate(config: &TrainConfig, dataset: &Dataset) -> Result<(), TrainError> {
     }
     if !(config.max_anisotropy == 0.0 || config.max_anisotropy > 1.0) {
         return bad("max_anisotropy must be 0 (no limit) or greater than 1");
+    }
+    if !(config.backdrop_size.is_power_of_two() && (16..=8192).contains(&config.backdrop_size)) {
+        return bad("backdrop_size must be a power of two from 16 to 8192 (texels around)");
     }
     if !(0.0..=1.0).contains(&config.init_flatness) {
         return bad("init_flatness must be in [0, 1] (0: round Gaussians)");
@@ -468,6 +481,14 @@ pub fn train(
             (model, adam, stats, 0)
         }
     };
+    let backdrop = match (config.background, latest) {
+        (Background::Learned, Some(it)) => Some(backdrop_fit::load_state(
+            &checkpoint::backdrop_path(&ckpt_dir, it),
+            adam.step as u32,
+        )?),
+        (Background::Learned, None) => Some(new_backdrop(config, dataset, init, background)?),
+        _ => None,
+    };
     let log_path = out_dir.join("log.csv");
     let mut log = TrainLog::open(&log_path, latest).map_err(io(&log_path))?;
     let mut last_checkpoint = latest.map(|it| checkpoint::paths(&ckpt_dir, it).0);
@@ -481,7 +502,13 @@ pub fn train(
                      model: &Gaussians<f32>,
                      adam: &Adam,
                      stats: &DensifyStats,
-                     hooks: &dyn TrainHooks| {
+                     hooks: &dyn TrainHooks,
+                     backdrop: Option<&backdrop_fit::BackdropFit>| {
+        // Before the model file, whose presence marks a checkpoint complete.
+        if let Some(fit) = backdrop {
+            std::fs::create_dir_all(&ckpt_dir).map_err(io(&ckpt_dir))?;
+            backdrop_fit::save_state(fit, &checkpoint::backdrop_path(&ckpt_dir, it))?;
+        }
         let c = Checkpoint {
             iteration: it,
             seed: config.seed,
@@ -501,13 +528,19 @@ pub fn train(
         && hooks
             .device_decay()
             .is_some_and(|d| GpuDecay::supports(d.config));
+    // A learned backdrop is fitted on the host (the GPU backend then renders and
+    // differentiates each view, and the host does the rest).
     let mut stepper: Box<dyn Stepper + '_> = match backend.as_gpu() {
-        Some(gpu) if access != ModelAccess::OpacityFactor || decay_on_device => {
+        Some(gpu)
+            if backdrop.is_none() && (access != ModelAccess::OpacityFactor || decay_on_device) =>
+        {
             Box::new(DeviceStep::new(
                 gpu, config, background, dataset, &model, &adam, &stats, hooks,
             )?)
         }
-        _ => Box::new(HostStep::new(backend, config, background, dataset, &model)),
+        _ => Box::new(HostStep::new(
+            backend, config, background, dataset, &model, backdrop,
+        )),
     };
     // The cap and hooks that touch the model run on the host every step (a decay on the
     // device touches the device's model only).
@@ -627,7 +660,14 @@ pub fn train(
         }
         if checkpoint_now {
             log.flush().map_err(io(&log_path))?;
-            last_checkpoint = Some(save_ckpt(done, &model, &adam, &stats, &*hooks)?);
+            last_checkpoint = Some(save_ckpt(
+                done,
+                &model,
+                &adam,
+                &stats,
+                &*hooks,
+                stepper.backdrop(),
+            )?);
         }
         if done < config.iterations && hooks.stop_requested(done) {
             log.flush().map_err(io(&log_path))?;
@@ -635,7 +675,7 @@ pub fn train(
                 Some(p) if p.ends_with(format!("{done:06}.bin")) => p.clone(),
                 _ => {
                     stepper.state_to_host(&mut model, &mut adam, &mut stats, hooks)?;
-                    save_ckpt(done, &model, &adam, &stats, &*hooks)?
+                    save_ckpt(done, &model, &adam, &stats, &*hooks, stepper.backdrop())?
                 }
             };
             progress.finish();
@@ -646,6 +686,14 @@ pub fn train(
         }
     }
     log.flush().map_err(io(&log_path))?;
+    let backdrop_path = match stepper.backdrop() {
+        Some(fit) => {
+            let path = out_dir.join(BACKDROP_FILE);
+            save_backdrop(&fit.backdrop, &path)?;
+            Some(path)
+        }
+        None => None,
+    };
     let model_path = out_dir.join("model.bin");
     save_model(&model, &model_path).map_err(CheckpointError::from)?;
     progress.finish();
@@ -659,7 +707,46 @@ pub fn train(
         model_path,
         placement: stepper.placement(),
         background,
+        backdrop: backdrop_path,
     })
+}
+
+/// The learned backdrop's file beside `model.bin` (`[train] background = "learned"`).
+pub const BACKDROP_FILE: &str = "backdrop.bin";
+
+/// A backdrop around `dataset`'s cameras at the far quantile of `init`'s static points
+/// (every point when the cloud does not say which are static), starting from `colour`.
+fn new_backdrop(
+    config: &TrainConfig,
+    dataset: &Dataset,
+    init: &PointCloud,
+    colour: [f32; 3],
+) -> Result<backdrop_fit::BackdropFit, TrainError> {
+    let mut cameras: Vec<crate::Camera> = Vec::new();
+    for v in &dataset.views {
+        if !cameras.iter().any(|c| c.name == v.camera.name) {
+            cameras.push(v.camera.clone());
+        }
+    }
+    let static_points: Vec<[f32; 3]> = match &init.time_span {
+        Some(span) => init
+            .xyz
+            .iter()
+            .zip(span)
+            .filter(|(_, s)| **s > 0.0)
+            .map(|(p, _)| *p)
+            .collect(),
+        None => init.xyz.clone(),
+    };
+    let backdrop = Backdrop::around(&cameras, &static_points, colour, config.backdrop_size)
+        .ok_or_else(|| {
+            TrainError::Config(
+                "background = \"learned\" needs cameras that look at a common point; use \"mean\""
+                    .into(),
+            )
+        })?;
+    let adam = BackdropAdam::new(&backdrop, backdrop_fit::BACKDROP_LR);
+    Ok(backdrop_fit::BackdropFit::new(backdrop, adam))
 }
 
 /// PSNR (dB) of `model` rendered at every view of `dataset` against its image.

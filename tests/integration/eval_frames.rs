@@ -29,6 +29,7 @@ fn an_orbit_renders_to_colour_depth_and_alpha_frames() {
         dir.path(),
         FrameOutputs::ALL,
         [0.0; 3],
+        None,
         &NoProgress,
         Some(&mut sink),
     )
@@ -97,6 +98,7 @@ fn a_failing_sink_stops_the_render() {
         dir.path(),
         FrameOutputs::NONE,
         [0.0; 3],
+        None,
         &NoProgress,
         Some(&mut sink),
     )

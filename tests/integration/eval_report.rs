@@ -70,6 +70,7 @@ fn report_files_hold_per_frame_and_mean_metrics_with_definitions() {
         &out,
         None,
         [0.0; 3],
+        None,
         &NoProgress,
     )
     .unwrap();
@@ -208,6 +209,7 @@ fn per_frame_csv_names_images_relative_to_its_folder_and_survives_the_rename() {
         &partial,
         None,
         [0.0; 3],
+        None,
         &NoProgress,
     )
     .unwrap();
@@ -244,6 +246,7 @@ fn lpips_is_computed_with_an_onnx_model() {
         &out,
         Some(&net),
         [0.0; 3],
+        None,
         &NoProgress,
     )
     .unwrap();
@@ -298,6 +301,7 @@ fn lpips_alex_is_computed_natively_from_the_installed_weights() {
         &out,
         Some(&net),
         [0.0; 3],
+        None,
         &NoProgress,
     )
     .unwrap();
@@ -369,6 +373,7 @@ fn moving_region_metrics_are_reported_where_views_have_masks() {
         &out,
         None,
         [0.0; 3],
+        None,
         &NoProgress,
     )
     .unwrap();
@@ -449,6 +454,7 @@ fn moving_region_metrics_are_reported_where_views_have_masks() {
         &dir.join("e"),
         None,
         [0.0; 3],
+        None,
         &NoProgress,
     )
     .unwrap_err();
@@ -481,6 +487,7 @@ fn ground_truth_of_another_size_renders_at_that_size() {
         &s.dir.path().join("e"),
         None,
         [0.0; 3],
+        None,
         &NoProgress,
     )
     .unwrap();
@@ -501,6 +508,7 @@ fn missing_images_and_empty_requests_are_typed_errors() {
         &s.dir.path().join("e"),
         None,
         [0.0; 3],
+        None,
         &NoProgress,
     )
     .unwrap_err();
@@ -516,6 +524,7 @@ fn missing_images_and_empty_requests_are_typed_errors() {
         &s.dir.path().join("e"),
         None,
         [0.0; 3],
+        None,
         &NoProgress,
     )
     .unwrap_err();
@@ -531,6 +540,7 @@ fn missing_images_and_empty_requests_are_typed_errors() {
         &s.dir.path().join("e"),
         None,
         [0.0; 3],
+        None,
         &NoProgress,
     )
     .unwrap_err();
@@ -566,6 +576,7 @@ fn views_are_rendered_on_the_background_the_model_was_trained_on() {
             &dir.path().join(name),
             None,
             background,
+            None,
             &NoProgress,
         )
         .unwrap();
@@ -605,6 +616,7 @@ fn a_training_view_is_compared_as_its_camera_filmed_it() {
         &dir.path().join("eval"),
         None,
         [0.0; 3],
+        None,
         &NoProgress,
     )
     .unwrap();

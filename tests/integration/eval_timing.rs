@@ -69,6 +69,7 @@ fn render_and_eval_timing() {
                 &dir.path().join(format!("r{w}{label}")),
                 outputs,
                 [0.0; 3],
+                None,
                 &NoProgress,
                 None,
             )
@@ -126,6 +127,7 @@ fn render_and_eval_timing() {
         &dir.path().join("eval"),
         None,
         [0.0; 3],
+        None,
         &NoProgress,
     )
     .unwrap();
@@ -149,6 +151,7 @@ fn render_and_eval_timing() {
         &dir.path().join("eval2"),
         Some(&net),
         [0.0; 3],
+        None,
         &NoProgress,
     )
     .unwrap();
@@ -168,6 +171,7 @@ fn render_and_eval_timing() {
                 &dir.path().join("eval3"),
                 Some(&alex),
                 [0.0; 3],
+                None,
                 &NoProgress,
             )
             .unwrap();

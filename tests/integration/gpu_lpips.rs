@@ -290,6 +290,7 @@ fn evaluate_with_the_gpu_renderer_computes_lpips_on_the_gpu() {
         &dir.path().join("eval"),
         Some(&net),
         [0.0; 3],
+        None,
         &NoProgress,
     )
     .unwrap();

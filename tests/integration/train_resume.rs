@@ -268,3 +268,72 @@ fn corrupt_checkpoint_state_is_a_clear_error() {
         "{e}"
     );
 }
+
+#[test]
+fn a_learned_backdrop_resumes_bit_identically_and_draws_what_no_gaussian_covers() {
+    use splat4d::train::{BACKDROP_FILE, Background};
+    let data = train_scene::dataset(32, 24);
+    // Gaussians on the left half of the textured plane only: the right half of every
+    // view is whatever is behind them.
+    let mut init = train_scene::points(12, 9, &[0.0, 1.0]);
+    let keep: Vec<bool> = init.xyz.iter().map(|p| p[0] < 0.0).collect();
+    let pick = |v: &mut Vec<[f32; 3]>| {
+        let mut k = keep.iter();
+        v.retain(|_| *k.next().unwrap())
+    };
+    pick(&mut init.xyz);
+    let mut k = keep.iter();
+    init.rgb.retain(|_| *k.next().unwrap());
+    let mut k = keep.iter();
+    init.time.as_mut().unwrap().retain(|_| *k.next().unwrap());
+    let learned = |iterations| TrainConfig {
+        background: Background::Learned,
+        backdrop_size: 32,
+        ..config(iterations)
+    };
+    let run = |config: &TrainConfig, dir: &std::path::Path, resume, hooks: &mut dyn TrainHooks| {
+        train(
+            &CpuBackend,
+            config,
+            &data,
+            &init,
+            dir,
+            resume,
+            hooks,
+            &NoProgress,
+        )
+    };
+    let straight = tempfile::tempdir().unwrap();
+    let s = run(&learned(40), straight.path(), false, &mut NoHooks).unwrap();
+    assert_eq!(s.backdrop, Some(straight.path().join(BACKDROP_FILE)));
+    let flat = tempfile::tempdir().unwrap();
+    let f = run(&config(40), flat.path(), false, &mut NoHooks).unwrap();
+    assert!(f.backdrop.is_none() && !flat.path().join(BACKDROP_FILE).exists());
+    eprintln!(
+        "last batch: learned backdrop {:.2} dB, mean colour {:.2} dB",
+        s.final_psnr, f.final_psnr
+    );
+    assert!(
+        s.final_psnr > f.final_psnr + 1.0,
+        "learned backdrop {:.2} dB against the mean colour {:.2} dB",
+        s.final_psnr,
+        f.final_psnr
+    );
+
+    let resumed = tempfile::tempdir().unwrap();
+    let e = run(&learned(40), resumed.path(), false, &mut StopAt(17)).unwrap_err();
+    assert!(
+        matches!(e, TrainError::Interrupted { iteration: 17, .. }),
+        "{e}"
+    );
+    assert!(resumed.path().join("ckpt/000017.backdrop").is_file());
+    let r = run(&learned(40), resumed.path(), true, &mut NoHooks).unwrap();
+    assert_eq!(r.started_at, 17);
+    for file in ["model.bin", BACKDROP_FILE] {
+        assert!(
+            std::fs::read(straight.path().join(file)).unwrap()
+                == std::fs::read(resumed.path().join(file)).unwrap(),
+            "resumed {file} differs from the straight run"
+        );
+    }
+}

@@ -629,3 +629,80 @@ fn viewer_javascript_unit_tests_pass() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// Lowest PSNR (dB) of the page against the engine where a learned backdrop shows: the
+/// page samples its texture baked to 8 bits with the GPU's bilinear filter.
+const BACKDROP_FLOOR_DB: f64 = 38.0;
+
+#[test]
+fn viewer_draws_the_learned_backdrop_as_the_engine_does() {
+    use splat4d::render::RenderBackend;
+    use splat4d::render::backdrop::Backdrop;
+    let Some(browser) = Browser::find() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let model = moving_scene();
+    let cameras = two_cameras();
+    // A sphere 6 units out, textured with smooth colour waves on its finest level only
+    // (so the baked texture is that level), around the grey wall of splats.
+    let mut backdrop =
+        Backdrop::around(&cameras.cameras, &[[0.0, 6.0, 0.0]], [0.0; 3], 64).expect("a backdrop");
+    let finest = backdrop.levels.last_mut().unwrap();
+    let w = finest.width;
+    for (i, t) in finest.texels.iter_mut().enumerate() {
+        let (u, v) = ((i % w) as f32 / w as f32, (i / w) as f32 / (w / 2) as f32);
+        let a = std::f32::consts::TAU * u;
+        let b = std::f32::consts::PI * v;
+        *t = [
+            0.5 + 0.4 * (3.0 * a).sin() * b.sin(),
+            0.5 + 0.4 * (2.0 * b).cos(),
+            0.5 + 0.4 * (a + b).sin(),
+        ];
+    }
+    let times = [0.0, 1.0];
+    let opts = ExportOptions {
+        frames: false,
+        model4d: false,
+        splatv: false,
+        gltf: false,
+        viewer_bundle: Some(browser.bundle.clone()),
+        backdrop: Some(backdrop.clone()),
+        ..Default::default()
+    };
+    export_all(&model, &cameras, &times, dir.path(), &opts, &NoProgress).unwrap();
+    let port = serve(dir.path().join("viewer"));
+    let shots_dir = dir.path().join("shots");
+    std::fs::create_dir_all(&shots_dir).unwrap();
+    let shots: Vec<(String, PathBuf)> = (0..2)
+        .map(|k| {
+            (
+                format!("http://127.0.0.1:{port}/index.html?ui=0&play=0&camera={k}&frame=0"),
+                shots_dir.join(format!("backdrop{k}.png")),
+            )
+        })
+        .collect();
+    let i = &cameras.cameras[0].intrinsics;
+    browser.screenshots(&shots_dir.join("profile"), (i.width, i.height), &shots);
+    for (k, (_, png)) in shots.iter().enumerate() {
+        let cam = &cameras.cameras[k];
+        let mut r = splat4d::CpuBackend
+            .render(&model, cam, 0.0, &Default::default())
+            .expect("engine render");
+        backdrop.draw(cam, &mut r);
+        let px = r
+            .rgb
+            .iter()
+            .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8);
+        let engine = image::RgbImage::from_raw(r.width, r.height, px.collect()).unwrap();
+        let flat = engine_render(&model, cam, 0.0, [0.0; 3]);
+        let shot = image::open(png).expect("screenshot PNG").to_rgb8();
+        keep(png, &format!("backdrop_cam{k}.png"), &engine);
+        let (db, db_flat) = (psnr(&shot, &engine), psnr(&shot, &flat));
+        eprintln!("cam{k}: backdrop {db:.2} dB, against the flat background {db_flat:.2} dB");
+        assert!(
+            db >= BACKDROP_FLOOR_DB && db_flat < db - 10.0,
+            "cam{k}: the page's backdrop is {db:.2} dB from the engine's (floor {BACKDROP_FLOOR_DB}), {db_flat:.2} dB from a flat background"
+        );
+    }
+}

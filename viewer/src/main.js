@@ -40,7 +40,14 @@ async function main() {
   canvas.style.background = `rgb(${bg255[0]}, ${bg255[1]}, ${bg255[2]})`;
   const gl = canvas.getContext("webgl2", { antialias: false, premultipliedAlpha: true, alpha: false });
   if (!gl) throw new Error("this browser has no WebGL2");
-  const target = params.get("float") === "0" ? null : floatTarget(gl, background);
+  let backdrop = null; // a learned backdrop (scene.json `backdrop`), drawn instead of `background`
+  if (scene.backdrop) {
+    const image = new Image();
+    image.src = scene.backdrop.file;
+    await image.decode();
+    backdrop = { ...scene.backdrop, image };
+  }
+  const target = params.get("float") === "0" ? null : floatTarget(gl, background, backdrop);
   const renderer = createRenderer(gl);
 
   const state = {
@@ -252,7 +259,7 @@ async function main() {
       else gl.clearColor(background[0], background[1], background[2], 1);
       gl.clear(gl.COLOR_BUFFER_BIT);
       renderer.draw(model, v, state.time, canvas.width, canvas.height);
-      if (target) target.end();
+      if (target) target.end(v);
       state.quiet++;
     }
     const ready = !!model && state.loaded === model.count && state.sorted === state.version && state.quiet >= 2;

@@ -71,6 +71,12 @@ pub fn run(
         )
         .with_context(|| format!("training `{label}`"))?;
         let model = splat4d::load_model(&summary.model_path)?;
+        let backdrop = summary
+            .backdrop
+            .as_deref()
+            .map(splat4d::render::backdrop::load_backdrop)
+            .transpose()?;
+
         let report = splat4d::eval::evaluate(
             backend.as_ref(),
             &model,
@@ -79,6 +85,7 @@ pub fn run(
             &dir.join("eval"),
             lpips.as_ref(),
             summary.background,
+            backdrop.as_ref(),
             &progress,
         )?;
         let m = &report.heldout;

@@ -548,6 +548,12 @@ fn measure(
     let cpu_seconds = cpu0.zip(sysinfo::cpu_seconds()).map(|(a, b)| b - a);
     let peak_ram_mib = memory.peak_mib();
     let model = splat4d::load_model(&summary.model_path)?;
+    let backdrop = summary
+        .backdrop
+        .as_deref()
+        .map(splat4d::render::backdrop::load_backdrop)
+        .transpose()?;
+
     let report = splat4d::eval::evaluate(
         evaluator,
         &model,
@@ -556,6 +562,7 @@ fn measure(
         &dir.join("eval"),
         inputs.lpips.as_ref(),
         summary.background,
+        backdrop.as_ref(),
         &progress,
     )?;
     shared_types::Progress::finish(&progress);

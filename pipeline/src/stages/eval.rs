@@ -456,6 +456,7 @@ pub fn run(
     let lpips = load_lpips(ctx.capture, settings)?;
     let backend = crate::engine_inputs::render_backend(engine.backend)?;
     ctx.record_tool("render backend", &backend.describe());
+    let backdrop = trained.load_backdrop(&ctx.capture.work_dir())?;
     let report = splat4d::eval::evaluate(
         backend.as_ref(),
         &model,
@@ -464,6 +465,7 @@ pub fn run(
         &ctx.out_dir,
         lpips.as_ref(),
         trained.background,
+        backdrop.as_ref(),
         ctx.progress,
     )?;
     let show = |set: &str, m: &splat4d::eval::SetMetrics| {

@@ -15,16 +15,17 @@ use crate::stage_context::StageContext;
 /// `[export]` settings: the exporter's own (time steps, which files, viewer options).
 pub type ExportSettings = ExportOptions;
 
-/// The `export` stage; `background` is `[train] background` (the viewer draws it behind
-/// the splats).
+/// The `export` stage; `trained` is what the model was trained on (the viewer draws its
+/// background or learned backdrop behind the splats).
 pub fn run(
     ctx: &StageContext,
     options: &ExportSettings,
-    background: [f32; 3],
+    trained: &crate::engine_inputs::TrainRecord,
 ) -> anyhow::Result<()> {
     let model = load_trained_model(&ctx.capture.work_dir())?;
     let options = &ExportOptions {
-        background,
+        background: trained.background,
+        backdrop: trained.load_backdrop(&ctx.capture.work_dir())?,
         ..options.clone()
     };
     let cameras_file = ctx.stage_dir("poses").join("cameras.json");

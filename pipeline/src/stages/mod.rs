@@ -108,12 +108,11 @@ pub fn pipeline() -> Pipeline {
                 .output_one_of(&render::OUTPUTS)
                 .on_engine()
                 .run(|ctx, config| {
-                    let background = crate::engine_inputs::trained_record(
+                    let trained = crate::engine_inputs::trained_record(
                         &ctx.capture.work_dir(),
                         config.train.background,
-                    )?
-                    .background;
-                    render::run(ctx, &config.render, background, &config.engine)
+                    )?;
+                    render::run(ctx, &config.render, &trained, &config.engine)
                 }),
             StageDef::new(
                 "eval",
@@ -141,12 +140,11 @@ pub fn pipeline() -> Pipeline {
                 .after(&["frames", "poses", "train"])
                 .outputs(&["export.json"])
                 .run(|ctx, config| {
-                    let background = crate::engine_inputs::trained_record(
+                    let trained = crate::engine_inputs::trained_record(
                         &ctx.capture.work_dir(),
                         config.train.background,
-                    )?
-                    .background;
-                    export::run(ctx, &config.export, background)
+                    )?;
+                    export::run(ctx, &config.export, &trained)
                 }),
         ],
     }

@@ -71,12 +71,14 @@ pub fn path_cameras(work_dir: &Path) -> anyhow::Result<(FramesIndex, Vec<Camera>
 
 /// Render `model` along the path of `settings` into `out_dir` (`render.mp4` and/or PNG
 /// folders) with `backend`. `cameras` are the pinhole training cameras, `heldout` the
-/// held-out ones; `background` is the colour the model was trained on (`[train] background`).
+/// held-out ones; `background` is the colour the model was trained on (`[train] background`),
+/// `backdrop` its learned backdrop when it has one.
 #[allow(clippy::too_many_arguments)]
 pub fn render(
     backend: &dyn RenderBackend,
     model: &Gaussians<f32>,
     background: [f32; 3],
+    backdrop: Option<&splat4d::render::backdrop::Backdrop>,
     cameras: &[Camera],
     heldout: &[Camera],
     settings: &RenderSettings,
@@ -127,6 +129,7 @@ pub fn render(
         out_dir,
         outputs,
         background,
+        backdrop,
         progress,
         Some(&mut sink),
     )?;
@@ -177,13 +180,14 @@ impl VideoWriter {
     }
 }
 
-/// The `render` stage; `background` is `[train] background`.
+/// The `render` stage; `trained` is what the model was trained on.
 pub fn run(
     ctx: &StageContext,
     settings: &RenderSettings,
-    background: [f32; 3],
+    trained: &crate::engine_inputs::TrainRecord,
     engine: &EngineSettings,
 ) -> anyhow::Result<()> {
+    let backdrop = trained.load_backdrop(&ctx.capture.work_dir())?;
     if !settings.video && !settings.png {
         anyhow::bail!(
             "capture.toml [render]: `video` and `png` are both false, so the stage would write nothing; set one of them to true"
@@ -196,7 +200,8 @@ pub fn run(
     let frames = render(
         backend.as_ref(),
         &model,
-        background,
+        trained.background,
+        backdrop.as_ref(),
         &cameras,
         &heldout,
         settings,

@@ -152,6 +152,7 @@ pub fn run(
     let record = crate::engine_inputs::TrainRecord {
         background: summary.background,
         exposure,
+        backdrop: summary.backdrop.is_some(),
     };
     write_json(&ctx.output(crate::engine_inputs::TRAIN_RECORD), &record)
         .context("cannot write train.json")?;

@@ -305,6 +305,7 @@ fn heldout_cameras_of_a_real_capture_are_posed_never_trained_and_measured() {
         &tmp.path().join("swapped_eval"),
         None,
         [0.0; 3],
+        None,
         &shared_types::NoProgress,
     )
     .unwrap();
