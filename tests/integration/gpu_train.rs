@@ -3,8 +3,9 @@
 //! backend does: training-view PSNR within 0.3 dB of the CPU run's. A short run (with a
 //! densification step) always; a 300-iteration run at 64×48 on request (lavapipe is slow).
 //! And the whole iteration on the device (`GpuAdam::train_step`) against the CPU
-//! trainer's step, iteration by iteration. The trainer's GPU loop itself (held-out PSNR,
-//! densification, resume): `gpu_train_loop.rs`.
+//! trainer's step, iteration by iteration; and a learned backdrop fitted on the host
+//! around the GPU backend's renders, as around the CPU's. The trainer's GPU loop itself
+//! (held-out PSNR, densification, resume): `gpu_train_loop.rs`.
 //!
 //! Adapter policy as in `gpu_parity.rs`: without an adapter the test skips with a message,
 //! except under `CI=true`, where that is a failure.
@@ -287,4 +288,74 @@ fn gpu_iterations_match_the_cpu_trainer_step() {
         eprintln!("{name}: ‖Δgpu − Δcpu‖/‖Δcpu‖ = {rel:.1e}");
         assert!(rel <= 1e-3, "{name}: {rel:.2e}");
     }
+}
+
+/// With a learned backdrop the GPU backend renders and differentiates each view and the
+/// host fits the backdrop: the same backdrop as on the CPU, up to the backends' rounding.
+#[test]
+fn a_learned_backdrop_trains_with_the_gpu_backend_as_with_the_cpu() {
+    use splat4d::render::backdrop::load_backdrop;
+    use splat4d::train::{BACKDROP_FILE, Background};
+    let Some(gpu) = gpu() else { return };
+    let data = train_scene::dataset(32, 24);
+    // The left half of the plane: the right half of each view is the backdrop's.
+    let mut init = train_scene::points(12, 9, &[0.0, 1.0]);
+    let keep: Vec<bool> = init.xyz.iter().map(|p| p[0] < 0.0).collect();
+    let mut k = keep.iter();
+    init.xyz.retain(|_| *k.next().unwrap());
+    let mut k = keep.iter();
+    init.rgb.retain(|_| *k.next().unwrap());
+    let mut k = keep.iter();
+    init.time.as_mut().unwrap().retain(|_| *k.next().unwrap());
+    let config = TrainConfig {
+        background: Background::Learned,
+        backdrop_size: 32,
+        iterations: 20,
+        batch_size: 2,
+        checkpoint_every: 0,
+        ..Default::default()
+    };
+    let run = |backend: &dyn RenderBackend| {
+        let dir = tempfile::tempdir().unwrap();
+        let s = train(
+            backend,
+            &config,
+            &data,
+            &init,
+            dir.path(),
+            false,
+            &mut NoHooks,
+            &NoProgress,
+        )
+        .unwrap();
+        let b = load_backdrop(&dir.path().join(BACKDROP_FILE)).unwrap();
+        (s, b)
+    };
+    let (cpu_summary, cpu) = run(&CpuBackend);
+    let (gpu_summary, on_gpu) = run(&gpu);
+    assert_eq!(gpu_summary.placement, "host");
+    let flat = |b: &splat4d::render::backdrop::Backdrop| -> Vec<f32> {
+        b.levels
+            .iter()
+            .flat_map(|l| l.texels.as_flattened().to_vec())
+            .collect()
+    };
+    let (a, b) = (flat(&cpu), flat(&on_gpu));
+    let moved = a.iter().filter(|v| v.abs() > 1e-3).count();
+    assert!(
+        moved > 100,
+        "the backdrop learned ({moved} texel values moved)"
+    );
+    let worst = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0f32, f32::max);
+    assert!(worst < 0.02, "largest texel difference {worst}");
+    assert!(
+        (cpu_summary.final_psnr - gpu_summary.final_psnr).abs() < 0.3,
+        "{} against {} dB",
+        cpu_summary.final_psnr,
+        gpu_summary.final_psnr
+    );
 }

@@ -1,5 +1,5 @@
-//! Interrupt/resume gives a bit-identical model; the NaN guard stops with a clear error and
-//! keeps the last good checkpoint; bad inputs are typed errors.
+//! Interrupt/resume gives a bit-identical model (and learned backdrop); the NaN guard stops
+//! with a clear error and keeps the last good checkpoint; bad inputs are typed errors.
 
 use crate::train_scene;
 
