@@ -20,7 +20,7 @@ use crate::metrics::lpips::{ImagePair, Lpips, LpipsDevice, LpipsError};
 use crate::metrics::{MetricsError, image_metrics, masked_metrics};
 use crate::model::Gaussians;
 use crate::progress::Progress;
-use crate::render::backdrop::{Backdrop, UvCache};
+use crate::render::backdrop::{Backdrop, UvCache, composite};
 use crate::render::{RenderBackend, RenderError, RenderOptions, ViewRequest};
 use images::{error_heat_map, rgb8_from, side_by_side, write_atomic, write_png};
 
@@ -394,7 +394,7 @@ pub fn evaluate(
             if let Some(b) = backdrop {
                 for (r, camera) in renders.iter_mut().zip(&cameras) {
                     let uvs = uv_cache.get(b, camera);
-                    b.composite(&uvs, &mut r.rgb, &r.alpha);
+                    composite(&b.colours(&uvs), &mut r.rgb, &r.alpha);
                 }
             }
             let rendered: Vec<Vec<f32>> = renders

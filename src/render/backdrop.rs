@@ -170,34 +170,30 @@ impl Backdrop {
 
     /// Draw the backdrop behind `frame`, rendered on black from `camera`.
     pub fn draw(&self, camera: &Camera, frame: &mut crate::render::Rendered<f32>) {
-        self.composite(&self.pixel_uvs(camera), &mut frame.rgb, &frame.alpha);
+        let behind = self.colours(&self.pixel_uvs(camera));
+        composite(&behind, &mut frame.rgb, &frame.alpha);
     }
 
-    /// `rgb += (1 − alpha) · backdrop` per pixel (`rgb` rendered on black).
-    pub fn composite(&self, uvs: &[Uv], rgb: &mut [f32], alpha: &[f32]) {
-        rgb.par_chunks_exact_mut(3)
-            .zip(alpha)
-            .zip(uvs)
-            .for_each(|((px, &a), &uv)| {
-                let b = self.sample(uv);
-                (0..3).for_each(|c| px[c] += (1.0 - a) * b[c]);
-            });
+    /// The backdrop's colour at each of `uvs`.
+    pub fn colours(&self, uvs: &[Uv]) -> Vec<[f32; 3]> {
+        uvs.par_iter().map(|&uv| self.sample(uv)).collect()
     }
 
-    /// The backward of [`Self::composite`]: from `d_rgb` (dL/d composited colour), the
-    /// gradient of the render's alpha (written into `d_alpha`) and of the texels (added
-    /// into `grads`, shaped by [`Self::zero_grads`]).
+    /// The backward of [`composite`] of `behind` (this backdrop's [`Self::colours`] at
+    /// `uvs`): from `d_rgb` (dL/d composited colour), the gradient of the render's alpha
+    /// (written into `d_alpha`) and of the texels (added into `grads`, shaped by
+    /// [`Self::zero_grads`]).
     pub fn composite_backward(
         &self,
         uvs: &[Uv],
+        behind: &[[f32; 3]],
         alpha: &[f32],
         d_rgb: &[f32],
         d_alpha: &mut Vec<f32>,
         grads: &mut [Vec<[f32; 3]>],
     ) {
         d_alpha.clear();
-        for ((g, &a), &uv) in d_rgb.chunks_exact(3).zip(alpha).zip(uvs) {
-            let b = self.sample(uv);
+        for (((g, &a), &uv), b) in d_rgb.chunks_exact(3).zip(alpha).zip(uvs).zip(behind) {
             d_alpha.push(-(g[0] * b[0] + g[1] * b[1] + g[2] * b[2]));
             let t = 1.0 - a;
             for (level, gl) in self.levels.iter().zip(grads.iter_mut()) {
@@ -228,6 +224,15 @@ impl Backdrop {
             .collect();
         Level { width: w, texels }
     }
+}
+
+/// `rgb += (1 − alpha) · behind` per pixel (`rgb` rendered on black, `behind` the
+/// backdrop's colours there).
+pub fn composite(behind: &[[f32; 3]], rgb: &mut [f32], alpha: &[f32]) {
+    rgb.par_chunks_exact_mut(3)
+        .zip(alpha)
+        .zip(behind)
+        .for_each(|((px, &a), b)| (0..3).for_each(|c| px[c] += (1.0 - a) * b[c]));
 }
 
 /// Per fixed camera (name and size), where its pixels meet a backdrop: for views that are
@@ -503,12 +508,12 @@ mod tests {
             .collect();
         let loss = |b: &Backdrop, alpha: &[f32]| {
             let mut rgb = rgb0.clone();
-            b.composite(&uvs, &mut rgb, alpha);
+            composite(&b.colours(&uvs), &mut rgb, alpha);
             rgb.iter().zip(&w).map(|(x, w)| (x * w) as f64).sum::<f64>()
         };
         let mut grads = b.zero_grads();
         let mut d_alpha = Vec::new();
-        b.composite_backward(&uvs, &alpha, &w, &mut d_alpha, &mut grads);
+        b.composite_backward(&uvs, &b.colours(&uvs), &alpha, &w, &mut d_alpha, &mut grads);
         let h = 1e-2f32;
         for (l, i, c) in [(0, 3, 0), (1, 40, 1), (2, 100, 2), (2, 257, 0)] {
             let mut plus = b.clone();

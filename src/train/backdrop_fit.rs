@@ -8,7 +8,8 @@ use std::path::{Path, PathBuf};
 use crate::Camera;
 use crate::render::Rendered;
 use crate::render::backdrop::{
-    Backdrop, BackdropAdam, BackdropFileError, Level, UvCache, load_backdrop, save_backdrop,
+    Backdrop, BackdropAdam, BackdropFileError, Level, UvCache, composite, load_backdrop,
+    save_backdrop,
 };
 
 /// Adam's learning rate of the texels (colour units per step).
@@ -21,6 +22,8 @@ pub(crate) struct BackdropFit {
     uvs: UvCache,
     grads: Vec<Vec<[f32; 3]>>,
     d_alpha: Vec<f32>,
+    /// The backdrop's colours behind the last composited view, for its backward.
+    behind: Vec<[f32; 3]>,
 }
 
 impl BackdropFit {
@@ -31,21 +34,24 @@ impl BackdropFit {
             adam,
             uvs: UvCache::default(),
             d_alpha: Vec::new(),
+            behind: Vec::new(),
         }
     }
 
     /// Composite the backdrop into `frame` (rendered on black from `camera`).
     pub fn composite(&mut self, camera: &Camera, frame: &mut Rendered<f32>) {
         let uvs = self.uvs.get(&self.backdrop, camera);
-        self.backdrop.composite(&uvs, &mut frame.rgb, &frame.alpha);
+        self.behind = self.backdrop.colours(&uvs);
+        composite(&self.behind, &mut frame.rgb, &frame.alpha);
     }
 
-    /// From dL/d(composited colour) of `frame`: add the texels' gradient, and return
+    /// From dL/d(composited colour) of `frame` (the view last composited): add the texels' gradient, and return
     /// dL/d(alpha) for the render's backward.
     pub fn backward(&mut self, camera: &Camera, frame: &Rendered<f32>, d_rgb: &[f32]) -> &[f32] {
         let uvs = self.uvs.get(&self.backdrop, camera);
         self.backdrop.composite_backward(
             &uvs,
+            &self.behind,
             &frame.alpha,
             d_rgb,
             &mut self.d_alpha,

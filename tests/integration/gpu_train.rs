@@ -299,14 +299,7 @@ fn a_learned_backdrop_trains_with_the_gpu_backend_as_with_the_cpu() {
     let Some(gpu) = gpu() else { return };
     let data = train_scene::dataset(32, 24);
     // The left half of the plane: the right half of each view is the backdrop's.
-    let mut init = train_scene::points(12, 9, &[0.0, 1.0]);
-    let keep: Vec<bool> = init.xyz.iter().map(|p| p[0] < 0.0).collect();
-    let mut k = keep.iter();
-    init.xyz.retain(|_| *k.next().unwrap());
-    let mut k = keep.iter();
-    init.rgb.retain(|_| *k.next().unwrap());
-    let mut k = keep.iter();
-    init.time.as_mut().unwrap().retain(|_| *k.next().unwrap());
+    let init = train_scene::left_half(&train_scene::points(12, 9, &[0.0, 1.0]));
     let config = TrainConfig {
         background: Background::Learned,
         backdrop_size: 32,

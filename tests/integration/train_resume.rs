@@ -275,17 +275,7 @@ fn a_learned_backdrop_resumes_bit_identically_and_draws_what_no_gaussian_covers(
     let data = train_scene::dataset(32, 24);
     // Gaussians on the left half of the textured plane only: the right half of every
     // view is whatever is behind them.
-    let mut init = train_scene::points(12, 9, &[0.0, 1.0]);
-    let keep: Vec<bool> = init.xyz.iter().map(|p| p[0] < 0.0).collect();
-    let pick = |v: &mut Vec<[f32; 3]>| {
-        let mut k = keep.iter();
-        v.retain(|_| *k.next().unwrap())
-    };
-    pick(&mut init.xyz);
-    let mut k = keep.iter();
-    init.rgb.retain(|_| *k.next().unwrap());
-    let mut k = keep.iter();
-    init.time.as_mut().unwrap().retain(|_| *k.next().unwrap());
+    let init = train_scene::left_half(&train_scene::points(12, 9, &[0.0, 1.0]));
     let learned = |iterations| TrainConfig {
         background: Background::Learned,
         backdrop_size: 32,

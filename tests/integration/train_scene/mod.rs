@@ -124,3 +124,23 @@ pub fn points(nx: usize, ny: usize, times: &[f64]) -> PointCloud {
     }
     c
 }
+
+/// The points of `cloud` on the left half of the plane (x < 0): views of it leave their
+/// right half to whatever is behind the Gaussians.
+pub fn left_half(cloud: &PointCloud) -> PointCloud {
+    let keep: Vec<usize> = (0..cloud.xyz.len())
+        .filter(|&i| cloud.xyz[i][0] < 0.0)
+        .collect();
+    PointCloud {
+        xyz: keep.iter().map(|&i| cloud.xyz[i]).collect(),
+        rgb: keep.iter().map(|&i| cloud.rgb[i]).collect(),
+        time: cloud
+            .time
+            .as_ref()
+            .map(|t| keep.iter().map(|&i| t[i]).collect()),
+        time_span: cloud
+            .time_span
+            .as_ref()
+            .map(|t| keep.iter().map(|&i| t[i]).collect()),
+    }
+}
