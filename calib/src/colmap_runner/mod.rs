@@ -62,7 +62,8 @@ pub struct ColmapConfig {
     pub video_focal_px: Option<f64>,
     /// Seed of COLMAP's random number generator (RANSAC samples); retries add 1, 2, ….
     pub random_seed: u32,
-    /// Extraction, matching and mapping in one thread each, so that a run is repeatable:
+    /// Extraction, matching and mapping in one thread each, so that runs differ little
+    /// (the matcher's approximate search still varies a few matches per pair):
     /// threaded extraction numbers the images in the order they finish, and the image IDs
     /// steer the matcher's RANSAC and the mapper; threaded RANSAC and bundle adjustment
     /// vary too. Costs up to 2× in extraction and matching time on a 2-core machine.
