@@ -1,7 +1,9 @@
 //! A learned backdrop: the far scene as a texture on a sphere around the rig. A pixel's
 //! ray leaves the sphere at one point; the backdrop's colour there is the sum of a pyramid
 //! of equirectangular textures, coarse to fine and each sampled bilinearly, so a part of
-//! the sphere no training view saw takes its neighbourhood's colour from the coarse levels.
+//! the sphere no training view saw takes its neighbourhood's colour from the coarse levels
+//! while training. Training ends by baking it into one level faded to the flat colour in
+//! proportion to how little the training views saw of each direction ([`Coverage`]).
 //! Every render composites it where the Gaussians leave transmittance:
 //! `rgb = rgb₀ + (1 − alpha) · backdrop(ray)`, with `rgb₀` rendered on black.
 
@@ -31,20 +33,70 @@ impl Level {
         self.width / 2
     }
 
-    /// The four bilinear taps of `uv`: `f(texel index, weight)`.
-    fn taps(&self, [u, v]: Uv, mut f: impl FnMut(usize, f32)) {
-        let (w, h) = (self.width, self.height());
-        let x = u * w as f32 - 0.5;
-        let y = (v * h as f32 - 0.5).clamp(0.0, (h - 1) as f32);
-        let (x0, y0) = (x.floor(), y.floor());
-        let (fx, fy) = (x - x0, y - y0);
-        let col = |d: i64| (x0 as i64 + d).rem_euclid(w as i64) as usize;
-        let y0 = y0 as usize;
-        let y1 = (y0 + 1).min(h - 1);
-        f(y0 * w + col(0), (1.0 - fx) * (1.0 - fy));
-        f(y0 * w + col(1), fx * (1.0 - fy));
-        f(y1 * w + col(0), (1.0 - fx) * fy);
-        f(y1 * w + col(1), fx * fy);
+    fn taps(&self, uv: Uv, f: impl FnMut(usize, f32)) {
+        taps(self.width, uv, f)
+    }
+}
+
+/// The four bilinear taps of `uv` on an equirectangular grid `width × width/2`:
+/// `f(cell index, weight)`.
+fn taps(w: usize, [u, v]: Uv, mut f: impl FnMut(usize, f32)) {
+    let h = w / 2;
+    let x = u * w as f32 - 0.5;
+    let y = (v * h as f32 - 0.5).clamp(0.0, (h - 1) as f32);
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let col = |d: i64| (x0 as i64 + d).rem_euclid(w as i64) as usize;
+    let y0 = y0 as usize;
+    let y1 = (y0 + 1).min(h - 1);
+    f(y0 * w + col(0), (1.0 - fx) * (1.0 - fy));
+    f(y0 * w + col(1), fx * (1.0 - fy));
+    f(y1 * w + col(0), (1.0 - fx) * fy);
+    f(y1 * w + col(1), fx * fy);
+}
+
+/// How much the training views see of each direction of the backdrop past the Gaussians:
+/// per cell of a coarse equirectangular grid, the summed transmittance of the pixels whose
+/// rays meet the sphere there.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Coverage {
+    pub width: usize,
+    pub seen: Vec<f32>,
+}
+
+/// The quantile of the seen cells' coverage at which a cell counts as well seen: its
+/// learned colour is kept whole; less seen cells fade towards the flat colour in
+/// proportion (measured on real captures: a weaker fade keeps panels and lamps where a
+/// novel view has none).
+const WELL_SEEN_QUANTILE: f32 = 0.9;
+
+impl Coverage {
+    /// An empty grid `width × width/2` (width even).
+    pub fn new(width: usize) -> Self {
+        Self {
+            width,
+            seen: vec![0.0; width * width / 2],
+        }
+    }
+
+    /// Add each pixel's transmittance `1 − alpha` where its ray meets the backdrop (`uvs`).
+    pub fn add(&mut self, uvs: &[Uv], alpha: &[f32]) {
+        for (&uv, &a) in uvs.iter().zip(alpha) {
+            let t = (1.0 - a).max(0.0);
+            taps(self.width, uv, |i, w| self.seen[i] += w * t);
+        }
+    }
+
+    /// Per cell, how far to trust the learned colour: 1 where seen as well as the
+    /// [`WELL_SEEN_QUANTILE`] of the seen cells, falling linearly to 0 where never seen.
+    fn weights(&self) -> Vec<f32> {
+        let mut seen: Vec<f32> = self.seen.iter().copied().filter(|&s| s > 0.0).collect();
+        if seen.is_empty() {
+            return vec![0.0; self.seen.len()];
+        }
+        seen.sort_by(f32::total_cmp);
+        let well = seen[((seen.len() - 1) as f32 * WELL_SEEN_QUANTILE).round() as usize];
+        self.seen.iter().map(|&s| (s / well).min(1.0)).collect()
     }
 }
 
@@ -211,18 +263,41 @@ impl Backdrop {
     /// The pyramid summed into one texture of the finest level's size (what the viewer
     /// draws; bilinear sampling of it differs from [`Self::sample`] only between texels).
     pub fn baked(&self) -> Level {
+        self.baked_with(|_, colour| colour)
+    }
+
+    /// The finest level's texels, each `texel(uv, summed colour)`.
+    fn baked_with(&self, texel: impl Fn(Uv, [f32; 3]) -> [f32; 3] + Sync) -> Level {
         let finest = self.levels.last().expect("a backdrop has levels");
         let (w, h) = (finest.width, finest.height());
         let texels = (0..w * h)
+            .into_par_iter()
             .map(|i| {
                 let uv = [
                     ((i % w) as f32 + 0.5) / w as f32,
                     ((i / w) as f32 + 0.5) / h as f32,
                 ];
-                self.sample(uv)
+                texel(uv, self.sample(uv))
             })
             .collect();
         Level { width: w, texels }
+    }
+
+    /// This backdrop baked into one level, its colour faded to `colour` where the training
+    /// views did not see it (`coverage`): a direction no training view saw past the
+    /// Gaussians has only the coarse levels' spill from its neighbours, which a novel view
+    /// would show as lamps and panels out of place.
+    pub fn faded(&self, coverage: &Coverage, colour: [f32; 3]) -> Backdrop {
+        let weights = coverage.weights();
+        let level = self.baked_with(|uv, c| {
+            let mut w = 0.0;
+            taps(coverage.width, uv, |i, k| w += k * weights[i]);
+            [0, 1, 2].map(|k| w * c[k] + (1.0 - w) * colour[k])
+        });
+        Backdrop {
+            levels: vec![level],
+            ..self.clone()
+        }
     }
 }
 
@@ -581,5 +656,50 @@ mod tests {
         let s = b.sample(uv);
         let k = 3 * 32 + 7;
         (0..3).for_each(|c| assert!((baked.texels[k][c] - s[c]).abs() < 1e-6));
+    }
+
+    #[test]
+    fn the_fade_keeps_what_the_views_saw_and_flattens_the_rest() {
+        let mut b = Backdrop::around(&rig(), &[[2.5, 0.0, 0.0]], [0.5; 3], 32).unwrap();
+        for (i, t) in b.levels[1].texels.iter_mut().enumerate() {
+            *t = [0.01 * (i % 7) as f32, 0.2, -0.1];
+        }
+        // Cell centres of a 16 × 8 grid: columns 0..8 seen clearly, one cell barely.
+        let centre = |col: usize, row: usize| [(col as f32 + 0.5) / 16.0, (row as f32 + 0.5) / 8.0];
+        let mut uvs: Vec<Uv> = (0..8)
+            .flat_map(|c| (0..8).map(move |r| centre(c, r)))
+            .collect();
+        let mut alpha = vec![0.0f32; uvs.len()];
+        uvs.push(centre(10, 4));
+        alpha.push(0.9);
+        let mut coverage = Coverage::new(16);
+        coverage.add(&uvs, &alpha);
+        let total: f64 = coverage.seen.iter().map(|&s| f64::from(s)).sum();
+        let reference: f64 = alpha.iter().map(|&a| 1.0 - f64::from(a)).sum();
+        assert!((total - reference).abs() < 1e-5, "{total} vs {reference}");
+        let w = coverage.weights();
+        assert_eq!(w[3 * 16 + 5], 1.0);
+        assert!((w[4 * 16 + 10] - 0.1).abs() < 1e-6, "{}", w[4 * 16 + 10]);
+        assert_eq!(w[6 * 16 + 12], 0.0);
+
+        let flat = [0.1, 0.2, 0.3];
+        let faded = b.faded(&coverage, flat);
+        assert_eq!(
+            (faded.centre, faded.radius, faded.axes),
+            (b.centre, b.radius, b.axes)
+        );
+        assert_eq!(faded.levels.len(), 1);
+        let texel = |col: usize, row: usize| {
+            let uv = [(col as f32 + 0.5) / 32.0, (row as f32 + 0.5) / 16.0];
+            (faded.levels[0].texels[row * 32 + col], b.sample(uv))
+        };
+        // Inside the seen columns the learned colour; far from them the flat one.
+        let (kept, learned) = texel(4, 9);
+        (0..3).for_each(|c| assert!((kept[c] - learned[c]).abs() < 1e-6, "{kept:?}"));
+        assert_eq!(texel(24, 12).0, flat);
+        // Between: a blend.
+        let (between, learned) = texel(16, 4);
+        let k = (between[1] - flat[1]) / (learned[1] - flat[1]);
+        assert!(k > 0.0 && k < 1.0, "{k}");
     }
 }

@@ -1,16 +1,19 @@
 //! The learned backdrop while training (`[train] background = "learned"`): each view is
 //! rendered on black, the backdrop composited where transmittance remains, and the loss's
 //! gradient split between the render's alpha and the backdrop's texels, which take an Adam
-//! step with the Gaussians every iteration.
+//! step with the Gaussians every iteration. Training ends by baking it faded where the
+//! training views did not see it ([`fade_unseen`]).
 
 use std::path::{Path, PathBuf};
 
 use crate::Camera;
-use crate::render::Rendered;
+use crate::model::Gaussians;
 use crate::render::backdrop::{
-    Backdrop, BackdropAdam, BackdropFileError, Level, UvCache, composite, load_backdrop,
+    Backdrop, BackdropAdam, BackdropFileError, Coverage, Level, UvCache, composite, load_backdrop,
     save_backdrop,
 };
+use crate::render::{RenderBackend, RenderError, RenderOptions, Rendered};
+use crate::train::Dataset;
 
 /// Adam's learning rate of the texels (colour units per step).
 pub const BACKDROP_LR: f32 = 0.01;
@@ -67,6 +70,39 @@ impl BackdropFit {
             .iter_mut()
             .for_each(|l| l.iter_mut().for_each(|g| *g = [0.0; 3]));
     }
+}
+
+/// Training views rendered to measure the backdrop's coverage (evenly spread over the
+/// dataset's views, which run camera by camera through the frames).
+const COVERAGE_VIEWS: usize = 64;
+
+/// The trained `backdrop` faded to `colour` where no training view sees it past `model`'s
+/// Gaussians ([`Backdrop::faded`]), coverage measured on up to [`COVERAGE_VIEWS`] views of
+/// `dataset` on a grid an eighth of the finest level's width (16 to 128 cells around).
+pub(crate) fn fade_unseen(
+    backdrop: &Backdrop,
+    backend: &dyn RenderBackend,
+    model: &Gaussians<f32>,
+    dataset: &Dataset,
+    colour: [f32; 3],
+) -> Result<Backdrop, (usize, RenderError)> {
+    let finest = backdrop.levels.last().map_or(16, |l| l.width);
+    let mut coverage = Coverage::new((finest / 8).clamp(16, 128));
+    let mut uvs = UvCache::default();
+    let n = dataset.views.len();
+    let stride = n.div_ceil(COVERAGE_VIEWS).max(1);
+    let options = RenderOptions {
+        background: [0.0; 3],
+        ..Default::default()
+    };
+    for index in (0..n).step_by(stride) {
+        let view = &dataset.views[index];
+        let r = backend
+            .render(model, &view.camera, view.time, &options)
+            .map_err(|e| (index, e))?;
+        coverage.add(&uvs.get(backdrop, &view.camera), &r.alpha);
+    }
+    Ok(backdrop.faded(&coverage, colour))
 }
 
 /// A backdrop with its Adam moments in one file (a checkpoint's `NNNNNN.backdrop`): the

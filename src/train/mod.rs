@@ -688,8 +688,12 @@ pub fn train(
     log.flush().map_err(io(&log_path))?;
     let backdrop_path = match stepper.backdrop() {
         Some(fit) => {
+            progress.message("fading the backdrop where no training view sees it");
+            let faded =
+                backdrop_fit::fade_unseen(&fit.backdrop, backend, &model, dataset, background)
+                    .map_err(|(index, source)| TrainError::Render { index, source })?;
             let path = out_dir.join(BACKDROP_FILE);
-            save_backdrop(&fit.backdrop, &path)?;
+            save_backdrop(&faded, &path)?;
             Some(path)
         }
         None => None,

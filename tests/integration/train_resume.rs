@@ -6,7 +6,10 @@ use crate::train_scene;
 use splat4d::CpuBackend;
 use splat4d::Gaussians;
 use splat4d::NoProgress;
+use splat4d::metrics::{mse, psnr_from_mse};
+use splat4d::render::backdrop::{Backdrop, load_backdrop};
 use splat4d::train::{NoHooks, TrainConfig, TrainError, TrainHooks, train};
+use splat4d::{RenderBackend, RenderOptions, load_model};
 
 fn config(iterations: u64) -> TrainConfig {
     let mut c = TrainConfig {
@@ -309,6 +312,44 @@ fn a_learned_backdrop_resumes_bit_identically_and_draws_what_no_gaussian_covers(
         s.final_psnr,
         f.final_psnr
     );
+
+    // What render and eval draw: the saved backdrop (baked into one level) behind the
+    // saved model, also above the mean colour where no Gaussian covers the view.
+    let backdrop = load_backdrop(&straight.path().join(BACKDROP_FILE)).unwrap();
+    assert_eq!(backdrop.levels.len(), 1);
+    let view_psnr = |dir: &std::path::Path, backdrop: Option<&Backdrop>| {
+        let model = load_model(&dir.join("model.bin")).unwrap();
+        let mean: f64 = data
+            .views
+            .iter()
+            .map(|v| {
+                let options = RenderOptions {
+                    background: if backdrop.is_some() {
+                        [0.0; 3]
+                    } else {
+                        f.background
+                    },
+                    ..Default::default()
+                };
+                let mut r = CpuBackend
+                    .render(&model, &v.camera, v.time, &options)
+                    .unwrap();
+                if let Some(b) = backdrop {
+                    b.draw(&v.camera, &mut r);
+                }
+                let mut truth = Vec::new();
+                v.image.to_f32_into(&mut truth);
+                psnr_from_mse(mse(&r.rgb, &truth))
+            })
+            .sum();
+        mean / data.views.len() as f64
+    };
+    let (drawn, plain) = (
+        view_psnr(straight.path(), Some(&backdrop)),
+        view_psnr(flat.path(), None),
+    );
+    eprintln!("saved model: on its backdrop {drawn:.2} dB, on the mean colour {plain:.2} dB");
+    assert!(drawn > plain + 1.0, "{drawn:.2} against {plain:.2} dB");
 
     let resumed = tempfile::tempdir().unwrap();
     let e = run(&learned(40), resumed.path(), false, &mut StopAt(17)).unwrap_err();
