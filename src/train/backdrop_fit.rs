@@ -100,7 +100,11 @@ pub(crate) fn fade_unseen(
         let r = backend
             .render(model, &view.camera, view.time, &options)
             .map_err(|e| (index, e))?;
-        coverage.add(&uvs.get(backdrop, &view.camera), &r.alpha);
+        coverage.add(
+            &view.camera.name,
+            &uvs.get(backdrop, &view.camera),
+            &r.alpha,
+        );
     }
     Ok(backdrop.faded(&coverage, colour))
 }
