@@ -174,7 +174,7 @@ mod tests {
     /// against the closed form `DensifyConfig::count`).
     fn densifications(t: &TrainConfig) -> u64 {
         let n = (1..=t.iterations)
-            .filter(|&done| t.densify.densifies_at(done))
+            .filter(|&done| t.densify.densifies_at(done, t.iterations))
             .count() as u64;
         assert_eq!(n, t.densify.count(), "{:?}", t.densify);
         n

@@ -47,14 +47,20 @@ impl DensifyConfig {
         self.enabled && done > self.from_iteration && done <= self.until_iteration
     }
 
-    /// Whether training densifies after `done` steps: at the multiples of `every` in the
-    /// window.
-    pub fn densifies_at(&self, done: u64) -> bool {
-        self.in_window(done) && self.every > 0 && done.is_multiple_of(self.every)
+    /// Whether a run of `iterations` steps densifies after `done` of them: at the
+    /// multiples of `every` in the window, and never in the run's second half. As in the
+    /// reference (until 15 000 of 30 000 steps), a Gaussian added late has no time to
+    /// settle: panoptic-5view's 1000-step schedule kept the default window, densified up
+    /// to its last step, and scored 18.22 dB held-out against 19.75 without those steps.
+    pub fn densifies_at(&self, done: u64, iterations: u64) -> bool {
+        self.in_window(done)
+            && 2 * done <= iterations
+            && self.every > 0
+            && done.is_multiple_of(self.every)
     }
 
-    /// How many times training densifies ([`Self::densifies_at`]) in a run long enough to
-    /// cover the window (0 when disabled).
+    /// How many times training densifies ([`Self::densifies_at`]) in a run at least twice
+    /// `until_iteration` long (0 when disabled).
     pub fn count(&self) -> u64 {
         if !self.enabled || self.every == 0 || self.until_iteration <= self.from_iteration {
             return 0;
@@ -283,6 +289,29 @@ mod tests {
     use super::*;
     use crate::model::{ColourDegrees, TimeMapping};
     use rand_core::SeedableRng;
+
+    #[test]
+    fn densification_stays_in_its_window_and_the_first_half_of_the_run() {
+        let d = DensifyConfig::default(); // from 500 until 15 000, every 100
+        let steps = |iterations: u64| -> Vec<u64> {
+            (1..=iterations)
+                .filter(|&done| d.densifies_at(done, iterations))
+                .collect()
+        };
+        // A 30 000-step run: the window, as the reference.
+        let full = steps(30_000);
+        assert_eq!((full[0], *full.last().unwrap()), (600, 15_000));
+        assert_eq!(full.len() as u64, d.count());
+        // A 1600-step run with the default window: up to step 800, not to its end.
+        assert_eq!(steps(1600), [600, 700, 800]);
+        // A 1000-step run: its first half ends where the window starts.
+        assert!(steps(1000).is_empty());
+        let off = DensifyConfig {
+            enabled: false,
+            ..d.clone()
+        };
+        assert!(!(1..=30_000).any(|done| off.densifies_at(done, 30_000)));
+    }
 
     fn model() -> Gaussians<f32> {
         let mut g = Gaussians::new(

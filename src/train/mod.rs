@@ -575,7 +575,7 @@ pub fn train(
         }
         let done = it + 1;
         let in_window = d.in_window(done);
-        let densify_now = d.densifies_at(done);
+        let densify_now = d.densifies_at(done, config.iterations);
         // A reset needs steps to recover: none in the last half period (a reset on the last
         // step would leave a transparent model).
         let reset_now = in_window
