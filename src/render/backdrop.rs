@@ -44,10 +44,12 @@ fn taps(w: usize, [u, v]: Uv, mut f: impl FnMut(usize, f32)) {
     let h = w / 2;
     let x = u * w as f32 - 0.5;
     let y = (v * h as f32 - 0.5).clamp(0.0, (h - 1) as f32);
-    let (x0, y0) = (x.floor(), y.floor());
-    let (fx, fy) = (x - x0, y - y0);
-    let col = |d: i64| (x0 as i64 + d).rem_euclid(w as i64) as usize;
-    let y0 = y0 as usize;
+    // floor by truncation (`y` ≥ 0; `x` ≥ −0.5 for u in 0..1, any finite u handled):
+    // a libm call per tap otherwise.
+    let x0 = x as i64 - i64::from(x < (x as i64) as f32);
+    let y0 = y as usize;
+    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+    let col = |d: i64| (x0 + d).rem_euclid(w as i64) as usize;
     let y1 = (y0 + 1).min(h - 1);
     f(y0 * w + col(0), (1.0 - fx) * (1.0 - fy));
     f(y0 * w + col(1), fx * (1.0 - fy));
@@ -264,13 +266,23 @@ impl Backdrop {
         grads: &mut [Vec<[f32; 3]>],
     ) {
         d_alpha.clear();
-        for (((g, &a), &uv), b) in d_rgb.chunks_exact(3).zip(alpha).zip(uvs).zip(behind) {
-            d_alpha.push(-(g[0] * b[0] + g[1] * b[1] + g[2] * b[2]));
-            let t = 1.0 - a;
-            for (level, gl) in self.levels.iter().zip(grads.iter_mut()) {
-                level.taps(uv, |i, w| (0..3).for_each(|c| gl[i][c] += w * t * g[c]));
-            }
-        }
+        d_alpha.extend(
+            d_rgb
+                .chunks_exact(3)
+                .zip(behind)
+                .map(|(g, b)| -(g[0] * b[0] + g[1] * b[1] + g[2] * b[2])),
+        );
+        // Each level's gradient on its own thread: the same sums in the same pixel order
+        // as one loop, so the result does not depend on the thread count.
+        self.levels
+            .par_iter()
+            .zip(grads.par_iter_mut())
+            .for_each(|(level, gl)| {
+                for ((g, &a), &uv) in d_rgb.chunks_exact(3).zip(alpha).zip(uvs) {
+                    let t = 1.0 - a;
+                    level.taps(uv, |i, w| (0..3).for_each(|c| gl[i][c] += w * t * g[c]));
+                }
+            });
     }
 
     /// Zeroed gradients shaped like the levels.
@@ -487,18 +499,20 @@ impl BackdropAdam {
         let c1 = 1.0 - B1.powi(self.step as i32);
         let c2 = 1.0 - B2.powi(self.step as i32);
         let lr = self.lr;
-        for (l, level) in backdrop.levels.iter_mut().enumerate() {
-            let (ms, vs) = (&mut self.m[l], &mut self.v[l]);
-            for (i, t) in level.texels.iter_mut().enumerate() {
-                for c in 0..3 {
-                    let g = grads[l][i][c];
-                    let (m, v) = (&mut ms[i][c], &mut vs[i][c]);
-                    *m = B1 * *m + (1.0 - B1) * g;
-                    *v = B2 * *v + (1.0 - B2) * g * g;
-                    t[c] -= lr * (*m / c1) / ((*v / c2).sqrt() + 1e-15);
+        backdrop
+            .levels
+            .par_iter_mut()
+            .zip(self.m.par_iter_mut().zip(self.v.par_iter_mut()))
+            .zip(grads)
+            .for_each(|((level, (ms, vs)), gl)| {
+                for (((t, m), v), g) in level.texels.iter_mut().zip(ms).zip(vs).zip(gl) {
+                    for c in 0..3 {
+                        m[c] = B1 * m[c] + (1.0 - B1) * g[c];
+                        v[c] = B2 * v[c] + (1.0 - B2) * g[c] * g[c];
+                        t[c] -= lr * (m[c] / c1) / ((v[c] / c2).sqrt() + 1e-15);
+                    }
                 }
-            }
-        }
+            });
     }
 }
 
