@@ -59,6 +59,33 @@ impl DensifyConfig {
             && done.is_multiple_of(self.every)
     }
 
+    /// When a run of `iterations` steps densifies, in words (for the log): the window
+    /// with its end at half the run where the window reaches past it.
+    pub fn describe(&self, iterations: u64) -> String {
+        let half = iterations / 2;
+        let last = self.until_iteration.min(half);
+        if !self.enabled || self.every == 0 {
+            "densification: off".into()
+        } else if last <= self.from_iteration {
+            format!(
+                "densification: none (its window starts after step {}, and it never runs in \
+                 the second half of the {iterations} steps)",
+                self.from_iteration
+            )
+        } else if last < self.until_iteration {
+            format!(
+                "densification: every {} steps after step {} up to {last}, half the run (the \
+                 window says {})",
+                self.every, self.from_iteration, self.until_iteration
+            )
+        } else {
+            format!(
+                "densification: every {} steps after step {} up to {last}",
+                self.every, self.from_iteration
+            )
+        }
+    }
+
     /// How many times training densifies ([`Self::densifies_at`]) in a run at least twice
     /// `until_iteration` long (0 when disabled).
     pub fn count(&self) -> u64 {
@@ -311,6 +338,17 @@ mod tests {
             ..d.clone()
         };
         assert!(!(1..=30_000).any(|done| off.densifies_at(done, 30_000)));
+        // What the log says of each.
+        assert_eq!(
+            d.describe(30_000),
+            "densification: every 100 steps after step 500 up to 15000"
+        );
+        assert!(
+            d.describe(1600)
+                .contains("up to 800, half the run (the window says 15000)")
+        );
+        assert!(d.describe(1000).starts_with("densification: none"));
+        assert_eq!(off.describe(1000), "densification: off");
     }
 
     fn model() -> Gaussians<f32> {

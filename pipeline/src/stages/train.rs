@@ -114,6 +114,7 @@ pub fn run(
     let mut method = splat4d::decay::DecayHooks::new(decay)
         .map_err(|e| anyhow::anyhow!("capture.toml [decay]: {e}"))?;
     tracing::info!("opacity decay: {:?}", decay.variant);
+    tracing::info!("{}", settings.densify.describe(settings.iterations));
     let mut hooks = StageHooks { inner: &mut method };
     let _graceful = Graceful::enter();
     let backend = crate::engine_inputs::training_backend_for(engine.backend)?;
