@@ -326,8 +326,10 @@ impl Backdrop {
             [0, 1, 2].map(|k| w * c[k] + (1.0 - w) * colour[k])
         });
         Backdrop {
+            centre: self.centre,
+            radius: self.radius,
+            axes: self.axes,
             levels: vec![level],
-            ..self.clone()
         }
     }
 }
