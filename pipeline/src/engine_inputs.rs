@@ -215,14 +215,15 @@ pub struct TrainRecord {
     /// (`splat4d::train::exposure`; empty: the frames as filmed).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub exposure: Vec<splat4d::train::exposure::CameraGain>,
-    /// The model was trained on a learned backdrop (`[train] background = "learned"`,
-    /// `work/train/backdrop.bin`), drawn behind it with `background` only as its start.
+    /// A backdrop was fitted behind the model (`[train] background = "learned"`,
+    /// `work/train/backdrop.bin`): it is drawn behind the model, and `background` is
+    /// only the colour the Gaussians trained on and the backdrop fades to.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub backdrop: bool,
 }
 
 impl TrainRecord {
-    /// The learned backdrop the model was trained on, when it was.
+    /// The backdrop fitted behind the model, when one was.
     pub fn load_backdrop(
         &self,
         work_dir: &Path,

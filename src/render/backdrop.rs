@@ -2,8 +2,9 @@
 //! ray leaves the sphere at one point; the backdrop's colour there is the sum of a pyramid
 //! of equirectangular textures, coarse to fine and each sampled bilinearly, so a part of
 //! the sphere no training view saw takes its neighbourhood's colour from the coarse levels
-//! while training. Training ends by baking it into one level faded to the flat colour in
-//! proportion to how little the training views saw of each direction ([`Coverage`]).
+//! while it is fitted (behind the trained Gaussians, `crate::train::backdrop_fit`). The fit
+//! ends by baking it into one level faded to the flat colour in proportion to how little
+//! the training views saw of each direction ([`Coverage`]).
 //! Every render composites it where the Gaussians leave transmittance:
 //! `rgb = rgb₀ + (1 − alpha) · backdrop(ray)`, with `rgb₀` rendered on black.
 
@@ -477,9 +478,10 @@ pub fn load_backdrop(path: &Path) -> Result<Backdrop, BackdropFileError> {
 /// Adam over a backdrop's texels.
 #[derive(Clone, Debug, PartialEq)]
 pub struct BackdropAdam {
-    pub m: Vec<Vec<[f32; 3]>>,
-    pub v: Vec<Vec<[f32; 3]>>,
-    pub step: u32,
+    m: Vec<Vec<[f32; 3]>>,
+    v: Vec<Vec<[f32; 3]>>,
+    step: u32,
+    /// The learning rate of the next step (colour units per step).
     pub lr: f32,
 }
 

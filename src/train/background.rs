@@ -1,8 +1,9 @@
 //! What is composited behind the Gaussians while training, and what every render of the
 //! trained model is drawn on. Where four cameras leave part of a held-out view unseen, that
-//! part shows it: the training images' mean colour (the default) is the least wrong flat
-//! guess there, black the most wrong for a bright room; a learned backdrop
-//! ([`crate::render::backdrop`]) draws the far walls the cameras saw, from wherever one looks.
+//! part shows it: a learned backdrop (the default, [`crate::render::backdrop`]) draws the
+//! far walls the cameras saw, from wherever one looks, and fades to the training images'
+//! mean colour where they saw nothing; the mean colour alone is the least wrong flat guess,
+//! black the most wrong for a bright room.
 
 use serde::{Deserialize, Serialize};
 
@@ -13,10 +14,10 @@ use crate::train::Dataset;
 #[serde(try_from = "Spelling", into = "Spelling")]
 pub enum Background {
     /// The mean colour of every training image, resolved when training starts.
-    #[default]
     Mean,
-    /// A backdrop learned with the Gaussians: a texture on a sphere around the rig at the
-    /// static scene's far walls, starting from the mean colour.
+    /// The Gaussians train on the mean colour; then a backdrop is fitted behind them: a
+    /// texture on a sphere around the rig at the static scene's far walls.
+    #[default]
     Learned,
     /// A fixed colour.
     Colour([f32; 3]),
@@ -56,7 +57,8 @@ impl From<Background> for Spelling {
 
 impl Background {
     /// The colour this background is for `dataset` (`Mean`: its images' mean colour, black
-    /// for an empty dataset; `Learned`: the same, where its backdrop starts).
+    /// for an empty dataset; `Learned`: the same, which the Gaussians train on and the
+    /// backdrop starts from and fades to).
     pub fn resolve(&self, dataset: &Dataset) -> [f32; 3] {
         match *self {
             Self::Colour(c) => c,

@@ -1,7 +1,7 @@
 //! Checkpoints: `ckpt/NNNNNN.bin` (the model file) beside `ckpt/NNNNNN.state` (iteration,
-//! Adam moments, densification statistics, hook state) and, with a learned backdrop,
-//! `ckpt/NNNNNN.backdrop`. Together with the per-iteration
-//! RNG streams (seeded from `(seed, iteration)`) they make a resumed run bit-identical.
+//! Adam moments, densification statistics, hook state). Together with the per-iteration
+//! RNG streams (seeded from `(seed, iteration)`) they make a resumed run bit-identical
+//! (a learned backdrop is fitted after the last step, from the model alone).
 
 use crate::model::Gaussians;
 use crate::model::file::{ModelFileError, load_model, save_model};
@@ -45,12 +45,6 @@ pub fn paths(dir: &Path, iteration: u64) -> (PathBuf, PathBuf) {
         dir.join(format!("{iteration:06}.bin")),
         dir.join(format!("{iteration:06}.state")),
     )
-}
-
-/// The learned backdrop and its moments after `iteration` iterations (written before the
-/// model file; see `train::backdrop_fit`).
-pub fn backdrop_path(dir: &Path, iteration: u64) -> PathBuf {
-    dir.join(format!("{iteration:06}.backdrop"))
 }
 
 /// Write a checkpoint (state first, model last; both atomically).
@@ -123,7 +117,6 @@ pub fn prune(dir: &Path, keep: usize) {
         let (a, b) = paths(dir, it);
         let _ = std::fs::remove_file(a);
         let _ = std::fs::remove_file(b);
-        let _ = std::fs::remove_file(backdrop_path(dir, it));
     }
 }
 

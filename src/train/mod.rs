@@ -31,7 +31,7 @@ use crate::decay::mlp::{Mlp, MlpAdam};
 use crate::metrics::{mse, psnr_from_mse};
 use crate::model::init::{InitOptions, SeedError, gaussians_from_points};
 use crate::model::{ColourDegrees, Gaussians};
-use crate::render::backdrop::{Backdrop, BackdropAdam, save_backdrop};
+use crate::render::backdrop::save_backdrop;
 use crate::render::{RenderBackend, RenderError, RenderOptions};
 use crate::train::densify::{DensifyConfig, DensifyStats, densify_and_prune, reset_opacity};
 use crate::train::device_step::DeviceStep;
@@ -60,8 +60,9 @@ pub struct TrainConfig {
     pub seed: u64,
     /// Weight λ of `(1 − SSIM)` in the loss.
     pub lambda_ssim: f64,
-    /// What is composited behind the Gaussians (`"mean"`: the training images' mean
-    /// colour; `"learned"`: a learned backdrop; [`Background`]).
+    /// What the model is drawn on (`"learned"`: a backdrop fitted behind the trained
+    /// Gaussians, which train on the mean colour; `"mean"`: the training images' mean
+    /// colour; [`Background`]).
     pub background: Background,
     /// With `background = "learned"`: texels around the backdrop's finest level (a power
     /// of two; 32 keeps only a smooth colour per direction).
@@ -106,7 +107,7 @@ impl Default for TrainConfig {
             batch_size: 4,
             seed: 0,
             lambda_ssim: 0.2,
-            background: Background::Mean,
+            background: Background::Learned,
             backdrop_size: 1024,
             colour_degrees: ColourDegrees::FULL,
             degree_every: 1000,
@@ -410,7 +411,8 @@ fn all_finite(model: &Gaussians<f32>) -> bool {
         && model.colours.iter().all(|x| x.is_finite())
 }
 
-/// Train a model on `dataset` from `init`, writing `out_dir/{ckpt/, model.bin, log.csv}`.
+/// Train a model on `dataset` from `init`, writing `out_dir/{ckpt/, model.bin, log.csv}`
+/// and, with `background = "learned"`, the backdrop fitted behind it ([`BACKDROP_FILE`]).
 /// With `resume`, continue from the newest complete checkpoint in `out_dir/ckpt` (a fresh
 /// start when there is none). Every view is rendered and differentiated by `backend`; with
 /// the GPU backend the whole iteration runs on the GPU (see [`TrainHooks::model_access`]
@@ -481,12 +483,17 @@ pub fn train(
             (model, adam, stats, 0)
         }
     };
-    let backdrop = match (config.background, latest) {
-        (Background::Learned, Some(it)) => Some(backdrop_fit::load_state(
-            &checkpoint::backdrop_path(&ckpt_dir, it),
-            adam.step as u32,
-        )?),
-        (Background::Learned, None) => Some(new_backdrop(config, dataset, init, background)?),
+    // The learned backdrop is fitted after the last step; its sphere is set up first, so a
+    // capture it does not suit fails before training.
+    let backdrop = match config.background {
+        Background::Learned => Some(
+            backdrop_fit::sphere(dataset, init, background, config.backdrop_size).ok_or_else(|| {
+                TrainError::Config(
+                    "background = \"learned\" needs cameras that look at a common point; use \"mean\""
+                        .into(),
+                )
+            })?,
+        ),
         _ => None,
     };
     let log_path = out_dir.join("log.csv");
@@ -502,13 +509,7 @@ pub fn train(
                      model: &Gaussians<f32>,
                      adam: &Adam,
                      stats: &DensifyStats,
-                     hooks: &dyn TrainHooks,
-                     backdrop: Option<&backdrop_fit::BackdropFit>| {
-        // Before the model file, whose presence marks a checkpoint complete.
-        if let Some(fit) = backdrop {
-            std::fs::create_dir_all(&ckpt_dir).map_err(io(&ckpt_dir))?;
-            backdrop_fit::save_state(fit, &checkpoint::backdrop_path(&ckpt_dir, it))?;
-        }
+                     hooks: &dyn TrainHooks| {
         let c = Checkpoint {
             iteration: it,
             seed: config.seed,
@@ -528,19 +529,13 @@ pub fn train(
         && hooks
             .device_decay()
             .is_some_and(|d| GpuDecay::supports(d.config));
-    // A learned backdrop is fitted on the host (the GPU backend then renders and
-    // differentiates each view, and the host does the rest).
     let mut stepper: Box<dyn Stepper + '_> = match backend.as_gpu() {
-        Some(gpu)
-            if backdrop.is_none() && (access != ModelAccess::OpacityFactor || decay_on_device) =>
-        {
+        Some(gpu) if access != ModelAccess::OpacityFactor || decay_on_device => {
             Box::new(DeviceStep::new(
                 gpu, config, background, dataset, &model, &adam, &stats, hooks,
             )?)
         }
-        _ => Box::new(HostStep::new(
-            backend, config, background, dataset, &model, backdrop,
-        )),
+        _ => Box::new(HostStep::new(backend, config, background, dataset, &model)),
     };
     // The cap and hooks that touch the model run on the host every step (a decay on the
     // device touches the device's model only).
@@ -660,14 +655,7 @@ pub fn train(
         }
         if checkpoint_now {
             log.flush().map_err(io(&log_path))?;
-            last_checkpoint = Some(save_ckpt(
-                done,
-                &model,
-                &adam,
-                &stats,
-                &*hooks,
-                stepper.backdrop(),
-            )?);
+            last_checkpoint = Some(save_ckpt(done, &model, &adam, &stats, &*hooks)?);
         }
         if done < config.iterations && hooks.stop_requested(done) {
             log.flush().map_err(io(&log_path))?;
@@ -675,7 +663,7 @@ pub fn train(
                 Some(p) if p.ends_with(format!("{done:06}.bin")) => p.clone(),
                 _ => {
                     stepper.state_to_host(&mut model, &mut adam, &mut stats, hooks)?;
-                    save_ckpt(done, &model, &adam, &stats, &*hooks, stepper.backdrop())?
+                    save_ckpt(done, &model, &adam, &stats, &*hooks)?
                 }
             };
             progress.finish();
@@ -686,14 +674,18 @@ pub fn train(
         }
     }
     log.flush().map_err(io(&log_path))?;
-    let backdrop_path = match stepper.backdrop() {
-        Some(fit) => {
-            progress.message("fading the backdrop where no training view sees it");
-            let faded =
-                backdrop_fit::fade_unseen(&fit.backdrop, backend, &model, dataset, background)
-                    .map_err(|(index, source)| TrainError::Render { index, source })?;
+    let backdrop_path = match backdrop {
+        Some(backdrop) => {
+            let settings = backdrop_fit::FitSettings {
+                lambda_ssim: config.lambda_ssim,
+                seed: config.seed,
+            };
+            let backdrop = backdrop_fit::learn_backdrop(
+                backdrop, backend, &model, dataset, background, &settings, progress,
+            )
+            .map_err(|(index, source)| TrainError::Render { index, source })?;
             let path = out_dir.join(BACKDROP_FILE);
-            save_backdrop(&faded, &path)?;
+            save_backdrop(&backdrop, &path)?;
             Some(path)
         }
         None => None,
@@ -717,41 +709,6 @@ pub fn train(
 
 /// The learned backdrop's file beside `model.bin` (`[train] background = "learned"`).
 pub const BACKDROP_FILE: &str = "backdrop.bin";
-
-/// A backdrop around `dataset`'s cameras at the far quantile of `init`'s static points
-/// (every point when the cloud does not say which are static), starting from `colour`.
-fn new_backdrop(
-    config: &TrainConfig,
-    dataset: &Dataset,
-    init: &PointCloud,
-    colour: [f32; 3],
-) -> Result<backdrop_fit::BackdropFit, TrainError> {
-    let mut cameras: Vec<crate::Camera> = Vec::new();
-    for v in &dataset.views {
-        if !cameras.iter().any(|c| c.name == v.camera.name) {
-            cameras.push(v.camera.clone());
-        }
-    }
-    let static_points: Vec<[f32; 3]> = match &init.time_span {
-        Some(span) => init
-            .xyz
-            .iter()
-            .zip(span)
-            .filter(|(_, s)| **s > 0.0)
-            .map(|(p, _)| *p)
-            .collect(),
-        None => init.xyz.clone(),
-    };
-    let backdrop = Backdrop::around(&cameras, &static_points, colour, config.backdrop_size)
-        .ok_or_else(|| {
-            TrainError::Config(
-                "background = \"learned\" needs cameras that look at a common point; use \"mean\""
-                    .into(),
-            )
-        })?;
-    let adam = BackdropAdam::new(&backdrop, backdrop_fit::BACKDROP_LR);
-    Ok(backdrop_fit::BackdropFit::new(backdrop, adam))
-}
 
 /// PSNR (dB) of `model` rendered at every view of `dataset` against its image.
 pub fn evaluate_psnr(

@@ -12,7 +12,6 @@
 use crate::metrics::psnr_from_mse;
 use crate::model::Gaussians;
 use crate::render::{Gradients, ImageGradients, RenderBackend, RenderOptions};
-use crate::train::backdrop_fit::BackdropFit;
 use crate::train::densify::DensifyStats;
 use crate::train::loss::{LossValue, image_loss};
 use crate::train::optim::{Adam, GroupRates};
@@ -97,15 +96,10 @@ pub(crate) trait Stepper {
         adam: &Adam,
         stats: &DensifyStats,
     ) -> Result<(), TrainError>;
-
-    /// The learned backdrop, when the step fits one.
-    fn backdrop(&self) -> Option<&BackdropFit> {
-        None
-    }
 }
 
 /// The host path: `backend` renders and differentiates each view; loss, gradient sum and
-/// Adam run on the host, and so does the learned backdrop when there is one.
+/// Adam run on the host.
 pub(crate) struct HostStep<'a> {
     backend: &'a dyn RenderBackend,
     config: &'a TrainConfig,
@@ -117,7 +111,6 @@ pub(crate) struct HostStep<'a> {
     /// One view's gradients, reused across views and iterations: the backward resizes
     /// and overwrites it, so the large colour array is not faulted in afresh every view.
     g: Gradients<f32>,
-    backdrop: Option<BackdropFit>,
 }
 
 impl<'a> HostStep<'a> {
@@ -127,7 +120,6 @@ impl<'a> HostStep<'a> {
         background: [f32; 3],
         dataset: &'a Dataset,
         model: &Gaussians<f32>,
-        backdrop: Option<BackdropFit>,
     ) -> Self {
         Self {
             backend,
@@ -137,7 +129,6 @@ impl<'a> HostStep<'a> {
             target: Vec::new(),
             d_image: Vec::new(),
             g: Gradients::zeros_like(model, false),
-            backdrop,
         }
     }
 }
@@ -159,11 +150,7 @@ impl Stepper for HostStep<'_> {
     ) -> Result<BatchLoss, TrainError> {
         let it = iteration;
         let (config, backend, g) = (self.config, self.backend, &mut self.g);
-        // A learned backdrop is composited after the render, on black.
-        let background = match self.backdrop {
-            Some(_) => [0.0; 3],
-            None => self.background,
-        };
+        let background = self.background;
         let (target, d_image) = (&mut self.target, &mut self.d_image);
         let mut grads = Gradients::zeros_like(model, false);
         let mut losses = Vec::with_capacity(batch.len());
@@ -176,25 +163,18 @@ impl Stepper for HostStep<'_> {
                 opacity_factor: factor.as_deref(),
                 ..Default::default()
             };
-            let mut r = backend
+            let r = backend
                 .render(model, &view.camera, view.time, &options)
                 .map_err(|source| TrainError::Render { index: vi, source })?;
-            if let Some(fit) = &mut self.backdrop {
-                fit.composite(&view.camera, &mut r);
-            }
             view.image.to_f32_into(target);
             d_image.clear();
             d_image.resize(target.len(), 0.0);
             let (w, h) = (r.width as usize, r.height as usize);
             let lv = image_loss(&r.rgb, target, w, h, config.lambda_ssim, Some(d_image));
             d_image.iter_mut().for_each(|g| *g *= scale);
-            let d_alpha = self
-                .backdrop
-                .as_mut()
-                .map(|fit| fit.backward(&view.camera, &r, d_image));
             let up = ImageGradients {
                 rgb: d_image,
-                alpha: d_alpha,
+                alpha: None,
                 depth: None,
             };
             backend
@@ -215,9 +195,6 @@ impl Stepper for HostStep<'_> {
             losses.push(lv);
         }
         adam.step(model, &grads, rates);
-        if let Some(fit) = &mut self.backdrop {
-            fit.step();
-        }
         Ok(BatchLoss { losses })
     }
 
@@ -250,10 +227,6 @@ impl Stepper for HostStep<'_> {
         _stats: &DensifyStats,
     ) -> Result<(), TrainError> {
         Ok(())
-    }
-
-    fn backdrop(&self) -> Option<&BackdropFit> {
-        self.backdrop.as_ref()
     }
 }
 

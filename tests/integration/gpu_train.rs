@@ -290,10 +290,11 @@ fn gpu_iterations_match_the_cpu_trainer_step() {
     }
 }
 
-/// With a learned backdrop the GPU backend renders and differentiates each view and the
-/// host fits the backdrop: the same backdrop as on the CPU, up to the backends' rounding.
+/// With a learned backdrop the whole training step stays on the GPU, and the backdrop
+/// fitted after it behind the GPU backend's renders is the CPU's, up to the backends'
+/// rounding.
 #[test]
-fn a_learned_backdrop_trains_with_the_gpu_backend_as_with_the_cpu() {
+fn a_learned_backdrop_is_fitted_with_the_gpu_backend_as_with_the_cpu() {
     use splat4d::render::backdrop::load_backdrop;
     use splat4d::train::{BACKDROP_FILE, Background};
     let Some(gpu) = gpu() else { return };
@@ -326,7 +327,7 @@ fn a_learned_backdrop_trains_with_the_gpu_backend_as_with_the_cpu() {
     };
     let (cpu_summary, cpu) = run(&CpuBackend);
     let (gpu_summary, on_gpu) = run(&gpu);
-    assert_eq!(gpu_summary.placement, "host");
+    assert_eq!(gpu_summary.placement, "gpu");
     let flat = |b: &splat4d::render::backdrop::Backdrop| -> Vec<f32> {
         b.levels
             .iter()
@@ -334,17 +335,26 @@ fn a_learned_backdrop_trains_with_the_gpu_backend_as_with_the_cpu() {
             .collect()
     };
     let (a, b) = (flat(&cpu), flat(&on_gpu));
-    let moved = a.iter().filter(|v| v.abs() > 1e-3).count();
+    let start = cpu_summary.background;
+    let moved = a
+        .iter()
+        .enumerate()
+        .filter(|(i, v)| (*v - start[i % 3]).abs() > 1e-2)
+        .count();
     assert!(
         moved > 100,
-        "the backdrop learned ({moved} texel values moved)"
+        "the backdrop learned ({moved} texel values moved from the mean colour)"
     );
-    let worst = a
-        .iter()
-        .zip(&b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0f32, f32::max);
-    assert!(worst < 0.02, "largest texel difference {worst}");
+    // Adam moves a texel with next to no gradient by its step size whatever the gradient's
+    // sign, so the few barely seen texels follow the backends' rounding; the rest agree.
+    let mut d: Vec<f32> = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).collect();
+    d.sort_by(f32::total_cmp);
+    let (median, p99) = (d[d.len() / 2], d[d.len() * 99 / 100]);
+    eprintln!("texel differences: median {median:.1e}, 99th percentile {p99:.1e}");
+    assert!(
+        median < 1e-3 && p99 < 0.02,
+        "median {median}, 99th percentile {p99}"
+    );
     assert!(
         (cpu_summary.final_psnr - gpu_summary.final_psnr).abs() < 0.3,
         "{} against {} dB",

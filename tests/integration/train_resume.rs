@@ -273,7 +273,7 @@ fn corrupt_checkpoint_state_is_a_clear_error() {
 }
 
 #[test]
-fn a_learned_backdrop_resumes_bit_identically_and_draws_what_no_gaussian_covers() {
+fn a_learned_backdrop_is_fitted_after_training_and_draws_what_no_gaussian_covers() {
     use splat4d::train::{BACKDROP_FILE, Background};
     let data = train_scene::dataset(32, 24);
     // Gaussians on the left half of the textured plane only: the right half of every
@@ -300,21 +300,22 @@ fn a_learned_backdrop_resumes_bit_identically_and_draws_what_no_gaussian_covers(
     let s = run(&learned(40), straight.path(), false, &mut NoHooks).unwrap();
     assert_eq!(s.backdrop, Some(straight.path().join(BACKDROP_FILE)));
     let flat = tempfile::tempdir().unwrap();
-    let f = run(&config(40), flat.path(), false, &mut NoHooks).unwrap();
+    let mean = TrainConfig {
+        background: Background::Mean,
+        ..config(40)
+    };
+    let f = run(&mean, flat.path(), false, &mut NoHooks).unwrap();
     assert!(f.backdrop.is_none() && !flat.path().join(BACKDROP_FILE).exists());
-    eprintln!(
-        "last batch: learned backdrop {:.2} dB, mean colour {:.2} dB",
-        s.final_psnr, f.final_psnr
-    );
+    // The Gaussians train on the mean colour either way; the backdrop is fitted after.
+    assert_eq!(s.background, f.background);
     assert!(
-        s.final_psnr > f.final_psnr + 1.0,
-        "learned backdrop {:.2} dB against the mean colour {:.2} dB",
-        s.final_psnr,
-        f.final_psnr
+        std::fs::read(straight.path().join("model.bin")).unwrap()
+            == std::fs::read(flat.path().join("model.bin")).unwrap(),
+        "the Gaussians trained differently with a learned backdrop"
     );
 
     // What render and eval draw: the saved backdrop (baked into one level) behind the
-    // saved model, also above the mean colour where no Gaussian covers the view.
+    // model, well above the mean colour where no Gaussian covers the view.
     let backdrop = load_backdrop(&straight.path().join(BACKDROP_FILE)).unwrap();
     assert_eq!(backdrop.levels.len(), 1);
     let view_psnr = |dir: &std::path::Path, backdrop: Option<&Backdrop>| {
@@ -357,7 +358,6 @@ fn a_learned_backdrop_resumes_bit_identically_and_draws_what_no_gaussian_covers(
         matches!(e, TrainError::Interrupted { iteration: 17, .. }),
         "{e}"
     );
-    assert!(resumed.path().join("ckpt/000017.backdrop").is_file());
     let r = run(&learned(40), resumed.path(), true, &mut NoHooks).unwrap();
     assert_eq!(r.started_at, 17);
     for file in ["model.bin", BACKDROP_FILE] {

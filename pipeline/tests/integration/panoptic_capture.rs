@@ -3,9 +3,9 @@
 //! the fifth is held out, Panoptic's own calibration in centimetres), run through every
 //! stage that leads to `eval`. The held-out PSNR must stay near what the pipeline reaches
 //! (BENCHMARKS.md, "panoptic-5view: plane-sweep init"). The held-out camera
-//! is 68° from the nearest training camera; the plane-sweep init, the training frames' mean
-//! colour as background and 4C4D's decay lift it from grey fog (13.4 dB) to 19.75 dB, above
-//! a flat image of that colour (15.6 dB).
+//! is 68° from the nearest training camera; the plane-sweep init, 4C4D's decay and the
+//! learned backdrop (faded to the training frames' mean colour) lift it from grey fog
+//! (13.4 dB) to 20.05 dB, above a flat image of that colour (15.6 dB).
 
 use crate::common;
 
@@ -15,10 +15,10 @@ use std::process::Command;
 
 use pipeline::runner::Selection;
 
-/// Held-out PSNR floor (dB) at the fixture's settings; measured 19.75 dB (BENCHMARKS.md;
-/// 18.22 while densification ran to the last step).
-const HELDOUT_PSNR_FLOOR: f64 = 19.3;
-/// Training-view PSNR floor (dB) at the fixture's settings; measured 29.93 dB.
+/// Held-out PSNR floor (dB) at the fixture's settings; measured 20.05 dB (BENCHMARKS.md;
+/// 19.75 on the mean colour alone, 18.22 while densification ran to the last step).
+const HELDOUT_PSNR_FLOOR: f64 = 19.6;
+/// Training-view PSNR floor (dB) at the fixture's settings; measured 31.19 dB.
 const TRAIN_PSNR_FLOOR: f64 = 29.0;
 
 fn data_dir() -> Option<PathBuf> {
