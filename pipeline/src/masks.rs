@@ -9,6 +9,11 @@
 //!   camera's own video frame (frame `k` at `k / fps` on its clock), which is also the
 //!   number of a simulated held-out image `groundtruth/heldout/<camera>/NNNNNN.png`.
 //!
+//! - Neither: with `[eval] plate_masks` (on by default), masks estimated from the aligned
+//!   frames themselves ([`MaskSource::from_plates`]): every camera stands still, so the
+//!   median of its frames is the static scene and what differs from it moves (the init's
+//!   static plates, `pointinit::plates`), written to the eval stage's `plate_masks/`.
+//!
 //! A view without a mask file has no mask. A mask of another size with the image's aspect
 //! ratio is scaled (nearest neighbour); where the camera has a lens it is undistorted like
 //! its image, into the eval stage's output.
@@ -18,6 +23,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use calib::undistort::UndistortMap;
 use image::GrayImage;
+use pointinit::plates::{median_plate, moving_pixels};
+use rayon::prelude::*;
 use rig::frames::View;
 use rig::sim::OffsetsFile;
 use rig::sync::SyncResult;
@@ -26,6 +33,8 @@ use rig::sync::SyncResult;
 pub const CAPTURE_MASKS_DIR: &str = "masks";
 /// The simulator's masks, in a capture directory.
 const SIMULATOR_MASKS_DIR: &str = "groundtruth/masks";
+/// Estimated masks, in the eval stage's output.
+pub const PLATE_MASKS_DIR: &str = "plate_masks";
 /// Largest relative difference of aspect ratios for a mask to be scaled to its image.
 const ASPECT_TOLERANCE: f64 = 0.01;
 
@@ -47,6 +56,18 @@ enum Numbering {
 pub struct MaskSource {
     dir: PathBuf,
     numbering: Numbering,
+    /// Estimated from the static plates ([`MaskSource::from_plates`]), not given.
+    estimated: bool,
+}
+
+/// How [`MaskSource::from_plates`] estimates masks: the init's `[init] plates` and
+/// `[init] motion_threshold`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlateMasks {
+    /// Frames per camera, spread over the clip, whose median is its static plate.
+    pub frames: usize,
+    /// Least channel difference from the plate that counts as moving.
+    pub threshold: u8,
 }
 
 impl MaskSource {
@@ -59,6 +80,7 @@ impl MaskSource {
             return Ok(Some(Self {
                 dir: user,
                 numbering: Numbering::Aligned,
+                estimated: false,
             }));
         }
         let dir = root.join(SIMULATOR_MASKS_DIR);
@@ -85,7 +107,80 @@ impl MaskSource {
                     .map(|c| (c.name.clone(), c.offset_s))
                     .collect(),
             },
+            estimated: false,
         }))
+    }
+
+    /// Masks estimated for every camera folder of `frames_dir` (the aligned frames,
+    /// `<camera>/NNNNNN.png`): its static plate, the median of `settings.frames` of its
+    /// frames spread over the clip, and each frame's moving pixels against it
+    /// (`pointinit::plates::moving_pixels`), written to `out/<camera>/NNNNNN.png`. `None`
+    /// when `settings.frames` is 0 or no camera has frames.
+    pub fn from_plates(
+        frames_dir: &Path,
+        settings: PlateMasks,
+        out: &Path,
+    ) -> anyhow::Result<Option<Self>> {
+        if settings.frames == 0 {
+            return Ok(None);
+        }
+        let mut any = false;
+        for camera in camera_folders(frames_dir)? {
+            let files = frame_files(&frames_dir.join(&camera))?;
+            if files.is_empty() {
+                continue;
+            }
+            let read = |path: &PathBuf| -> anyhow::Result<image::RgbImage> {
+                Ok(image::open(path)
+                    .with_context(|| format!("cannot read the aligned frame {}", path.display()))?
+                    .to_rgb8())
+            };
+            let picks = crate::stages::init::moment_frames(files.len(), settings.frames);
+            let frames = picks
+                .par_iter()
+                .map(|&i| read(&files[i]))
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            if let Some(f) = frames
+                .iter()
+                .find(|f| f.dimensions() != frames[0].dimensions())
+            {
+                bail!(
+                    "the aligned frames of {camera} differ in size ({:?} and {:?}); rerun the frames stage",
+                    frames[0].dimensions(),
+                    f.dimensions()
+                );
+            }
+            let plate = median_plate(&frames);
+            let dir = out.join(&camera);
+            std::fs::create_dir_all(&dir)
+                .with_context(|| format!("cannot create {}", dir.display()))?;
+            files.par_iter().try_for_each(|path| -> anyhow::Result<()> {
+                let frame = read(path)?;
+                if frame.dimensions() != plate.dimensions() {
+                    bail!(
+                        "{} is {:?} but the other frames of {camera} are {:?}; rerun the frames stage",
+                        path.display(),
+                        frame.dimensions(),
+                        plate.dimensions()
+                    );
+                }
+                let mask = moving_pixels(&frame, &plate, settings.threshold).to_grey();
+                let file = dir.join(path.file_name().expect("a listed file"));
+                mask.save(&file)
+                    .with_context(|| format!("cannot write {}", file.display()))
+            })?;
+            any = true;
+        }
+        Ok(any.then(|| Self {
+            dir: out.to_path_buf(),
+            numbering: Numbering::Aligned,
+            estimated: true,
+        }))
+    }
+
+    /// Whether the masks were estimated from the static plates rather than given.
+    pub fn estimated(&self) -> bool {
+        self.estimated
     }
 
     /// The folder the masks come from.
@@ -120,6 +215,40 @@ impl MaskSource {
         let path = self.dir.join(camera).join(format!("{k:06}.png"));
         path.is_file().then_some(path)
     }
+}
+
+/// The camera folders of an aligned frames folder, sorted.
+fn camera_folders(frames_dir: &Path) -> anyhow::Result<Vec<String>> {
+    let entries = std::fs::read_dir(frames_dir).with_context(|| {
+        format!(
+            "cannot list {}; rerun the frames stage",
+            frames_dir.display()
+        )
+    })?;
+    let mut names = Vec::new();
+    for entry in entries {
+        let entry = entry.with_context(|| format!("cannot list {}", frames_dir.display()))?;
+        if entry.path().is_dir() {
+            names.push(entry.file_name().to_string_lossy().into_owned());
+        }
+    }
+    names.sort();
+    Ok(names)
+}
+
+/// The `.png` files of a camera's aligned frames, sorted by name (= frame number).
+fn frame_files(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(dir).with_context(|| format!("cannot list {}", dir.display()))? {
+        let path = entry
+            .with_context(|| format!("cannot list {}", dir.display()))?
+            .path();
+        if path.extension().is_some_and(|e| e == "png") {
+            files.push(path);
+        }
+    }
+    files.sort();
+    Ok(files)
 }
 
 /// The mask `mask` made ready for the ground-truth image `image` (before undistortion):
@@ -222,6 +351,7 @@ mod tests {
                 fps: 15.0,
                 offsets: vec![("cam1".into(), 0.2)],
             },
+            estimated: false,
         };
         let tmp = tempfile::tempdir().unwrap();
         let sim = MaskSource {
@@ -247,6 +377,7 @@ mod tests {
         let user = MaskSource {
             dir: tmp.path().join("masks"),
             numbering: Numbering::Aligned,
+            estimated: false,
         };
         touch(&user.dir.join("cam1/000003.png"));
         assert_eq!(
@@ -288,6 +419,76 @@ mod tests {
                 && err.contains("frame.png")
                 && err.contains("8×6")
                 && err.contains("10×6"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn plate_masks_mark_what_moves_in_each_frame_of_each_camera() {
+        let tmp = tempfile::tempdir().unwrap();
+        let frames = tmp.path().join("frames");
+        // cam0: a grey room where a red 3×3 square walks along a row, one column per frame;
+        // cam1: nothing moves.
+        for k in 0..7u32 {
+            for cam in ["cam0", "cam1"] {
+                let mut f = image::RgbImage::from_pixel(24, 10, image::Rgb([120, 120, 120]));
+                if cam == "cam0" {
+                    for y in 4..7 {
+                        for x in 3 * k..3 * k + 3 {
+                            f.put_pixel(x, y, image::Rgb([200, 30, 30]));
+                        }
+                    }
+                }
+                let path = frames.join(cam).join(format!("{k:06}.png"));
+                std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+                f.save(&path).unwrap();
+            }
+        }
+        let settings = PlateMasks {
+            frames: 5,
+            threshold: pointinit::plates::MOTION_THRESHOLD,
+        };
+        let out = tmp.path().join("plate_masks");
+        let source = MaskSource::from_plates(&frames, settings, &out)
+            .unwrap()
+            .unwrap();
+        assert!(source.estimated());
+        let path = source
+            .for_view("cam0", &view("cam0/000003.png", 0.0))
+            .unwrap();
+        let mask = image::open(path).unwrap().to_luma8();
+        // The square covers x 9..12, y 4..7; the mask is that grown by two pixels.
+        for (x, y) in [(9, 4), (11, 6), (7, 2), (13, 8)] {
+            assert_eq!(mask.get_pixel(x, y).0[0], 255, "({x}, {y})");
+        }
+        for (x, y) in [(6, 5), (14, 5), (10, 1), (2, 5), (20, 5)] {
+            assert_eq!(mask.get_pixel(x, y).0[0], 0, "({x}, {y})");
+        }
+        let still = source
+            .for_view("cam1", &view("cam1/000003.png", 0.0))
+            .unwrap();
+        let still = image::open(still).unwrap().to_luma8();
+        assert!(still.pixels().all(|p| p.0[0] == 0));
+        // No plate frames: no estimate.
+        let none = PlateMasks {
+            frames: 0,
+            ..settings
+        };
+        assert!(
+            MaskSource::from_plates(&frames, none, &out)
+                .unwrap()
+                .is_none()
+        );
+        // A frame of another size is named.
+        image::RgbImage::new(8, 8)
+            .save(frames.join("cam1/000002.png"))
+            .unwrap();
+        let err = format!(
+            "{:#}",
+            MaskSource::from_plates(&frames, settings, &out).unwrap_err()
+        );
+        assert!(
+            err.contains("cam1") && err.contains("rerun the frames stage"),
             "{err}"
         );
     }

@@ -5,7 +5,7 @@
 //! moment is moving when it lands on moving pixels in most of the cameras that frame it
 //! ([`Plates::static_tags`]): noisy depths of a static wall cannot pass for motion.
 
-use image::RgbImage;
+use image::{GrayImage, RgbImage};
 use rayon::prelude::*;
 use shared_types::{Camera, CameraSet};
 
@@ -72,11 +72,10 @@ impl Plates {
             .par_iter()
             .filter_map(|(cam, plate)| {
                 let view = moment.views.iter().find(|v| v.camera == cam.name)?;
-                Some(read_frame(cam, &view.path).map(|frame| {
-                    let mask =
-                        motion_mask(&frame, plate, self.threshold).cleaned(MIN_NEIGHBOURS, GROW);
-                    (cam, mask)
-                }))
+                Some(
+                    read_frame(cam, &view.path)
+                        .map(|frame| (cam, moving_pixels(&frame, plate, self.threshold))),
+                )
             })
             .collect()
     }
@@ -156,6 +155,16 @@ impl Mask {
         x < self.width && y < self.height && self.pixels[(y * self.width + x) as usize]
     }
 
+    /// As an 8-bit grey image: 255 where set, else 0.
+    pub fn to_grey(&self) -> GrayImage {
+        let pixels = self
+            .pixels
+            .iter()
+            .map(|&m| if m { 255 } else { 0 })
+            .collect();
+        GrayImage::from_raw(self.width, self.height, pixels).expect("one byte per pixel")
+    }
+
     /// Fraction of pixels set.
     pub fn fraction(&self) -> f64 {
         self.pixels.iter().filter(|&&m| m).count() as f64 / self.pixels.len().max(1) as f64
@@ -212,6 +221,12 @@ impl Mask {
         }
         .dilated(grow)
     }
+}
+
+/// Where something moves in `frame`: its [`motion_mask`] against its camera's `plate`,
+/// isolated pixels dropped and outlines grown a little.
+pub fn moving_pixels(frame: &RgbImage, plate: &RgbImage, threshold: u8) -> Mask {
+    motion_mask(frame, plate, threshold).cleaned(MIN_NEIGHBOURS, GROW)
 }
 
 /// Where `frame` differs from `plate` by at least `threshold` in some channel.

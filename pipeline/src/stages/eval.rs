@@ -23,7 +23,7 @@ use crate::engine_inputs::{
 };
 use crate::heldout::HELDOUT_FILE;
 use crate::layout::Capture;
-use crate::masks::{self, CAPTURE_MASKS_DIR, MaskSource};
+use crate::masks::{self, CAPTURE_MASKS_DIR, MaskSource, PLATE_MASKS_DIR, PlateMasks};
 use crate::stage_context::StageContext;
 
 /// The simulator's ground truth in a capture directory (cameras, offsets, held-out views).
@@ -43,6 +43,9 @@ pub struct EvalSettings {
     /// Every held-out frame is measured up to this many per held-out camera (evenly
     /// spread; 0: all).
     pub heldout_per_camera: usize,
+    /// Without given masks (`masks/`, the simulator's), estimate the moving region of
+    /// every view from its camera's static plate (`work/eval/plate_masks/`).
+    pub plate_masks: bool,
 }
 
 impl Default for EvalSettings {
@@ -51,6 +54,7 @@ impl Default for EvalSettings {
             lpips: None,
             train_views: 16,
             heldout_per_camera: 0,
+            plate_masks: true,
         }
     }
 }
@@ -421,13 +425,26 @@ pub fn run(
     heldout_cameras: &[String],
     trained: &TrainRecord,
     engine: &EngineSettings,
+    plates: PlateMasks,
 ) -> anyhow::Result<()> {
     let model = load_trained_model(&ctx.capture.work_dir())?;
     let poses = PosesFile::read(&ctx.stage_dir("poses").join("cameras.json"))?;
     let index = FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
     let mapping = time_mapping(&index);
     let gt_dir = ctx.output("groundtruth");
-    let masks = MaskSource::find(&ctx.capture.root, &ctx.stage_dir("sync").join("sync.json"))?;
+    let masks = match MaskSource::find(&ctx.capture.root, &ctx.stage_dir("sync").join("sync.json"))?
+    {
+        None if settings.plate_masks => {
+            ctx.progress
+                .message("moving-region masks from the static plates");
+            MaskSource::from_plates(
+                &ctx.stage_dir("frames"),
+                plates,
+                &ctx.output(PLATE_MASKS_DIR),
+            )?
+        }
+        found => found,
+    };
     let heldout = any_heldout_views(
         ctx.capture,
         settings,
@@ -500,7 +517,12 @@ fn log_masks(source: Option<&MaskSource>, heldout: &[EvalView], train: &[EvalVie
     let (h, t) = (count(heldout), count(train));
     match source {
         Some(source) if h + t > 0 => tracing::info!(
-            "moving-region masks from {}: {h} of {} held-out and {t} of {} training views",
+            "moving-region masks {} {}: {h} of {} held-out and {t} of {} training views",
+            if source.estimated() {
+                "estimated from each camera's static plate (where a frame differs from the median of the camera's frames; `[eval] plate_masks = false` turns this off), written to"
+            } else {
+                "from"
+            },
             source.dir().display(),
             heldout.len(),
             train.len()

@@ -134,6 +134,10 @@ pub fn pipeline() -> Pipeline {
                     &config.capture.heldout,
                     &trained,
                     &config.engine,
+                    crate::masks::PlateMasks {
+                        frames: config.init.plates,
+                        threshold: config.init.motion_threshold,
+                    },
                 )
             }),
             StageDef::new("export", "PLY / .splatv exports and a browser viewer")

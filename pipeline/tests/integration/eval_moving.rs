@@ -2,8 +2,8 @@
 //! 160×120, a moving crate and a waving flag, one simulated held-out camera): with the
 //! simulator's masks both sets report finite PSNR/SSIM inside the moving region that differ
 //! from the whole image; adding a user's `masks/` folder reruns eval and uses it; a mask of
-//! the wrong size is an error naming the file and both sizes; without masks nothing new is
-//! written.
+//! the wrong size is an error naming the file and both sizes; without masks they are
+//! estimated from the static plates, and with that turned off nothing new is written.
 
 use crate::common;
 
@@ -118,9 +118,27 @@ fn eval_reports_the_moving_region_where_masks_exist() {
         "{error}"
     );
 
-    // No masks at all: nothing new in the outputs.
+    // No masks given: estimated from the static plates of the cameras with aligned frames
+    // (the training cameras; the simulated held-out camera has none), where the crate and
+    // the flag move.
     fs::remove_dir_all(root.join("masks")).unwrap();
     fs::remove_dir_all(root.join("groundtruth/masks")).unwrap();
+    let summary = common::run_stages(&root, only_eval());
+    assert!(summary.failed.is_none(), "{summary:?}");
+    let json = metrics(&root);
+    assert!(json["heldout"].get("moving").is_none());
+    let moving = &json["train"]["moving"];
+    let fraction = moving["mask_fraction"].as_f64().unwrap();
+    assert!(fraction > 0.0 && fraction < 0.5, "{moving}");
+    assert!(moving["mean"]["psnr"].as_f64().is_some_and(f64::is_finite), "{moving}");
+    assert!(root.join("work/eval/plate_masks/cam0/000000.png").is_file());
+
+    // Estimates turned off: nothing new in the outputs.
+    fs::write(
+        root.join("capture.toml"),
+        format!("{SETTINGS}plate_masks = false\n"),
+    )
+    .unwrap();
     let summary = common::run_stages(&root, only_eval());
     assert!(summary.failed.is_none(), "{summary:?}");
     let json = metrics(&root);
