@@ -134,13 +134,31 @@ impl Reporter {
     }
 }
 
+/// Reasons shown on a console line: the first [`SHOWN_REASONS`], then how many more (a
+/// folder of inputs replaced at once gives one reason per file; `--json` has them all).
+fn reasons_text(reasons: &[String]) -> String {
+    let mut text = reasons
+        .iter()
+        .take(SHOWN_REASONS)
+        .cloned()
+        .collect::<Vec<_>>()
+        .join("; ");
+    if reasons.len() > SHOWN_REASONS {
+        text += &format!("; and {} more", reasons.len() - SHOWN_REASONS);
+    }
+    text
+}
+
+/// Reasons a console line names before counting the rest.
+const SHOWN_REASONS: usize = 4;
+
 fn human_line(event: &Event) -> String {
     match event {
         Event::StageStarted { stage, reasons } => {
             let why = if reasons.is_empty() {
                 String::new()
             } else {
-                format!(" ({})", reasons.join("; "))
+                format!(" ({})", reasons_text(reasons))
             };
             format!("▶ {stage}: running{why}")
         }
@@ -273,5 +291,26 @@ impl shared_types::Progress for StageProgress<'_> {
         if self.total.load(Ordering::Relaxed) > 0 {
             self.emit_json(true);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_long_list_of_reasons_is_cut_to_a_count() {
+        let reasons: Vec<String> = (0..7)
+            .map(|i| format!("input masks/{i}.png removed"))
+            .collect();
+        let line = human_line(&Event::StageStarted {
+            stage: "eval",
+            reasons: &reasons,
+        });
+        assert_eq!(
+            line,
+            "▶ eval: running (input masks/0.png removed; input masks/1.png removed; input masks/2.png removed; input masks/3.png removed; and 3 more)"
+        );
+        assert_eq!(reasons_text(&reasons[..4]), reasons[..4].join("; "));
     }
 }

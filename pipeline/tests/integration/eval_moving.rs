@@ -130,7 +130,10 @@ fn eval_reports_the_moving_region_where_masks_exist() {
     let moving = &json["train"]["moving"];
     let fraction = moving["mask_fraction"].as_f64().unwrap();
     assert!(fraction > 0.0 && fraction < 0.5, "{moving}");
-    assert!(moving["mean"]["psnr"].as_f64().is_some_and(f64::is_finite), "{moving}");
+    assert!(
+        moving["mean"]["psnr"].as_f64().is_some_and(f64::is_finite),
+        "{moving}"
+    );
     assert!(root.join("work/eval/plate_masks/cam0/000000.png").is_file());
 
     // Estimates turned off: nothing new in the outputs.
