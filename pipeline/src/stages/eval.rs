@@ -469,15 +469,9 @@ pub fn run(
         masks.as_ref(),
         &trained.exposure,
     )?;
-    // Estimated masks are written to the stage's temporary folder; name where they end up.
-    let masks_shown = masks.as_ref().map(|m| {
-        if m.estimated() {
-            ctx.stage_dir("eval").join(PLATE_MASKS_DIR)
-        } else {
-            m.dir().to_path_buf()
-        }
-    });
-    log_masks(masks.as_ref().zip(masks_shown.as_deref()), &heldout, &train);
+    // Estimated masks are written to the stage's temporary folder: name where they end up.
+    let estimated_dir = ctx.stage_dir("eval").join(PLATE_MASKS_DIR);
+    log_masks(masks.as_ref(), &estimated_dir, &heldout, &train);
     let lpips = load_lpips(ctx.capture, settings)?;
     let backend = crate::engine_inputs::render_backend(engine.backend)?;
     ctx.record_tool("render backend", &backend.describe());
@@ -520,18 +514,25 @@ pub fn run(
 
 /// Says where the moving-region masks come from and how many views have one, or that
 /// there are none (then `metrics.json` says nothing about the moving region).
-fn log_masks(source: Option<(&MaskSource, &Path)>, heldout: &[EvalView], train: &[EvalView]) {
+fn log_masks(
+    source: Option<&MaskSource>,
+    estimated_dir: &Path,
+    heldout: &[EvalView],
+    train: &[EvalView],
+) {
     let count = |views: &[EvalView]| views.iter().filter(|v| v.mask.is_some()).count();
     let (h, t) = (count(heldout), count(train));
     match source {
-        Some((source, dir)) if h + t > 0 => tracing::info!(
-            "moving-region masks {} {}: {h} of {} held-out and {t} of {} training views",
+        Some(source) if h + t > 0 => tracing::info!(
+            "moving-region masks {}: {h} of {} held-out and {t} of {} training views",
             if source.estimated() {
-                "estimated from each camera's static plate (where a frame differs from the median of the camera's frames; `[eval] plate_masks = false` turns this off), written to"
+                format!(
+                    "estimated from each camera's static plate (where a frame differs from the median of the camera's frames; `[eval] plate_masks = false` turns this off), written to {}",
+                    estimated_dir.display()
+                )
             } else {
-                "from"
+                format!("from {}", source.dir().display())
             },
-            dir.display(),
             heldout.len(),
             train.len()
         ),
