@@ -12,7 +12,8 @@
 //! - Neither: with `[eval] plate_masks` (on by default), masks estimated from the aligned
 //!   frames themselves ([`MaskSource::from_plates`]): every camera stands still, so the
 //!   median of its frames is the static scene and what differs from it moves (the init's
-//!   static plates, `pointinit::plates`), written to the eval stage's `plate_masks/`.
+//!   static plates, `pointinit::plates`). Each evaluated view's mask is estimated when
+//!   eval asks for it and written to the eval stage's `plate_masks/`.
 //!
 //! A view without a mask file has no mask. A mask of another size with the image's aspect
 //! ratio is scaled (nearest neighbour); where the camera has a lens it is undistorted like
@@ -22,10 +23,10 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
 use calib::undistort::UndistortMap;
-use image::GrayImage;
+use image::{GrayImage, RgbImage};
 use pointinit::plates::{median_plate, moving_pixels};
 use rayon::prelude::*;
-use rig::frames::View;
+use rig::frames::{FramesIndex, View};
 use rig::sim::OffsetsFile;
 use rig::sync::SyncResult;
 
@@ -49,6 +50,41 @@ enum Numbering {
         /// Sync offsets (`t_common = t_camera + offset_s`) by camera name.
         offsets: Vec<(String, f64)>,
     },
+    /// Estimated on demand like the aligned frames (`plate_masks/` + the view's file name)
+    /// from the frame in `frames_dir` and its camera's static plate.
+    Plates {
+        frames_dir: PathBuf,
+        /// Each camera's static plate, by camera name.
+        plates: Vec<(String, RgbImage)>,
+        /// Least channel difference from the plate that counts as moving.
+        threshold: u8,
+    },
+}
+
+/// One camera's aligned frames, in order: file names relative to the frames folder.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraFrames {
+    pub name: String,
+    pub files: Vec<String>,
+}
+
+impl CameraFrames {
+    /// Every camera of a frames index (`frames.json` or `heldout.json`) with its frames.
+    pub fn of_index(index: &FramesIndex) -> Vec<Self> {
+        index
+            .cameras
+            .iter()
+            .enumerate()
+            .map(|(c, camera)| Self {
+                name: camera.name.clone(),
+                files: index
+                    .frames
+                    .iter()
+                    .map(|f| f.views[c].file.clone())
+                    .collect(),
+            })
+            .collect()
+    }
 }
 
 /// Where a capture's masks are and how they are numbered.
@@ -56,8 +92,6 @@ enum Numbering {
 pub struct MaskSource {
     dir: PathBuf,
     numbering: Numbering,
-    /// Estimated from the static plates ([`MaskSource::from_plates`]), not given.
-    estimated: bool,
 }
 
 /// How [`MaskSource::from_plates`] estimates masks: the init's `[init] plates` and
@@ -80,7 +114,6 @@ impl MaskSource {
             return Ok(Some(Self {
                 dir: user,
                 numbering: Numbering::Aligned,
-                estimated: false,
             }));
         }
         let dir = root.join(SIMULATOR_MASKS_DIR);
@@ -107,80 +140,60 @@ impl MaskSource {
                     .map(|c| (c.name.clone(), c.offset_s))
                     .collect(),
             },
-            estimated: false,
         }))
     }
 
-    /// Masks estimated for every camera folder of `frames_dir` (the aligned frames,
-    /// `<camera>/NNNNNN.png`): its static plate, the median of `settings.frames` of its
-    /// frames spread over the clip, and each frame's moving pixels against it
-    /// (`pointinit::plates::moving_pixels`), written to `out/<camera>/NNNNNN.png`. `None`
-    /// when `settings.frames` is 0 or no camera has frames.
+    /// Masks estimated from the static plates of `cameras` (their aligned frames in
+    /// `frames_dir`): each camera's plate is the median of `settings.frames` of its frames
+    /// spread over the clip; a view's mask, its moving pixels against the plate
+    /// (`pointinit::plates::moving_pixels`), is made when [`Self::for_view`] asks for it
+    /// and written to `out/<camera>/NNNNNN.png`. `None` when `settings.frames` is 0 or no
+    /// camera has frames.
     pub fn from_plates(
         frames_dir: &Path,
+        cameras: &[CameraFrames],
         settings: PlateMasks,
         out: &Path,
     ) -> anyhow::Result<Option<Self>> {
         if settings.frames == 0 {
             return Ok(None);
         }
-        let mut any = false;
-        for camera in camera_folders(frames_dir)? {
-            let files = frame_files(&frames_dir.join(&camera))?;
-            if files.is_empty() {
-                continue;
-            }
-            let read = |path: &PathBuf| -> anyhow::Result<image::RgbImage> {
-                Ok(image::open(path)
-                    .with_context(|| format!("cannot read the aligned frame {}", path.display()))?
-                    .to_rgb8())
-            };
-            let picks = crate::stages::init::moment_frames(files.len(), settings.frames);
-            let frames = picks
-                .par_iter()
-                .map(|&i| read(&files[i]))
-                .collect::<anyhow::Result<Vec<_>>>()?;
-            if let Some(f) = frames
-                .iter()
-                .find(|f| f.dimensions() != frames[0].dimensions())
-            {
-                bail!(
-                    "the aligned frames of {camera} differ in size ({:?} and {:?}); rerun the frames stage",
-                    frames[0].dimensions(),
-                    f.dimensions()
-                );
-            }
-            let plate = median_plate(&frames);
-            let dir = out.join(&camera);
-            std::fs::create_dir_all(&dir)
-                .with_context(|| format!("cannot create {}", dir.display()))?;
-            files.par_iter().try_for_each(|path| -> anyhow::Result<()> {
-                let frame = read(path)?;
-                if frame.dimensions() != plate.dimensions() {
+        let plates = cameras
+            .par_iter()
+            .filter(|camera| !camera.files.is_empty())
+            .map(|camera| -> anyhow::Result<(String, RgbImage)> {
+                let picks = crate::stages::init::moment_frames(camera.files.len(), settings.frames);
+                let frames = picks
+                    .par_iter()
+                    .map(|&i| read_frame(&frames_dir.join(&camera.files[i])))
+                    .collect::<anyhow::Result<Vec<_>>>()?;
+                if let Some(f) = frames
+                    .iter()
+                    .find(|f| f.dimensions() != frames[0].dimensions())
+                {
                     bail!(
-                        "{} is {:?} but the other frames of {camera} are {:?}; rerun the frames stage",
-                        path.display(),
-                        frame.dimensions(),
-                        plate.dimensions()
+                        "the aligned frames of {} differ in size ({:?} and {:?}); rerun the frames stage",
+                        camera.name,
+                        frames[0].dimensions(),
+                        f.dimensions()
                     );
                 }
-                let mask = moving_pixels(&frame, &plate, settings.threshold).to_grey();
-                let file = dir.join(path.file_name().expect("a listed file"));
-                mask.save(&file)
-                    .with_context(|| format!("cannot write {}", file.display()))
-            })?;
-            any = true;
-        }
-        Ok(any.then(|| Self {
+                Ok((camera.name.clone(), median_plate(&frames)))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        Ok((!plates.is_empty()).then(|| Self {
             dir: out.to_path_buf(),
-            numbering: Numbering::Aligned,
-            estimated: true,
+            numbering: Numbering::Plates {
+                frames_dir: frames_dir.to_path_buf(),
+                plates,
+                threshold: settings.threshold,
+            },
         }))
     }
 
     /// Whether the masks were estimated from the static plates rather than given.
     pub fn estimated(&self) -> bool {
-        self.estimated
+        matches!(self.numbering, Numbering::Plates { .. })
     }
 
     /// The folder the masks come from.
@@ -188,22 +201,54 @@ impl MaskSource {
         &self.dir
     }
 
-    /// The mask of an aligned frame's `view` of `camera`, if its file exists.
-    pub fn for_view(&self, camera: &str, view: &View) -> Option<PathBuf> {
+    /// The mask of an aligned frame's `view` of `camera`, if its file exists (estimated
+    /// masks: made now, where the camera has a plate).
+    pub fn for_view(&self, camera: &str, view: &View) -> anyhow::Result<Option<PathBuf>> {
         let path = match &self.numbering {
             Numbering::Aligned => self.dir.join(&view.file),
             Numbering::Simulator { fps, offsets } => {
-                let offset = offsets.iter().find(|(name, _)| name == camera)?.1;
+                let Some(&(_, offset)) = offsets.iter().find(|(name, _)| name == camera) else {
+                    return Ok(None);
+                };
                 let frame = ((view.timestamp_s - offset) * fps).round();
                 if frame < 0.0 {
-                    return None;
+                    return Ok(None);
                 }
                 self.dir
                     .join(camera)
                     .join(format!("{:06}.png", frame as u64))
             }
+            Numbering::Plates {
+                frames_dir,
+                plates,
+                threshold,
+            } => {
+                let Some((_, plate)) = plates.iter().find(|(name, _)| name == camera) else {
+                    return Ok(None);
+                };
+                let source = frames_dir.join(&view.file);
+                let frame = read_frame(&source)?;
+                if frame.dimensions() != plate.dimensions() {
+                    bail!(
+                        "{} is {:?} but the other frames of {camera} are {:?}; rerun the frames stage",
+                        source.display(),
+                        frame.dimensions(),
+                        plate.dimensions()
+                    );
+                }
+                let path = self.dir.join(&view.file);
+                if let Some(dir) = path.parent() {
+                    std::fs::create_dir_all(dir)
+                        .with_context(|| format!("cannot create {}", dir.display()))?;
+                }
+                moving_pixels(&frame, plate, *threshold)
+                    .to_grey()
+                    .save(&path)
+                    .with_context(|| format!("cannot write {}", path.display()))?;
+                return Ok(Some(path));
+            }
         };
-        path.is_file().then_some(path)
+        Ok(path.is_file().then_some(path))
     }
 
     /// The mask of the simulator's held-out image `k` of `camera`, if its file exists
@@ -217,38 +262,11 @@ impl MaskSource {
     }
 }
 
-/// The camera folders of an aligned frames folder, sorted.
-fn camera_folders(frames_dir: &Path) -> anyhow::Result<Vec<String>> {
-    let entries = std::fs::read_dir(frames_dir).with_context(|| {
-        format!(
-            "cannot list {}; rerun the frames stage",
-            frames_dir.display()
-        )
-    })?;
-    let mut names = Vec::new();
-    for entry in entries {
-        let entry = entry.with_context(|| format!("cannot list {}", frames_dir.display()))?;
-        if entry.path().is_dir() {
-            names.push(entry.file_name().to_string_lossy().into_owned());
-        }
-    }
-    names.sort();
-    Ok(names)
-}
-
-/// The `.png` files of a camera's aligned frames, sorted by name (= frame number).
-fn frame_files(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
-    let mut files = Vec::new();
-    for entry in std::fs::read_dir(dir).with_context(|| format!("cannot list {}", dir.display()))? {
-        let path = entry
-            .with_context(|| format!("cannot list {}", dir.display()))?
-            .path();
-        if path.extension().is_some_and(|e| e == "png") {
-            files.push(path);
-        }
-    }
-    files.sort();
-    Ok(files)
+/// An aligned frame, read for a plate or a mask.
+fn read_frame(path: &Path) -> anyhow::Result<RgbImage> {
+    Ok(image::open(path)
+        .with_context(|| format!("cannot read the aligned frame {}", path.display()))?
+        .to_rgb8())
 }
 
 /// The mask `mask` made ready for the ground-truth image `image` (before undistortion):
@@ -351,7 +369,6 @@ mod tests {
                 fps: 15.0,
                 offsets: vec![("cam1".into(), 0.2)],
             },
-            estimated: false,
         };
         let tmp = tempfile::tempdir().unwrap();
         let sim = MaskSource {
@@ -362,12 +379,12 @@ mod tests {
         touch(&sim.dir.join("cam1/000007.png"));
         let v = view("cam1/000003.png", 0.2 + 7.0 / 15.0 + 0.003);
         assert_eq!(
-            sim.for_view("cam1", &v),
+            sim.for_view("cam1", &v).unwrap(),
             Some(sim.dir.join("cam1/000007.png"))
         );
-        assert_eq!(sim.for_view("cam2", &v), None, "no sync offset");
+        assert_eq!(sim.for_view("cam2", &v).unwrap(), None, "no sync offset");
         assert_eq!(
-            sim.for_view("cam1", &view("cam1/000004.png", 0.9)),
+            sim.for_view("cam1", &view("cam1/000004.png", 0.9)).unwrap(),
             None,
             "no file"
         );
@@ -377,11 +394,10 @@ mod tests {
         let user = MaskSource {
             dir: tmp.path().join("masks"),
             numbering: Numbering::Aligned,
-            estimated: false,
         };
         touch(&user.dir.join("cam1/000003.png"));
         assert_eq!(
-            user.for_view("cam1", &v),
+            user.for_view("cam1", &v).unwrap(),
             Some(user.dir.join("cam1/000003.png"))
         );
         assert_eq!(user.for_simulated_image("cam1", 3), None);
@@ -429,8 +445,10 @@ mod tests {
         let frames = tmp.path().join("frames");
         // cam0: a grey room where a red 3×3 square walks along a row, one column per frame;
         // cam1: nothing moves.
-        for k in 0..7u32 {
-            for cam in ["cam0", "cam1"] {
+        let mut cameras = Vec::new();
+        for cam in ["cam0", "cam1"] {
+            let mut files = Vec::new();
+            for k in 0..7u32 {
                 let mut f = image::RgbImage::from_pixel(24, 10, image::Rgb([120, 120, 120]));
                 if cam == "cam0" {
                     for y in 4..7 {
@@ -439,23 +457,33 @@ mod tests {
                         }
                     }
                 }
-                let path = frames.join(cam).join(format!("{k:06}.png"));
+                let file = format!("{cam}/{k:06}.png");
+                let path = frames.join(&file);
                 std::fs::create_dir_all(path.parent().unwrap()).unwrap();
                 f.save(&path).unwrap();
+                files.push(file);
             }
+            cameras.push(CameraFrames {
+                name: cam.into(),
+                files,
+            });
         }
         let settings = PlateMasks {
             frames: 5,
             threshold: pointinit::plates::MOTION_THRESHOLD,
         };
         let out = tmp.path().join("plate_masks");
-        let source = MaskSource::from_plates(&frames, settings, &out)
+        let source = MaskSource::from_plates(&frames, &cameras, settings, &out)
             .unwrap()
             .unwrap();
         assert!(source.estimated());
+        // Only the views asked for are estimated.
+        assert!(!out.exists());
         let path = source
             .for_view("cam0", &view("cam0/000003.png", 0.0))
+            .unwrap()
             .unwrap();
+        assert_eq!(path, out.join("cam0/000003.png"));
         let mask = image::open(path).unwrap().to_luma8();
         // The square covers x 9..12, y 4..7; the mask is that grown by two pixels.
         for (x, y) in [(9, 4), (11, 6), (7, 2), (13, 8)] {
@@ -464,28 +492,52 @@ mod tests {
         for (x, y) in [(6, 5), (14, 5), (10, 1), (2, 5), (20, 5)] {
             assert_eq!(mask.get_pixel(x, y).0[0], 0, "({x}, {y})");
         }
+        assert_eq!(std::fs::read_dir(out.join("cam0")).unwrap().count(), 1);
         let still = source
             .for_view("cam1", &view("cam1/000003.png", 0.0))
+            .unwrap()
             .unwrap();
         let still = image::open(still).unwrap().to_luma8();
         assert!(still.pixels().all(|p| p.0[0] == 0));
-        // No plate frames: no estimate.
+        // A camera without a plate has no masks.
+        let other = view("cam2/000003.png", 0.0);
+        assert_eq!(source.for_view("cam2", &other).unwrap(), None);
+        // No plate frames, or no camera with frames: no estimate.
         let none = PlateMasks {
             frames: 0,
             ..settings
         };
         assert!(
-            MaskSource::from_plates(&frames, none, &out)
+            MaskSource::from_plates(&frames, &cameras, none, &out)
                 .unwrap()
                 .is_none()
         );
-        // A frame of another size is named.
+        let empty = [CameraFrames {
+            name: "cam0".into(),
+            files: Vec::new(),
+        }];
+        assert!(
+            MaskSource::from_plates(&frames, &empty, settings, &out)
+                .unwrap()
+                .is_none()
+        );
+        // A frame of another size is named, in the plate and in a view.
         image::RgbImage::new(8, 8)
-            .save(frames.join("cam1/000002.png"))
+            .save(frames.join("cam1/000003.png"))
             .unwrap();
         let err = format!(
             "{:#}",
-            MaskSource::from_plates(&frames, settings, &out).unwrap_err()
+            source
+                .for_view("cam1", &view("cam1/000003.png", 0.0))
+                .unwrap_err()
+        );
+        assert!(
+            err.contains("cam1/000003.png") && err.contains("rerun the frames stage"),
+            "{err}"
+        );
+        let err = format!(
+            "{:#}",
+            MaskSource::from_plates(&frames, &cameras, settings, &out).unwrap_err()
         );
         assert!(
             err.contains("cam1") && err.contains("rerun the frames stage"),

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use calib::poses::PosesFile;
 use glam::DVec3;
+use rayon::prelude::*;
 use rig::frames::FramesIndex;
 use rig::sim::{HeldoutTimestamps, OffsetsFile};
 use rig::sync::SyncResult;
@@ -23,7 +24,9 @@ use crate::engine_inputs::{
 };
 use crate::heldout::HELDOUT_FILE;
 use crate::layout::Capture;
-use crate::masks::{self, CAPTURE_MASKS_DIR, MaskSource, PLATE_MASKS_DIR, PlateMasks};
+use crate::masks::{
+    self, CAPTURE_MASKS_DIR, CameraFrames, MaskSource, PLATE_MASKS_DIR, PlateMasks,
+};
 use crate::stage_context::StageContext;
 
 /// The simulator's ground truth in a capture directory (cameras, offsets, held-out views).
@@ -254,26 +257,30 @@ fn frame_views(
     gt_dir: &Path,
     masks: Option<&MaskSource>,
 ) -> anyhow::Result<Vec<EvalView>> {
-    let mut views = Vec::new();
-    for (f, c) in picks {
-        let view = &index.frames[f].views[c];
-        let (camera, map) = &cameras[c];
-        let source = frames_dir.join(&view.file);
-        let found = masks.and_then(|m| m.for_view(&index.cameras[c].name, view));
-        let mask = view_mask(found, &source, map.as_ref(), gt_dir, &camera.name, f)?;
-        let image_path = match map {
-            None => source,
-            Some(map) => write_undistorted(&source, map, gt_dir, &camera.name, f)?,
-        };
-        views.push(EvalView {
-            camera: camera.clone(),
-            time: mapping.model_time(view.timestamp_s),
-            image_path,
-            mask,
-            gain: [1.0; 3],
-        });
-    }
-    Ok(views)
+    picks
+        .into_par_iter()
+        .map(|(f, c)| {
+            let view = &index.frames[f].views[c];
+            let (camera, map) = &cameras[c];
+            let source = frames_dir.join(&view.file);
+            let found = match masks {
+                Some(m) => m.for_view(&index.cameras[c].name, view)?,
+                None => None,
+            };
+            let mask = view_mask(found, &source, map.as_ref(), gt_dir, &camera.name, f)?;
+            let image_path = match map {
+                None => source,
+                Some(map) => write_undistorted(&source, map, gt_dir, &camera.name, f)?,
+            };
+            Ok(EvalView {
+                camera: camera.clone(),
+                time: mapping.model_time(view.timestamp_s),
+                image_path,
+                mask,
+                gain: [1.0; 3],
+            })
+        })
+        .collect()
 }
 
 /// The `found` mask of the ground-truth image `source` made ready for eval
@@ -437,11 +444,14 @@ pub fn run(
         None if settings.plate_masks => {
             ctx.progress
                 .message("moving-region masks from the static plates");
-            MaskSource::from_plates(
-                &ctx.stage_dir("frames"),
-                plates,
-                &ctx.output(PLATE_MASKS_DIR),
-            )?
+            let frames_dir = ctx.stage_dir("frames");
+            let mut cameras = CameraFrames::of_index(&index);
+            if !heldout_cameras.is_empty() {
+                let (heldout, _) =
+                    read_heldout_file(&frames_dir, "frames", FramesIndex::read_json)?;
+                cameras.extend(CameraFrames::of_index(&heldout));
+            }
+            MaskSource::from_plates(&frames_dir, &cameras, plates, &ctx.output(PLATE_MASKS_DIR))?
         }
         found => found,
     };

@@ -120,7 +120,7 @@ fn eval_reports_the_moving_region_where_masks_exist() {
 
     // No masks given: estimated from the static plates of the cameras with aligned frames
     // (the training cameras; the simulated held-out camera has none), where the crate and
-    // the flag move.
+    // the flag move, for the views eval measures.
     fs::remove_dir_all(root.join("masks")).unwrap();
     fs::remove_dir_all(root.join("groundtruth/masks")).unwrap();
     let summary = common::run_stages(&root, only_eval());
@@ -135,6 +135,12 @@ fn eval_reports_the_moving_region_where_masks_exist() {
         "{moving}"
     );
     assert!(root.join("work/eval/plate_masks/cam0/000000.png").is_file());
+    // Only the views eval measures get a mask.
+    let written: u64 = fs::read_dir(root.join("work/eval/plate_masks"))
+        .unwrap()
+        .map(|camera| fs::read_dir(camera.unwrap().path()).unwrap().count() as u64)
+        .sum();
+    assert_eq!(Some(written), moving["frames"].as_u64(), "{moving}");
 
     // Estimates turned off: nothing new in the outputs.
     fs::write(
