@@ -32,11 +32,17 @@
 #   5. peak GPU memory while the benchmarks ran (nvidia-smi, sampled every 200 ms);
 #   6. the demo (--demo, or a bundle from --bundle-demo): the demo capture prepared up to
 #      `init` trained with `--backend gpu` at `best` and at `full`, held-out PSNR / SSIM /
-#      LPIPS and the train stage's wall time, and peak GPU memory while it trained.
-# It takes a few minutes on a data-centre GPU. Logs and the table go to $GPU_CHECK_OUT
-# (default target/gpu-check/). SPLAT4D_GPU_SOFTWARE=1 runs it on a software adapter
-# (lavapipe) at the small sizes only, to try the script without a GPU (the demo then
-# trains on the CPU at `preview`).
+#      LPIPS and the train stage's wall time, and peak GPU memory while it trained;
+#   7. only when asked (GPU_CHECK_PARTS=scale): a long, large capture's training time, the
+#      demo's training views stretched to 4 × 300 frames at 1352×1014 (`pipeline bench
+#      tradeoff --stretch 300:1352x1014`) trained with `full`'s budget for
+#      GPU_CHECK_SCALE_STEPS steps (default 30 000, `full`'s; fewer give a projection).
+# Steps 1–6 take a few minutes on a data-centre GPU, step 7 about as long again: to fit a
+# short slot run them as two commands, GPU_CHECK_PARTS="engine demo" (the default) and then
+# GPU_CHECK_PARTS=scale. Logs and the table go to $GPU_CHECK_OUT (default
+# target/gpu-check/). SPLAT4D_GPU_SOFTWARE=1 runs it on a software adapter (lavapipe) at
+# the small sizes only, to try the script without a GPU (the demo then trains on the CPU
+# at `preview`, the scale part on the CPU for 20 steps at 8 frames of 160×120).
 set -euo pipefail
 
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -156,6 +162,46 @@ for line in sys.stdin:
   return "$tests_rc"
 }
 
+# The training time of a long, large capture: the demo capture's training views stretched
+# to 4 × 300 frames at 1352×1014, trained on the GPU with `full`'s budget for
+# $GPU_CHECK_SCALE_STEPS steps (its schedule scaled to them); $1 is 1 on a software adapter,
+# where 20 steps of 8 frames at 160×120 train on the CPU instead (to try the script).
+scale() {
+  local software="$1" backend=gpu steps="${GPU_CHECK_SCALE_STEPS:-30000}" stretch=300:1352x1014
+  if [ "$software" = 1 ]; then
+    backend=cpu
+    steps=20
+    stretch=8:160x120
+  fi
+  local sampler
+  sample_memory "$out/scale-memory.log"
+  echo "gpu-check: the demo stretched to $stretch, $steps steps"
+  local folder="tradeoff-${stretch/:/x}"
+  rm -rf "$demo_capture/work/bench/$folder"
+  # --as-prepared: the bundle's capture lacks the COLMAP workspace and the point maps that
+  # poses and init read, and this build could not rerun them.
+  if "$pipeline_bin" bench tradeoff "$demo_capture" --as-prepared --iterations "$steps" \
+    --resolution 1 --max-gaussians 200000 --backend "$backend" --stretch "$stretch" \
+    >"$out/scale.log" 2>&1; then
+    row "demo stretched to 4 × $stretch on $backend, $steps steps, \`full\`'s budget (train wall time, Gaussians, held-out PSNR)" "$(python3 - "$demo_capture/work/bench/$folder/tradeoff.csv" "$steps" <<'PY'
+import csv, sys
+row = list(csv.DictReader(open(sys.argv[1])))[-1]
+steps, seconds = int(sys.argv[2]), float(row["seconds"])
+text = f"{seconds:.0f} s ({steps / seconds:.1f} steps/s), {row['gaussians']} Gaussians, {float(row['psnr']):.2f} dB"
+if steps != 30000:
+    text += f"; 30 000 steps ≈ {seconds * 30000 / steps / 60:.1f} min"
+print(text)
+PY
+)"
+  else
+    row "demo stretched to 4 × $stretch on $backend" "failed (see scale.log)"
+  fi
+  if [ -n "$sampler" ]; then
+    kill "$sampler" 2>/dev/null || true
+    row "peak GPU memory while the stretched demo trained" "$(sort -n "$out/scale-memory.log" | tail -1) MiB"
+  fi
+}
+
 # Train the demo capture $demo_capture (prepared up to `init`) with $pipeline_bin at
 # `best` and at `full` on the GPU; $1 is 1 on a software adapter, where it trains on the
 # CPU at `preview` instead (to try the script).
@@ -248,12 +294,15 @@ check() {
   local tests_rc=0
   local software=0
   case "${SPLAT4D_GPU_SOFTWARE:-}" in 1 | true) software=1 ;; esac
-  if [ -x "$bin/integration" ]; then
+  local parts=" ${GPU_CHECK_PARTS:-engine demo} "
+  if [ -x "$bin/integration" ] && [[ "$parts" == *" engine "* ]]; then
     engine "$software" || tests_rc=$?
   fi
-
-  if [ -n "${pipeline_bin:-}" ]; then
+  if [ -n "${pipeline_bin:-}" ] && [[ "$parts" == *" demo "* ]]; then
     demo "$software"
+  fi
+  if [ -n "${pipeline_bin:-}" ] && [[ "$parts" == *" scale "* ]]; then
+    scale "$software"
   fi
 
   echo
@@ -323,7 +372,7 @@ case "${1:-}" in
   check "$root"
   ;;
 *)
-  sed -n '2,39p' "$0" | sed 's/^# \{0,1\}//'
+  sed -n '2,45p' "$0" | sed 's/^# \{0,1\}//'
   exit 2
   ;;
 esac

@@ -373,6 +373,16 @@ pub enum BenchCommand {
         /// Training backends (gpu: a hardware GPU; SPLAT4D_GPU_SOFTWARE=1 allows lavapipe).
         #[arg(long, value_delimiter = ',', value_enum, default_values_t = [crate::bench::tradeoff::TrainOn::Cpu])]
         backend: Vec<crate::bench::tradeoff::TrainOn>,
+        /// Train on the training views stretched to FRAMES frames per camera at W×H (each a
+        /// resized copy of the camera's frame nearest in time), e.g. `300:1352x1014`: what a
+        /// long, large capture costs to train, from a short one. Results go to
+        /// work/bench/tradeoff-FRAMESxWxH/.
+        #[arg(long, value_name = "FRAMES:WxH")]
+        stretch: Option<crate::bench::stretch::Stretch>,
+        /// Use the capture as its stages left it up to `init`, without bringing them up to
+        /// date (a capture prepared elsewhere, e.g. on a GPU node with the engine-only build).
+        #[arg(long)]
+        as_prepared: bool,
     },
     /// Sync error against time: every sync method and setting (audio with/without the clap
     /// window and acoustic correction, flash with/without the rolling-shutter readout and

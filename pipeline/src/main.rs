@@ -105,15 +105,21 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             max_gaussians,
             decay,
             backend,
+            stretch,
+            as_prepared,
         }) => {
-            let source =
+            let mut source =
                 pipeline::bench::inputs::BenchSource::from_args(&source, capture_dir.as_deref())?;
+            if as_prepared {
+                source = source.as_prepared();
+            }
             let grid = pipeline::bench::tradeoff::Grid {
                 iterations,
                 resolution,
                 max_gaussians,
                 decay,
                 backend,
+                stretch,
             };
             let table = pipeline::bench::tradeoff::run(&source, &grid, reporter)?;
             reporter.say(&format!(

@@ -43,6 +43,10 @@ pub enum BenchSource {
     },
     /// An existing capture directory (simulated or real) with held-out cameras.
     Capture(PathBuf),
+    /// An existing capture directory used as its stages left it, up to `init`, without
+    /// bringing them up to date: a capture prepared elsewhere, whose trimmed copy (no COLMAP
+    /// workspace, no point maps) the engine-only build on a GPU node cannot rerun.
+    Prepared(PathBuf),
 }
 
 impl BenchSource {
@@ -78,11 +82,20 @@ impl BenchSource {
         }
     }
 
+    /// This capture directory used as prepared ([`Self::Prepared`]); a scene file stays
+    /// one (it is simulated and prepared here).
+    pub fn as_prepared(self) -> Self {
+        match self {
+            Self::Capture(dir) => Self::Prepared(dir),
+            other => other,
+        }
+    }
+
     /// The capture directory the bench works in.
     pub fn capture_dir(&self) -> &Path {
         match self {
             Self::Scene { capture_dir, .. } => capture_dir,
-            Self::Capture(dir) => dir,
+            Self::Capture(dir) | Self::Prepared(dir) => dir,
         }
     }
 
@@ -91,11 +104,13 @@ impl BenchSource {
         match self {
             Self::Scene { scene, .. } => format!("scene {}", scene.display()),
             Self::Capture(dir) => format!("capture {}", dir.display()),
+            Self::Prepared(dir) => format!("capture {} (as prepared)", dir.display()),
         }
     }
 }
 
-/// Simulate (for a scene), run the stages up to `init`, and load what training needs.
+/// Simulate (for a scene), run the stages up to `init` (not for [`BenchSource::Prepared`]),
+/// and load what training needs.
 pub fn prepare(source: &BenchSource, reporter: &Reporter) -> anyhow::Result<BenchInputs> {
     let capture_dir = source.capture_dir();
     if let BenchSource::Scene { scene, .. } = source
@@ -106,19 +121,29 @@ pub fn prepare(source: &BenchSource, reporter: &Reporter) -> anyhow::Result<Benc
         simulate::write_truth_calibration(capture_dir)?;
     }
     let (capture, config) = open_capture(capture_dir)?;
-    let summary = stages::pipeline().run(
-        &capture,
-        &config,
-        &Selection {
-            to: Some("init".into()),
-            ..Default::default()
-        },
-        reporter,
-    )?;
-    if let Some((stage, error)) = summary.failed {
-        bail!("the {stage} stage failed: {error}");
-    }
     let work = capture.work_dir();
+    if let BenchSource::Prepared(_) = source {
+        if !work.join("init/stage.json").is_file() {
+            bail!(
+                "{} has not been prepared up to `init`; run `pipeline run {} --to init` first, or leave out --as-prepared",
+                capture_dir.display(),
+                capture_dir.display()
+            );
+        }
+    } else {
+        let summary = stages::pipeline().run(
+            &capture,
+            &config,
+            &Selection {
+                to: Some("init".into()),
+                ..Default::default()
+            },
+            reporter,
+        )?;
+        if let Some((stage, error)) = summary.failed {
+            bail!("the {stage} stage failed: {error}");
+        }
+    }
     let cameras_file = work.join("poses/cameras.json");
     let progress = reporter.progress("load");
     let dataset =

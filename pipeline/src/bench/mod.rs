@@ -4,13 +4,15 @@
 //!
 //! - `table`: the CSV/Markdown results table keyed by settings (shared by the benches).
 //! - `ablation`, `tradeoff` (+ `tradeoff_plot`): training benches on a capture brought up
-//!   to `init` by `inputs`; `sysinfo`: the machine, CPU time and peak memory.
+//!   to `init` by `inputs` (`stretch`: its training views made longer and larger);
+//!   `sysinfo`: the machine, CPU time and peak memory.
 //! - `sync`: recovered camera offsets against the simulator's true ones.
 //! - `poses`: solved camera poses against the true ones, and COLMAP's time per step.
 
 pub mod ablation;
 pub mod inputs;
 pub mod poses;
+pub mod stretch;
 pub mod sync;
 pub mod sysinfo;
 pub mod table;

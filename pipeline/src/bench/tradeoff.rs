@@ -6,7 +6,9 @@
 //! the table, and held-out PSNR against time with the Pareto front marked. Each finished
 //! setting is appended to the CSV at once, so an interrupted bench resumes where it
 //! stopped; settings already in the CSV are not trained again, and a later grid adds its
-//! rows to the same table and plot.
+//! rows to the same table and plot. With `--stretch FRAMES:WxH` the training views are
+//! stretched first ([`crate::bench::stretch`]) and the results go to a folder of their own,
+//! `work/bench/tradeoff-FRAMESxWxH/`.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -18,6 +20,7 @@ use splat4d::RenderBackend;
 use splat4d::decay::{DecayHooks, DecayVariant};
 
 use crate::bench::inputs::{self, BenchInputs, BenchSource};
+use crate::bench::stretch::Stretch;
 use crate::bench::sysinfo;
 use crate::bench::table::{self, Table};
 use crate::bench::tradeoff_plot::PlotPoint;
@@ -52,6 +55,9 @@ pub struct Grid {
     /// Decay variants; empty: the capture's own.
     pub decay: Vec<DecayVariant>,
     pub backend: Vec<TrainOn>,
+    /// Train on the training views stretched to this many frames per camera and this size
+    /// (every setting alike); `None`: as they are.
+    pub stretch: Option<Stretch>,
 }
 
 /// One point of the grid.
@@ -387,16 +393,30 @@ pub fn markdown(header: &str, rows: &[Row]) -> String {
     s
 }
 
-/// Where the tradeoff bench writes: `work/bench/tradeoff/` of the capture.
-pub fn out_dir(bench_dir: &Path) -> PathBuf {
-    bench_dir.join("tradeoff")
+/// Where the tradeoff bench writes: `work/bench/tradeoff/` of the capture, or
+/// `tradeoff-FRAMESxWxH/` with the training views stretched.
+pub fn out_dir(bench_dir: &Path, stretch: Option<Stretch>) -> PathBuf {
+    match stretch {
+        None => bench_dir.join("tradeoff"),
+        Some(s) => bench_dir.join(format!("tradeoff-{}x{}x{}", s.frames, s.width, s.height)),
+    }
 }
 
 /// Run the bench; returns the path of `tradeoff.md`.
 pub fn run(source: &BenchSource, grid: &Grid, reporter: &Reporter) -> anyhow::Result<PathBuf> {
     grid.check()?;
-    let inputs = inputs::prepare(source, reporter)?;
-    let out = out_dir(&inputs.bench_dir);
+    let mut inputs = inputs::prepare(source, reporter)?;
+    if let Some(stretch) = grid.stretch {
+        reporter.say(&format!(
+            "tradeoff: {} training views stretched to {} frames per camera at {}×{}",
+            inputs.dataset.views.len(),
+            stretch.frames,
+            stretch.width,
+            stretch.height
+        ));
+        inputs.dataset = stretch.apply(&inputs.dataset);
+    }
+    let out = out_dir(&inputs.bench_dir, grid.stretch);
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     let csv_path = out.join("tradeoff.csv");
     let mut table = open_table(&csv_path)?;
@@ -473,6 +493,7 @@ impl Grid {
                 format!("{} {}", scene.display(), capture_dir.display())
             }
             BenchSource::Capture(dir) => dir.display().to_string(),
+            BenchSource::Prepared(dir) => format!("{} --as-prepared", dir.display()),
         };
         let _ = write!(
             s,
@@ -499,6 +520,9 @@ impl Grid {
             " --backend {}",
             join(self.backend.iter().map(|b| b.name().to_string()).collect())
         );
+        if let Some(stretch) = self.stretch {
+            let _ = write!(s, " --stretch {stretch}");
+        }
         s
     }
 }
@@ -669,6 +693,7 @@ mod tests {
             max_gaussians: vec![],
             decay: vec![DecayVariant::None, DecayVariant::Neural],
             backend: vec![TrainOn::Cpu],
+            stretch: None,
         };
         let s = grid.settings(5000, DecayVariant::Exp);
         assert_eq!(s.len(), 8);

@@ -40,6 +40,7 @@ fn a_grid_is_measured_plotted_and_resumed() {
         max_gaussians: vec![],
         decay: vec![DecayVariant::Neural],
         backend: vec![TrainOn::Cpu],
+        stretch: None,
     };
     let md = pipeline::bench::tradeoff::run(&source, &grid, &reporter).unwrap();
     let out = md.parent().unwrap().to_path_buf();
@@ -106,6 +107,41 @@ fn a_grid_is_measured_plotted_and_resumed() {
         table.contains("| 20 |") && table.contains("| 30 |"),
         "{table}"
     );
+
+    // Stretched training views (4 cameras × 12 frames at 80×60), the capture used as
+    // prepared: a folder and table of their own, which say so; the plain table is left as
+    // it was.
+    let stretched = Grid {
+        stretch: Some("12:80x60".parse().unwrap()),
+        ..grid.clone()
+    };
+    let prepared = source.clone().as_prepared();
+    let md_stretched = pipeline::bench::tradeoff::run(&prepared, &stretched, &reporter).unwrap();
+    assert_eq!(
+        md_stretched.parent().unwrap(),
+        out.parent().unwrap().join("tradeoff-12x80x60")
+    );
+    let rows = read_csv(&md_stretched.with_file_name("tradeoff.csv")).unwrap();
+    assert_eq!(rows.len(), 1);
+    assert!(rows[0].psnr.unwrap().is_finite() && rows[0].gaussians > 0);
+    let table = fs::read_to_string(&md_stretched).unwrap();
+    assert!(
+        table.contains("48 training views of 80×60")
+            && table.contains("--stretch 12:80x60")
+            && table.contains("(as prepared)")
+            && table.contains("--as-prepared"),
+        "{table}"
+    );
+    assert_eq!(fs::read_to_string(&csv_path).unwrap(), after);
+    // A capture not prepared up to `init` is not used as prepared.
+    let fresh = tmp.path().join("fresh");
+    simulate::simulate_into(&scene, &fresh, &reporter).unwrap();
+    fs::write(fresh.join("capture.toml"), SETTINGS).unwrap();
+    let unprepared = BenchSource::from_args(&fresh, None).unwrap().as_prepared();
+    let e = pipeline::bench::tradeoff::run(&unprepared, &stretched, &reporter)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("--to init") && e.contains("fresh"), "{e}");
 
     // Bad sources.
     let scene_file = fixture("tiny.toml");
