@@ -183,7 +183,7 @@ scale() {
   if "$pipeline_bin" bench tradeoff "$demo_capture" --as-prepared --iterations "$steps" \
     --resolution 1 --max-gaussians 200000 --backend "$backend" --stretch "$stretch" \
     >"$out/scale.log" 2>&1; then
-    row "demo stretched to 4 × $stretch on $backend, $steps steps, \`full\`'s budget (train wall time, Gaussians, held-out PSNR)" "$(python3 - "$demo_capture/work/bench/$folder/tradeoff.csv" "$steps" <<'PY'
+    row "the demo's cameras × ${stretch%%:*} frames at ${stretch#*:} on $backend, $steps steps, \`full\`'s budget (train wall time, Gaussians, held-out PSNR)" "$(python3 - "$demo_capture/work/bench/$folder/tradeoff.csv" "$steps" <<'PY'
 import csv, sys
 row = list(csv.DictReader(open(sys.argv[1])))[-1]
 steps, seconds = int(sys.argv[2]), float(row["seconds"])
@@ -194,7 +194,7 @@ print(text)
 PY
 )"
   else
-    row "demo stretched to 4 × $stretch on $backend" "failed (see scale.log)"
+    row "the demo's cameras × ${stretch%%:*} frames at ${stretch#*:} on $backend" "failed (see scale.log)"
   fi
   if [ -n "$sampler" ]; then
     kill "$sampler" 2>/dev/null || true
