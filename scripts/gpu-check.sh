@@ -36,7 +36,8 @@
 #   7. only when asked (GPU_CHECK_PARTS=scale): a long, large capture's training time, the
 #      demo's training views stretched to 4 × 300 frames at 1352×1014 (`pipeline bench
 #      tradeoff --stretch 300:1352x1014`) trained with `full`'s budget for
-#      GPU_CHECK_SCALE_STEPS steps (default 30 000, `full`'s; fewer give a projection).
+#      GPU_CHECK_SCALE_STEPS steps (default 30 000, the paper's schedule; fewer give a
+#      projection).
 # Steps 1–6 take a few minutes on a data-centre GPU, step 7 about as long again: to fit a
 # short slot run them as two commands, GPU_CHECK_PARTS="engine demo" (the default) and then
 # GPU_CHECK_PARTS=scale. Logs and the table go to $GPU_CHECK_OUT (default
@@ -372,7 +373,7 @@ case "${1:-}" in
   check "$root"
   ;;
 *)
-  sed -n '2,45p' "$0" | sed 's/^# \{0,1\}//'
+  sed -n '2,46p' "$0" | sed 's/^# \{0,1\}//'
   exit 2
   ;;
 esac
