@@ -63,7 +63,7 @@ pub struct ExportOptions {
     /// Per-timestep Gaussians whose `opacity · ω(t)` is below this are dropped (1/255: the
     /// renderer skips such splats entirely).
     pub min_opacity: f64,
-    /// Write `frames/NNNN.ply`.
+    /// Write `frames/NNNN.ply` (a 3DGS PLY per time step: large, so only on request).
     pub frames: bool,
     /// Write glTF (`KHR_gaussian_splatting`): `scene.glb` at the middle export time, or
     /// with `gltf_every = k` every k-th export time as `gltf/NNNN.glb`.
@@ -72,7 +72,7 @@ pub struct ExportOptions {
     pub gltf_every: usize,
     /// Write `model4d.ply`.
     pub model4d: bool,
-    /// Write `scene.splatv`.
+    /// Write `scene.splatv` (on request: the viewer plays the model itself).
     pub splatv: bool,
     /// Write `viewer/` (needs the built bundle, see [`viewer::find_viewer_bundle`]).
     pub viewer: bool,
@@ -95,11 +95,11 @@ impl Default for ExportOptions {
         Self {
             steps: None,
             min_opacity: 1.0 / 255.0,
-            frames: true,
+            frames: false,
             gltf: true,
             gltf_every: 0,
             model4d: true,
-            splatv: true,
+            splatv: false,
             viewer: true,
             viewer_bundle: None,
             background: [0.0; 3],

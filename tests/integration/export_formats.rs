@@ -250,6 +250,8 @@ fn export_all_writes_the_documented_tree() {
     let dir = tempfile::tempdir().unwrap();
     let opts = ExportOptions {
         viewer: false,
+        frames: true,
+        splatv: true,
         ..Default::default()
     };
     let times = splat4d::export::even_times(&m, 4);

@@ -285,8 +285,8 @@ fn viewer_matches_the_engine_at_cameras_times_and_a_novel_view_and_plays_the_spl
     // splats as the engine does. A blue unlike the scene, so that lost coverage shows.
     let background = [0.15, 0.45, 0.85];
     let opts = ExportOptions {
-        frames: false,
         model4d: false,
+        splatv: true,
         viewer_bundle: Some(browser.bundle.clone()),
         background,
         ..Default::default()

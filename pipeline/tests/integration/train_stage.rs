@@ -49,7 +49,7 @@ fn train_stops_cleanly_resumes_identically_and_exports() {
         root.join("capture.toml"),
         "[train]\niterations = 24\nbatch_size = 2\ncheckpoint_every = 8\ndegree_every = 4\n\
          [train.densify]\nfrom_iteration = 4\nuntil_iteration = 16\nevery = 6\nopacity_reset_every = 0\n\
-         [export]\nsteps = 3\nviewer = false\n",
+         [export]\nsteps = 3\nviewer = false\nframes = true\nsplatv = true\n",
     )
     .unwrap();
     let summary = run(

@@ -47,8 +47,8 @@ fn viewer_matches_the_engine_on_the_trained_demo() {
             .collect(),
     );
     let options = ExportOptions {
-        frames: false,
         model4d: false,
+        splatv: true,
         viewer_bundle: Some(browser.bundle.clone()),
         ..Default::default()
     };
