@@ -161,6 +161,10 @@ pub struct StageArgs {
     /// Rerun the selected stages even if they are up to date.
     #[arg(long)]
     pub force: bool,
+    /// With `--only train`, on a clip cut into time chunks (`[chunks]`): train just this
+    /// chunk (0 first), leaving the stage for a run that trains the rest and merges them.
+    #[arg(long, requires = "only", conflicts_with = "force")]
+    pub chunk: Option<usize>,
     /// Backend of the `train`, `render` and `eval` stages (overrides `[engine] backend`;
     /// on Slurm, `cpu` asks for no GPU).
     #[arg(long, value_enum)]
@@ -179,6 +183,7 @@ impl StageArgs {
             to: self.to.clone(),
             only: self.only.clone(),
             force: self.force,
+            chunk: self.chunk,
         }
     }
 

@@ -34,6 +34,8 @@ pub struct CaptureConfig {
     pub poses: poses::PosesSettings,
     pub init: init::InitSettings,
     pub train: train::TrainSettings,
+    /// Long clips trained in time chunks (the `train` stage, and the init's moments).
+    pub chunks: crate::chunks::ChunkSettings,
     /// The 4C4D opacity decay used by the `train` stage (`variant = "none"`: plain 4DGS).
     pub decay: train::DecaySettings,
     pub render: render::RenderSettings,

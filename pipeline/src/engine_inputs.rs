@@ -156,12 +156,32 @@ pub fn load_dataset(
     cameras_file: &Path,
     progress: &dyn Progress,
 ) -> anyhow::Result<Dataset> {
+    load_dataset_window(frames_dir, cameras_file, None, progress)
+}
+
+/// [`load_dataset`] of the aligned frames `window` (positions in `frames.json`; `None`:
+/// all): a time chunk loads only its own frames. The time mapping is the whole clip's.
+pub fn load_dataset_window(
+    frames_dir: &Path,
+    cameras_file: &Path,
+    window: Option<std::ops::Range<usize>>,
+    progress: &dyn Progress,
+) -> anyhow::Result<Dataset> {
     let index = FramesIndex::read_json(&frames_dir.join("frames.json"))?;
     let poses = PosesFile::read(cameras_file)?;
     let cameras = pinhole_cameras(&index, &poses.set, cameras_file)?;
     let mapping = time_mapping(&index);
+    let window = window.unwrap_or(0..index.frames.len());
     let jobs: Vec<(usize, PathBuf, f64)> = index
         .frames
+        .get(window.clone())
+        .with_context(|| {
+            format!(
+                "{} has {} frames, not the frames {window:?}; rerun the train stage with --force",
+                frames_dir.join("frames.json").display(),
+                index.frames.len()
+            )
+        })?
         .iter()
         .flat_map(|frame| {
             frame

@@ -9,6 +9,8 @@
 //!   engine: frames, pinhole cameras, the trained model), `heldout` (held-out cameras
 //!   split off the training ones), `masks` (moving-region masks for eval), `interrupt`
 //!   (Ctrl-C stops training cleanly).
+//! - `chunks` trains a long clip in time chunks (the plan, the shared static scene, the
+//!   runner that trains and merges them), for the `train` stage.
 //! - `runner` decides what is stale and runs it, with `manifest` (`stage.json`),
 //!   `partial_dir` (outputs appear only when complete) and `lock` (one run per capture).
 //! - `cluster` runs captures on Slurm (`submit`, `cancel`, the jobs in `status`): each
@@ -20,6 +22,7 @@
 #![cfg_attr(not(feature = "ffmpeg"), allow(unused))]
 
 pub mod bench;
+pub mod chunks;
 pub mod cli;
 pub mod cluster;
 pub mod compare;

@@ -75,6 +75,37 @@ impl CaptureLock {
         Ok(Self { _file: file, path })
     }
 
+    /// Take the lock of `work_dir` shared with other runs that take it shared (the runs of
+    /// one time chunk each, which write only their own chunk's folder), or fail at once if
+    /// a whole run holds it.
+    pub fn acquire_shared(work_dir: &Path) -> Result<Self, LockError> {
+        let path = Self::path(work_dir);
+        let io = |source| LockError::Io {
+            path: path.clone(),
+            source,
+        };
+        fs::create_dir_all(work_dir).map_err(io)?;
+        let mut file = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .map_err(io)?;
+        match file.try_lock_shared() {
+            Ok(()) => Ok(Self { _file: file, path }),
+            Err(fs::TryLockError::WouldBlock) => {
+                let mut holder = String::new();
+                let _ = file.read_to_string(&mut holder);
+                Err(LockError::Busy {
+                    path,
+                    holder: holder.trim().to_string(),
+                })
+            }
+            Err(fs::TryLockError::Error(e)) => Err(io(e)),
+        }
+    }
+
     /// Whether some process holds the lock right now (used by `status` to tell a running
     /// stage from an interrupted one).
     pub fn is_held(work_dir: &Path) -> bool {

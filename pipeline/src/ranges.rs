@@ -146,6 +146,8 @@ pub const RANGES: &[(&str, Range)] = &[
     ("train.densify.max_world_size", POSITIVE),
     ("train.densify.opacity_reset_every", COUNT),
     ("train.densify.max_gaussians", SOME),
+    ("chunks.seconds", at_least(0.0)),
+    ("chunks.overlap_seconds", at_least(0.0)),
     ("decay.beta", positive_to(1.0)),
     ("decay.constant", positive_to(1.0)),
     ("decay.exp_kappa", POSITIVE),

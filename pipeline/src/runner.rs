@@ -48,6 +48,10 @@ pub struct Selection {
     pub only: Option<String>,
     /// Rerun selected stages even when they are up to date.
     pub force: bool,
+    /// With `only = "train"`: train just this time chunk of a clip cut into chunks
+    /// (`crate::chunks`), leaving the stage unfinished for the run that trains the rest and
+    /// merges them (one Slurm job per chunk). Several such runs share the capture's lock.
+    pub chunk: Option<usize>,
 }
 
 /// What a run did.
@@ -337,7 +341,13 @@ impl Pipeline {
     ) -> anyhow::Result<RunSummary> {
         let selected = self.select(sel)?;
         let work = capture.work_dir();
-        let _lock = CaptureLock::acquire(&work)?;
+        let _lock = match sel.chunk {
+            Some(_) if sel.only.as_deref() != Some("train") || sel.force => bail!(
+                "--chunk K trains one time chunk of the train stage: give it with --only train and without --force"
+            ),
+            Some(_) => CaptureLock::acquire_shared(&work)?,
+            None => CaptureLock::acquire(&work)?,
+        };
         for stage in &self.stages {
             recover_interrupted_swap(&work.join(stage.name));
         }
@@ -400,9 +410,7 @@ impl Pipeline {
                 stage: stage.name,
                 reasons: &reasons,
             });
-            match execute(
-                stage, run, capture, config, params, inputs, sel.force, reporter,
-            ) {
+            match execute(stage, run, capture, config, params, inputs, sel, reporter) {
                 Ok(manifest) => {
                     reporter.event(&Event::StageFinished {
                         stage: stage.name,
@@ -426,7 +434,8 @@ impl Pipeline {
     }
 }
 
-/// Run one stage into its partial folder and swap the result in.
+/// Run one stage into its partial folder and swap the result in (a run of one chunk,
+/// `sel.chunk`, leaves the partial folder as it is for the run that finishes the stage).
 #[allow(clippy::too_many_arguments)] // one stage's whole context, each used once
 fn execute(
     stage: &StageDef,
@@ -435,7 +444,7 @@ fn execute(
     config: &CaptureConfig,
     params: serde_json::Value,
     inputs: BTreeMap<String, InputRecord>,
-    force: bool,
+    sel: &Selection,
     reporter: &Reporter,
 ) -> anyhow::Result<Manifest> {
     let work = capture.work_dir();
@@ -444,7 +453,18 @@ fn execute(
     // started with the same parameters and inputs (and without --force).
     let key = resume_key(&params, &inputs);
     let key_file = partial.join(RESUME_KEY_FILE);
-    let resume = stage.resumable && !force && fs::read_to_string(&key_file).is_ok_and(|k| k == key);
+    let resume =
+        stage.resumable && !sel.force && fs::read_to_string(&key_file).is_ok_and(|k| k == key);
+    // A later chunk joins the partial folder its first chunk started, never a fresh one.
+    if let Some(k) = sel.chunk.filter(|&k| k > 0)
+        && !resume
+    {
+        bail!(
+            "chunk {k} trains on the first chunk's static scene, and {} holds no first chunk trained with these settings and inputs; run chunk 0 first (`pipeline run CAPTURE --only {} --chunk 0`)",
+            partial.display(),
+            stage.name
+        );
+    }
     if !resume && partial.exists() {
         fs::remove_dir_all(&partial)
             .with_context(|| format!("cannot clear {}", partial.display()))?;
@@ -475,6 +495,7 @@ fn execute(
         capture,
         out_dir: partial.clone(),
         resume,
+        chunk: sel.chunk,
         progress: &progress,
         tool_versions: Mutex::new(tools),
     };
@@ -494,6 +515,23 @@ fn execute(
     };
     shared_types::Progress::finish(&progress);
     let duration_s = clock.elapsed().as_secs_f64();
+    if sel.chunk.is_some() {
+        // One chunk's work stays in the partial folder, with its resume key.
+        return outcome.map(|()| {
+            RunRecord::clear(&work, stage.name);
+            Manifest {
+                version: MANIFEST_VERSION,
+                stage: stage.name.to_string(),
+                parameters: params,
+                inputs,
+                outputs: BTreeMap::new(),
+                outputs_digest: String::new(),
+                started,
+                duration_s,
+                tool_versions: BTreeMap::new(),
+            }
+        });
+    }
     let finished = outcome.and_then(|()| {
         if stage.resumable {
             fs::remove_file(&key_file)

@@ -18,6 +18,8 @@ pub struct StageContext<'a> {
     /// A resumable stage finds its own earlier, interrupted work in `out_dir` (same
     /// parameters and inputs): continue it.
     pub resume: bool,
+    /// Train just this time chunk (`crate::chunks`; only the `train` stage reads it).
+    pub chunk: Option<usize>,
     pub progress: &'a dyn Progress,
     pub(crate) tool_versions: Mutex<BTreeMap<String, String>>,
 }

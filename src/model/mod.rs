@@ -168,6 +168,21 @@ impl<F: Real> Gaussians<F> {
         Ok(())
     }
 
+    /// Append `other`'s Gaussians after this model's (the same colour capacity; this
+    /// model's time mapping and active degrees are kept).
+    pub fn append(&mut self, other: &Gaussians<F>) {
+        assert_eq!(
+            self.capacity, other.capacity,
+            "appending Gaussians of another colour capacity"
+        );
+        self.means.extend_from_slice(&other.means);
+        self.log_scales.extend_from_slice(&other.log_scales);
+        self.rot_left.extend_from_slice(&other.rot_left);
+        self.rot_right.extend_from_slice(&other.rot_right);
+        self.opacity_logits.extend_from_slice(&other.opacity_logits);
+        self.colours.extend_from_slice(&other.colours);
+    }
+
     /// The same model in another float type.
     pub fn cast<G: Real>(&self) -> Gaussians<G> {
         let v4 = |v: &Vec<[F; 4]>| v.iter().map(|a| a.map(|x| G::c(x.f64()))).collect();

@@ -179,7 +179,12 @@ pub fn load(dir: &Path, iteration: u64) -> Result<Checkpoint, CheckpointError> {
         iteration,
         seed,
         model,
-        adam: Adam { step, m, v },
+        adam: Adam {
+            step,
+            m,
+            v,
+            frozen: 0,
+        },
         stats,
         hook_state,
     })

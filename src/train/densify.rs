@@ -222,12 +222,15 @@ pub fn densify_and_prune(
     let mut sources: Vec<Option<usize>> = Vec::with_capacity(n);
     let mut rows: Vec<usize> = Vec::with_capacity(n);
     let mut removed = vec![false; n];
-    let mut room = config.max_gaussians.saturating_sub(n);
+    // Adam's frozen Gaussians (a shared static scene) are neither grown, split nor pruned,
+    // and do not count against the budget.
+    let frozen = adam.frozen.min(n);
+    let mut room = config.max_gaussians.saturating_sub(n - frozen);
     // Clones and splits are appended after the originals.
     // (parent, new mean and log-scales for a split half; None for a plain clone).
     type Appended = (usize, Option<([f32; 4], [f32; 4])>);
     let mut appended: Vec<Appended> = Vec::new();
-    for i in 0..n {
+    for i in frozen..n {
         let c = stats.count[i];
         if c == 0 || room == 0 {
             continue;
@@ -280,6 +283,9 @@ pub fn densify_and_prune(
     let world_limit = config.max_world_size as f32 * extent;
     let keep: Vec<usize> = (0..grown.len())
         .filter(|&j| {
+            if j < frozen {
+                return true;
+            }
             let o = grown.opacity_logits[j];
             let transparent = o.is_nan() || o < min_logit;
             let large = prune_large
@@ -296,16 +302,17 @@ pub fn densify_and_prune(
     report
 }
 
-/// Clamp every opacity to at most `max_opacity` and zero the opacity moments.
+/// Clamp every opacity but Adam's frozen Gaussians' to at most `max_opacity` and zero the
+/// opacity moments.
 pub fn reset_opacity(model: &mut Gaussians<f32>, adam: &mut Adam, max_opacity: f64) {
     let cap = logit(max_opacity) as f32;
-    for o in &mut model.opacity_logits {
+    let frozen = adam.frozen.min(model.len());
+    for o in &mut model.opacity_logits[frozen..] {
         *o = o.min(cap);
     }
     adam.reset_opacity();
     debug_assert!(
-        model
-            .opacity_logits
+        model.opacity_logits[frozen..]
             .iter()
             .all(|&o| sigmoid(o) <= max_opacity as f32 + 1e-6)
     );

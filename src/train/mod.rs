@@ -13,6 +13,7 @@ pub mod dataset;
 pub mod densify;
 mod device_step;
 pub mod exposure;
+mod frozen;
 pub mod gpu;
 pub mod log;
 pub mod loss;
@@ -122,6 +123,20 @@ impl Default for TrainConfig {
             checkpoint_every: 1000,
             keep_checkpoints: 3,
             report_every: 10,
+        }
+    }
+}
+
+impl TrainConfig {
+    /// How the Gaussians are made from the init's points.
+    pub fn init_options(&self) -> InitOptions {
+        InitOptions {
+            opacity: self.init_opacity,
+            time_scale_fraction: self.init_time_scale,
+            capacity: self.colour_degrees,
+            seed: self.seed,
+            flatness: self.init_flatness,
+            velocity: self.init_velocity,
         }
     }
 }
@@ -411,6 +426,36 @@ fn all_finite(model: &Gaussians<f32>) -> bool {
         && model.colours.iter().all(|x| x.is_finite())
 }
 
+/// Where training starts.
+#[derive(Clone, Copy, Debug)]
+pub enum Start<'a> {
+    /// Gaussians made from a point cloud (`model::init`, with the config's init options).
+    Points(&'a PointCloud),
+    /// A given first model whose first `frozen` Gaussians never change: a static scene
+    /// trained earlier and shared by several time chunks (`pipeline`'s chunk runner).
+    /// Adam, densification, opacity resets and the hooks leave them as they are, and the
+    /// budget `max_gaussians` counts only the others. `points` places the learned backdrop.
+    Model {
+        model: &'a Gaussians<f32>,
+        frozen: usize,
+        points: &'a PointCloud,
+    },
+}
+
+impl<'a> Start<'a> {
+    fn points(&self) -> &'a PointCloud {
+        match *self {
+            Start::Points(p) | Start::Model { points: p, .. } => p,
+        }
+    }
+    fn frozen(&self) -> usize {
+        match *self {
+            Start::Points(_) => 0,
+            Start::Model { frozen, .. } => frozen,
+        }
+    }
+}
+
 /// Train a model on `dataset` from `init`, writing `out_dir/{ckpt/, model.bin, log.csv}`
 /// and, with `background = "learned"`, the backdrop fitted behind it ([`BACKDROP_FILE`]).
 /// With `resume`, continue from the newest complete checkpoint in `out_dir/ckpt` (a fresh
@@ -428,6 +473,50 @@ pub fn train(
     hooks: &mut dyn TrainHooks,
     progress: &dyn Progress,
 ) -> Result<TrainSummary, TrainError> {
+    train_from(
+        backend,
+        config,
+        dataset,
+        Start::Points(init),
+        out_dir,
+        resume,
+        hooks,
+        progress,
+    )
+}
+
+/// [`train`] from `origin`: a point cloud, or a model with frozen Gaussians at its front.
+#[allow(clippy::too_many_arguments)]
+pub fn train_from(
+    backend: &dyn RenderBackend,
+    config: &TrainConfig,
+    dataset: &Dataset,
+    origin: Start<'_>,
+    out_dir: &Path,
+    resume: bool,
+    hooks: &mut dyn TrainHooks,
+    progress: &dyn Progress,
+) -> Result<TrainSummary, TrainError> {
+    let init = origin.points();
+    let frozen = origin.frozen();
+    if let Start::Model { model, frozen, .. } = origin {
+        if frozen > model.len() {
+            return Err(TrainError::Config(format!(
+                "{frozen} frozen Gaussians in a model of {}",
+                model.len()
+            )));
+        }
+        if model.capacity != config.colour_degrees {
+            return Err(TrainError::Config(
+                "the starting model's colour degrees differ from colour_degrees".into(),
+            ));
+        }
+    }
+    let mut guarded = frozen::KeepFrozen {
+        inner: hooks,
+        frozen,
+    };
+    let hooks: &mut dyn TrainHooks = &mut guarded;
     validate(config, dataset)?;
     // Resolved on the full-size images, so the colour does not depend on `resolution`.
     let background = config.background.resolve(dataset);
@@ -465,20 +554,27 @@ pub fn train(
                     "the checkpoint's colour degrees differ from the config".into(),
                 ));
             }
+            if let Start::Model { model, frozen, .. } = origin
+                && !frozen::has_prefix(&c.model, model, frozen)
+            {
+                return Err(TrainError::Resume(format!(
+                    "checkpoint {it} was trained on other frozen Gaussians than this run starts with; start afresh"
+                )));
+            }
             hooks.load_state(&c.hook_state);
-            (c.model, c.adam, c.stats, it)
+            let mut adam = c.adam;
+            adam.frozen = frozen;
+            (c.model, adam, c.stats, it)
         }
         None => {
-            let opts = InitOptions {
-                opacity: config.init_opacity,
-                time_scale_fraction: config.init_time_scale,
-                capacity: config.colour_degrees,
-                seed: config.seed,
-                flatness: config.init_flatness,
-                velocity: config.init_velocity,
+            let model = match origin {
+                Start::Model { model, .. } => model.clone(),
+                Start::Points(init) => {
+                    gaussians_from_points(init, dataset.time_mapping, &config.init_options())?
+                }
             };
-            let model = gaussians_from_points(init, dataset.time_mapping, &opts)?;
-            let adam = Adam::new(&model);
+            let mut adam = Adam::new(&model);
+            adam.frozen = frozen;
             let stats = DensifyStats::new(model.len());
             (model, adam, stats, 0)
         }
@@ -565,6 +661,12 @@ pub fn train(
         }
         regularise::cap_anisotropy(&mut model, config.max_anisotropy);
         hooks.after_step(it + 1, &mut model);
+        if let Start::Model { model: first, .. } = origin
+            && frozen > 0
+            && model_every_step
+        {
+            frozen::restore_prefix(&mut model, first, frozen);
+        }
         if model_every_step {
             stepper.model_from_host(&model)?;
         }

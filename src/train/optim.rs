@@ -223,6 +223,10 @@ pub struct Adam {
     pub m: ParamBuffers,
     /// Second moments.
     pub v: ParamBuffers,
+    /// The model's first `frozen` Gaussians are left as they are, and so are their moments
+    /// (a static scene shared by several time chunks; densification keeps them too). Not
+    /// saved in checkpoints: the trainer sets it from where training starts.
+    pub frozen: usize,
 }
 
 pub const BETA1: f32 = 0.9;
@@ -257,6 +261,7 @@ impl Adam {
             step: 0,
             m: ParamBuffers::zeros(model.len(), k),
             v: ParamBuffers::zeros(model.len(), k),
+            frozen: 0,
         }
     }
 
@@ -273,14 +278,16 @@ impl Adam {
         let bc2 = 1.0 - BETA2.powi(t);
         let r = *rates;
         let (m, v) = (&mut self.m, &mut self.v);
+        // Values of the frozen Gaussians: 4 per Gaussian in the vec4 groups, 1 for opacity.
+        let f = self.frozen.min(model.len());
         rayon::join(
             || {
                 let pos = |i: usize| if i % 4 == 3 { r.time } else { r.position };
                 update(
-                    model.means.as_flattened_mut(),
-                    grads.means.as_flattened(),
-                    m.means.as_flattened_mut(),
-                    v.means.as_flattened_mut(),
+                    &mut model.means.as_flattened_mut()[4 * f..],
+                    &grads.means.as_flattened()[4 * f..],
+                    &mut m.means.as_flattened_mut()[4 * f..],
+                    &mut v.means.as_flattened_mut()[4 * f..],
                     pos,
                     bc1,
                     bc2,
@@ -310,20 +317,20 @@ impl Adam {
                 ];
                 for (p, g, mm, vv, lr) in groups {
                     update(
-                        p.as_flattened_mut(),
-                        g.as_flattened(),
-                        mm.as_flattened_mut(),
-                        vv.as_flattened_mut(),
+                        &mut p.as_flattened_mut()[4 * f..],
+                        &g.as_flattened()[4 * f..],
+                        &mut mm.as_flattened_mut()[4 * f..],
+                        &mut vv.as_flattened_mut()[4 * f..],
                         |_| lr,
                         bc1,
                         bc2,
                     );
                 }
                 update(
-                    &mut model.opacity_logits,
-                    &grads.opacity_logits,
-                    &mut m.opacity_logits,
-                    &mut v.opacity_logits,
+                    &mut model.opacity_logits[f..],
+                    &grads.opacity_logits[f..],
+                    &mut m.opacity_logits[f..],
+                    &mut v.opacity_logits[f..],
                     |_| r.opacity,
                     bc1,
                     bc2,
@@ -335,10 +342,10 @@ impl Adam {
                     return;
                 }
                 (
-                    model.colours.par_chunks_mut(k),
-                    grads.colours.par_chunks(k),
-                    m.colours.par_chunks_mut(k),
-                    v.colours.par_chunks_mut(k),
+                    model.colours[k * f..].par_chunks_mut(k),
+                    grads.colours[k * f..].par_chunks(k),
+                    m.colours[k * f..].par_chunks_mut(k),
+                    v.colours[k * f..].par_chunks_mut(k),
                 )
                     .into_par_iter()
                     .with_min_len(1024)

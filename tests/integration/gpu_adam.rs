@@ -200,3 +200,44 @@ fn an_empty_model_steps_and_wrong_shapes_are_errors() {
     let err = on_gpu.download(gpu, &mut other).unwrap_err();
     assert!(matches!(err, RenderError::ModelMismatch { .. }), "{err}");
 }
+
+/// With `Adam::frozen`, the GPU leaves the first Gaussians' values and moments exactly as
+/// they were and steps the rest as the CPU does.
+#[test]
+fn gpu_adam_leaves_the_frozen_gaussians_alone() {
+    let Some(gpu) = gpu() else { return };
+    let start = model(50);
+    let (mut cpu_model, mut gpu_model) = (start.clone(), start.clone());
+    let mut adam = Adam::new(&cpu_model);
+    adam.frozen = 20;
+    let mut on_gpu = GpuAdam::from_state(gpu, &gpu_model, &adam).unwrap();
+    let mut rng = Rng(5);
+    let schedule = LearningRates::default();
+    for it in 0..4 {
+        let grads = random_gradients(&mut rng, &cpu_model);
+        let rates = schedule.at(it, 4, 2.5);
+        adam.step(&mut cpu_model, &grads, &rates);
+        on_gpu.set_gradients(gpu, &grads).unwrap();
+        on_gpu.step(gpu, &rates).unwrap();
+    }
+    on_gpu.download(gpu, &mut gpu_model).unwrap();
+    let k = 3 * start.coeffs_per_channel();
+    for got in [&cpu_model, &gpu_model] {
+        assert_eq!(got.means[..20], start.means[..20]);
+        assert_eq!(got.rot_right[..20], start.rot_right[..20]);
+        assert_eq!(got.opacity_logits[..20], start.opacity_logits[..20]);
+        assert_eq!(got.colours[..20 * k], start.colours[..20 * k]);
+        assert_ne!(got.means[20..], start.means[20..]);
+    }
+    let (m, _) = on_gpu.moments(gpu).unwrap();
+    assert!(m.means[..20].iter().flatten().all(|&x| x == 0.0));
+    assert!(adam.m.colours[..20 * k].iter().all(|&x| x == 0.0));
+    let scale = vec![1.0; 50 * 4];
+    let err = worst(
+        gpu_model.means.as_flattened().iter().copied(),
+        cpu_model.means.as_flattened().iter().copied(),
+        &scale,
+        1.0,
+    );
+    assert!(err <= TOLERANCE, "means: {err:.2e}");
+}

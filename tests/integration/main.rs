@@ -37,6 +37,7 @@ mod model_file;
 mod paths_geometry;
 mod reference;
 mod train_fit;
+mod train_frozen;
 mod train_hooks;
 mod train_resume;
 mod viewer_browser;

@@ -40,9 +40,12 @@ pub fn stage_log(work: &Path, stage: &str, job: &str) -> PathBuf {
     work.join(stage).join(format!("slurm-{job}.log"))
 }
 
-/// The batch script of a stage's job.
-pub fn script_path(work: &Path, stage: &str) -> PathBuf {
-    cluster_dir(work).join(format!("{stage}.sbatch"))
+/// The batch script of a stage's job (of one time chunk of it: `train-chunk003.sbatch`).
+pub fn script_path(work: &Path, stage: &str, chunk: Option<usize>) -> PathBuf {
+    match chunk {
+        Some(k) => cluster_dir(work).join(format!("{stage}-chunk{k:03}.sbatch")),
+        None => cluster_dir(work).join(format!("{stage}.sbatch")),
+    }
 }
 
 /// The latest submission of a capture (`work/.cluster/jobs.json`).
@@ -61,8 +64,12 @@ pub struct Submission {
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct SubmittedJob {
     pub stage: String,
+    /// The time chunk it trains (`pipeline run --only train --chunk K`), for a clip cut
+    /// into chunks; the stage's own job (without) merges them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub chunk: Option<usize>,
     pub job_id: String,
-    /// The job it waits for (`afterok`).
+    /// The jobs it waits for (`afterok`; several are joined by `:`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub after: Option<String>,
     /// GPUs it asked for.
@@ -84,8 +91,11 @@ impl Submission {
         self.jobs.iter().map(|j| j.job_id.clone()).collect()
     }
 
+    /// The stage's own job (not one of its chunks').
     pub fn job_of(&self, stage: &str) -> Option<&SubmittedJob> {
-        self.jobs.iter().find(|j| j.stage == stage)
+        self.jobs
+            .iter()
+            .find(|j| j.stage == stage && j.chunk.is_none())
     }
 }
 
@@ -93,10 +103,12 @@ impl Submission {
 #[derive(Clone, Debug)]
 pub struct StageJob<'a> {
     pub stage: &'a str,
+    /// The time chunk it trains, if it is a chunk's job.
+    pub chunk: Option<usize>,
     /// The capture directory, absolute, as the compute nodes see it.
     pub root: &'a Path,
     pub request: &'a JobRequest,
-    /// The job this one waits for.
+    /// The jobs this one waits for (`:`-separated).
     pub after: Option<&'a str>,
     /// Submit held (released once the whole chain is in).
     pub hold: bool,
@@ -107,14 +119,18 @@ pub struct StageJob<'a> {
 }
 
 impl StageJob<'_> {
-    /// `train:take03`: the stage, then the capture folder's name.
+    /// `train:take03`: the stage (`train[2]` for a chunk's job), then the capture
+    /// folder's name.
     pub fn name(&self) -> String {
         let capture = self
             .root
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_else(|| "capture".into());
-        format!("{}:{capture}", self.stage)
+        match self.chunk {
+            Some(k) => format!("{}[{k}]:{capture}", self.stage),
+            None => format!("{}:{capture}", self.stage),
+        }
     }
 
     /// The `sbatch` arguments (without `--parsable`), the script path last.
@@ -176,7 +192,18 @@ impl StageJob<'_> {
             "--only".into(),
             stage.into(),
         ]);
+        if let Some(k) = self.chunk {
+            command.extend(["--chunk".into(), k.to_string()]);
+        }
         command.extend(self.run_args.iter().map(|a| quote(a)));
+        // A chunk's job leaves its log in work/.cluster/logs/: the stage's folder appears
+        // only when the job that merges the chunks finishes.
+        let keep_log = match self.chunk {
+            Some(_) => String::new(),
+            None => format!(
+                "mkdir -p \"$capture/work/{stage}\" && cp -f \"$log\" \"$capture/work/{stage}/slurm-$SLURM_JOB_ID.log\"\n"
+            ),
+        };
         let setup: String = self
             .request
             .setup
@@ -198,7 +225,7 @@ impl StageJob<'_> {
              {setup}\
              {command}\n\
              status=$?\n\
-             mkdir -p \"$capture/work/{stage}\" && cp -f \"$log\" \"$capture/work/{stage}/slurm-$SLURM_JOB_ID.log\"\n\
+             {keep_log}\
              exit $status\n",
             token = quote(self.token),
             host = self.host.replace(['"', '`', '$', '\\'], ""),
@@ -245,6 +272,7 @@ mod tests {
         let request = request();
         let job = StageJob {
             stage: "train",
+            chunk: None,
             root: Path::new("/shared/take 03"),
             request: &request,
             after: Some("41"),
@@ -306,6 +334,7 @@ mod tests {
         let run_args = ["--force".to_string(), "--backend".into(), "gpu".into()];
         let job = StageJob {
             stage: "render",
+            chunk: None,
             root: Path::new("/shared/it's"),
             request: &request,
             after: None,
@@ -328,6 +357,41 @@ mod tests {
         ), "{script}");
         assert!(script.contains("cp -f \"$log\" \"$capture/work/render/slurm-$SLURM_JOB_ID.log\""));
         assert!(script.trim_end().ends_with("exit $status"));
+    }
+
+    #[test]
+    fn a_chunk_job_trains_its_chunk_and_leaves_its_log_in_the_cluster_folder() {
+        let request = request();
+        let job = StageJob {
+            stage: "train",
+            chunk: Some(2),
+            root: Path::new("/shared/take03"),
+            request: &request,
+            after: Some("41:42"),
+            hold: false,
+            run_args: &[],
+            token: "abc123",
+            host: "login1",
+        };
+        assert_eq!(job.name(), "train[2]:take03");
+        let script = job.script();
+        assert!(
+            script.contains("/shared/bin/pipeline run \"$capture\" --only train --chunk 2\n"),
+            "{script}"
+        );
+        assert!(!script.contains("cp -f"), "{script}");
+        let work = Path::new("/shared/take03/work");
+        let path = script_path(work, "train", Some(2));
+        assert_eq!(path, work.join(".cluster/train-chunk002.sbatch"));
+        let args = job.sbatch_args(&path);
+        assert!(
+            args.contains(&"--dependency=afterok:41:42".to_string()),
+            "{args:?}"
+        );
+        assert_eq!(
+            script_path(work, "train", None),
+            work.join(".cluster/train.sbatch")
+        );
     }
 
     #[test]

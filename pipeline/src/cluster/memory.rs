@@ -31,6 +31,19 @@ pub struct Footprint {
     pub bytes: u64,
 }
 
+impl Footprint {
+    /// The part of these frames that `frames` of `of` aligned frames take (one time chunk's
+    /// window, which is all a chunk's job holds).
+    pub fn share(self, frames: usize, of: usize) -> Self {
+        let of = of.max(1) as u64;
+        let frames = (frames as u64).min(of);
+        Self {
+            views: self.views * frames / of,
+            bytes: self.bytes * frames / of,
+        }
+    }
+}
+
 /// The capture's frames as counted at submit time, or `None` when its recordings cannot
 /// be read yet (the ingest job will say why).
 pub fn footprint(work: &Path, capture: &Capture, config: &CaptureConfig) -> Option<Footprint> {

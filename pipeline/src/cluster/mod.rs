@@ -207,54 +207,91 @@ pub fn submit(
     write(&submission)?;
     // Counted once, and only when a job needs it (it may probe the recordings).
     let frames = std::cell::OnceCell::new();
+    // A clip cut into time chunks trains one job per chunk when its frames are known now
+    // (the frames stage is done and not resubmitted) and nothing is forced.
+    let chunked = chosen
+        .iter()
+        .all(|&i| pipeline.stages[i].name != "frames")
+        .then(|| crate::chunks::plan::ChunkPlan::read(&work, &config.chunks))
+        .flatten()
+        .filter(|plan| plan.is_chunked() && !options.selection.force);
     for &i in &chosen {
         let stage = &pipeline.stages[i];
         let gpu = stage.engine && config.engine.backend != crate::engine_inputs::BackendChoice::Cpu;
         let mut request = settings.request(stage.name, gpu, &binary);
+        let chunks = match &chunked {
+            Some(plan) if stage.name == "train" => Some(plan),
+            _ => None,
+        };
         if request.mem.is_none()
             && memory::sized(stage.name)
-            && let Some(frames) = *frames.get_or_init(|| memory::footprint(&work, capture, config))
+            && let Some(mut frames) =
+                *frames.get_or_init(|| memory::footprint(&work, capture, config))
         {
+            if let Some(plan) = chunks {
+                frames = frames.share(plan.largest_window(), plan.frames());
+            }
             request.mem = memory::request(stage.name, frames, config.train.densify.max_gaussians);
         }
-        let after = submission.jobs.last().map(|j| j.job_id.clone());
-        let job = StageJob {
-            stage: stage.name,
-            root: &root,
-            request: &request,
-            after: after.as_deref(),
-            hold: after.is_none(),
-            run_args: &options.run_args,
-            token: &submission.token,
-            host: &host,
-        };
-        let script = jobs::script_path(&work, stage.name);
-        let submitted = shared_types::atomic::write_atomic(&script, job.script().as_bytes())
-            .map_err(|source| ClusterError::Write {
-                path: script.clone(),
-                source,
-            })
-            .and_then(|()| {
-                slurm::sbatch(&job.sbatch_args(&script)).map_err(|source| ClusterError::Submit {
-                    stage: stage.name.into(),
-                    capture: root.clone(),
+        let previous = submission.jobs.last().map(|j| j.job_id.clone());
+        let mut queue = |chunk: Option<usize>, after: Option<String>| {
+            let job = StageJob {
+                stage: stage.name,
+                chunk,
+                root: &root,
+                request: &request,
+                after: after.as_deref(),
+                hold: after.is_none(),
+                run_args: &options.run_args,
+                token: &submission.token,
+                host: &host,
+            };
+            let script = jobs::script_path(&work, stage.name, chunk);
+            let submitted = shared_types::atomic::write_atomic(&script, job.script().as_bytes())
+                .map_err(|source| ClusterError::Write {
+                    path: script.clone(),
                     source,
-                    hint: "check the [cluster] settings in capture.toml or the user cluster file, docs/cluster.md",
                 })
-            });
-        match submitted {
-            Ok(job_id) => {
-                submission.jobs.push(SubmittedJob {
-                    stage: stage.name.into(),
-                    job_id,
-                    after,
-                    gpus: request.gpus,
+                .and_then(|()| {
+                    slurm::sbatch(&job.sbatch_args(&script)).map_err(|source| ClusterError::Submit {
+                        stage: stage.name.into(),
+                        capture: root.clone(),
+                        source,
+                        hint: "check the [cluster] settings in capture.toml or the user cluster file, docs/cluster.md",
+                    })
                 });
-                write(&submission)?;
+            match submitted {
+                Ok(job_id) => {
+                    submission.jobs.push(SubmittedJob {
+                        stage: stage.name.into(),
+                        chunk,
+                        job_id: job_id.clone(),
+                        after,
+                        gpus: request.gpus,
+                    });
+                    write(&submission)?;
+                    Ok(job_id)
+                }
+                Err(e) => {
+                    let _ = slurm::scancel(&submission.job_ids());
+                    Err(e)
+                }
             }
-            Err(e) => {
-                let _ = slurm::scancel(&submission.job_ids());
-                return Err(e);
+        };
+        match chunks {
+            // The first chunk after the stage before; the others after the first (they
+            // train on its static scene), side by side; the stage's job, which merges
+            // them, after all of them.
+            Some(plan) => {
+                let first = queue(Some(0), previous)?;
+                let mut all = vec![first.clone()];
+                for k in 1..plan.chunks.len() {
+                    all.push(queue(Some(k), Some(first.clone()))?);
+                }
+                queue(None, Some(all.join(":")))?;
+            }
+            None => {
+                queue(None, previous)?;
             }
         }
     }

@@ -31,7 +31,11 @@ pub fn inputs(capture: &Capture, settings: &InitSettings) -> Vec<PathBuf> {
 }
 
 /// The `init` stage.
-pub fn run(ctx: &StageContext, settings: &InitSettings) -> anyhow::Result<()> {
+pub fn run(
+    ctx: &StageContext,
+    settings: &InitSettings,
+    chunks: &crate::chunks::ChunkSettings,
+) -> anyhow::Result<()> {
     let frames_dir = ctx.stage_dir("frames");
     let index = FramesIndex::read_json(&frames_dir.join("frames.json"))?;
     let poses_dir = ctx.stage_dir("poses");
@@ -55,7 +59,7 @@ pub fn run(ctx: &StageContext, settings: &InitSettings) -> anyhow::Result<()> {
     };
     let images = views_of(first);
     let pointmaps = settings.pointmaps.as_ref().map(|p| ctx.capture.resolve(p));
-    let moments = moments_of(&index, settings, pointmaps.as_deref())?
+    let moments = moments_of(&index, settings, chunks, pointmaps.as_deref())?
         .into_iter()
         .map(|i| {
             let frame = &index.frames[i];
@@ -67,13 +71,15 @@ pub fn run(ctx: &StageContext, settings: &InitSettings) -> anyhow::Result<()> {
                 views,
             }
         })
-        .collect();
+        .collect::<Vec<_>>();
     let sparse = poses
         .points_file
         .as_ref()
         .map(|f| poses_dir.join(f))
         .filter(|p| p.exists());
     let mut config = settings.clone();
+    // A clip in time chunks has `[init] moments` in each chunk: every one is swept.
+    config.moments = config.moments.max(moments.len());
     config.model = config.model.map(|p| ctx.capture.resolve(&p));
     config.pointmaps = pointmaps;
     // The static plates' frames: `[init] plates` per camera, spread over the clip.
@@ -125,16 +131,19 @@ fn stills_of(cameras: &[Camera], files: &[PathBuf]) -> Vec<StillImage> {
 
 /// Indices into `index.frames` of the moments: the aligned frames with exported point maps
 /// (`pointmaps/NNNNNN/`) when there are such folders, else `[init] moments` frames spread
-/// over the clip. A point-map folder of a frame the frames stage did not write is an error.
+/// over the clip, or over each time chunk of a clip trained in chunks (`crate::chunks`).
+/// A point-map folder of a frame the frames stage did not write is an error.
 fn moments_of(
     index: &FramesIndex,
     settings: &InitSettings,
+    chunks: &crate::chunks::ChunkSettings,
     pointmaps: Option<&std::path::Path>,
 ) -> anyhow::Result<Vec<usize>> {
     use pointinit::moment_maps::{exported_frames, frame_dir};
     let exported = pointmaps.map(|root| (root, exported_frames(root)));
     let Some((root, exported)) = exported.filter(|(_, e)| !e.is_empty()) else {
-        return Ok(moment_frames(index.frames.len(), settings.moments));
+        let plan = crate::chunks::plan::ChunkPlan::of_index(index, chunks);
+        return Ok(plan.moments(settings.moments, moment_frames));
     };
     exported
         .iter()

@@ -37,11 +37,22 @@ fn with_heldout(stage: &'static str) -> impl Fn(&CaptureConfig) -> serde_json::V
 }
 
 /// The train stage's parameters: `[train]`, with `[decay]` under the key `decay`
-/// (`status` then names a change `train.decay.variant`).
+/// (`status` then names a change `train.decay.variant`) and `[chunks]` under `chunks`.
 fn train_params(config: &CaptureConfig) -> serde_json::Value {
     let mut params = config.section("train");
     if let Some(map) = params.as_object_mut() {
         map.insert("decay".into(), config.section("decay"));
+    }
+    with_chunks(params, config)
+}
+
+/// `params` with `[chunks]` under the key `chunks` when it is not the default (so captures
+/// trained before chunks existed keep their parameters).
+fn with_chunks(mut params: serde_json::Value, config: &CaptureConfig) -> serde_json::Value {
+    if config.chunks != crate::chunks::ChunkSettings::default()
+        && let Some(map) = params.as_object_mut()
+    {
+        map.insert("chunks".into(), config.section("chunks"));
     }
     params
 }
@@ -95,14 +106,23 @@ pub fn pipeline() -> Pipeline {
             .after(&["frames", "poses"])
             .inputs(|c, config| init::inputs(c, &config.init))
             .outputs(&["points.ply", "init.json"])
-            .run(|ctx, config| init::run(ctx, &config.init)),
+            .params(|config| with_chunks(config.section("init"), config))
+            .run(|ctx, config| init::run(ctx, &config.init, &config.chunks)),
             StageDef::new("train", "train the 4C4D Gaussian model")
                 .after(&["frames", "poses", "init"])
                 .params(train_params)
                 .outputs(&["model.bin", "log.csv", crate::engine_inputs::TRAIN_RECORD])
                 .resumable()
                 .on_engine()
-                .run(|ctx, config| train::run(ctx, &config.train, &config.decay, &config.engine)),
+                .run(|ctx, config| {
+                    train::run(
+                        ctx,
+                        &config.train,
+                        &config.decay,
+                        &config.engine,
+                        &config.chunks,
+                    )
+                }),
             StageDef::new("render", "render videos along camera paths")
                 .after(&["frames", "poses", "train"])
                 .output_one_of(&render::OUTPUTS)

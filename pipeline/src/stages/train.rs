@@ -4,7 +4,7 @@
 //! into `model.bin` and `log.csv`. It can stop cleanly on Ctrl-C (see `crate::interrupt`)
 //! and continue from its checkpoint on the next run.
 
-use anyhow::{Context, bail};
+use anyhow::Context;
 use splat4d::Gaussians;
 use splat4d::decay::DecayConfig;
 use splat4d::train::{ModelAccess, PointCloud, TrainConfig, TrainError, TrainHooks, View};
@@ -22,8 +22,8 @@ pub type TrainSettings = TrainConfig;
 pub type DecaySettings = DecayConfig;
 
 /// The stage's hooks: the method's hooks (4C4D decay, or none) plus the Ctrl-C stop.
-struct StageHooks<'a> {
-    inner: &'a mut dyn TrainHooks,
+pub(crate) struct StageHooks<'a> {
+    pub inner: &'a mut dyn TrainHooks,
 }
 
 impl TrainHooks for StageHooks<'_> {
@@ -59,7 +59,7 @@ impl TrainHooks for StageHooks<'_> {
 }
 
 /// The initial points: `work/init/points.ply`, else the poses stage's sparse points.
-fn initial_points(ctx: &StageContext) -> anyhow::Result<PointCloud> {
+pub(crate) fn initial_points(ctx: &StageContext) -> anyhow::Result<PointCloud> {
     let init = ctx.stage_dir("init").join("points.ply");
     let path = if init.exists() {
         init
@@ -76,8 +76,56 @@ fn initial_points(ctx: &StageContext) -> anyhow::Result<PointCloud> {
         .with_context(|| format!("cannot read the initial points {}", path.display()))
 }
 
-/// The `train` stage.
+/// Each camera's exposure gain measured on `dataset` and the points' static surfaces;
+/// `dataset`'s frames divided by it.
+pub(crate) fn match_exposure(
+    dataset: &mut splat4d::train::Dataset,
+    points: &PointCloud,
+    ctx: &StageContext,
+) -> Vec<splat4d::train::exposure::CameraGain> {
+    ctx.progress.message("matching exposure");
+    let gains = splat4d::train::exposure::estimate(dataset, points);
+    splat4d::train::exposure::equalise(dataset, &gains);
+    let text: Vec<String> = gains
+        .iter()
+        .map(|g| {
+            format!(
+                "{} [{:.3}, {:.3}, {:.3}]",
+                g.camera, g.gain[0], g.gain[1], g.gain[2]
+            )
+        })
+        .collect();
+    tracing::info!("exposure gains (frames divided by): {}", text.join(", "));
+    gains
+}
+
+/// The error of a training run stopped by Ctrl-C.
+pub(crate) fn interrupted(iteration: u64) -> anyhow::Error {
+    anyhow::anyhow!(
+        "training stopped after iteration {iteration} (a checkpoint was kept); run the same `pipeline run` again to continue from it, or add --force to start over"
+    )
+}
+
+/// The `train` stage: one model of the whole clip, or, for a clip longer than
+/// `[chunks] seconds`, one per time chunk merged into one (`crate::chunks`).
 pub fn run(
+    ctx: &StageContext,
+    settings: &TrainSettings,
+    decay: &DecaySettings,
+    engine: &EngineSettings,
+    chunks: &crate::chunks::ChunkSettings,
+) -> anyhow::Result<()> {
+    let index = rig::frames::FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
+    let plan = crate::chunks::plan::ChunkPlan::of_index(&index, chunks);
+    if plan.is_chunked() {
+        crate::chunks::runner::run(ctx, settings, decay, engine, &plan)
+    } else {
+        run_whole(ctx, settings, decay, engine)
+    }
+}
+
+/// One model of the whole clip.
+fn run_whole(
     ctx: &StageContext,
     settings: &TrainSettings,
     decay: &DecaySettings,
@@ -88,20 +136,7 @@ pub fn run(
     let mut dataset = load_dataset(&ctx.stage_dir("frames"), &cameras_file, ctx.progress)?;
     let points = initial_points(ctx)?;
     let exposure = if settings.match_exposure {
-        ctx.progress.message("matching exposure");
-        let gains = splat4d::train::exposure::estimate(&dataset, &points);
-        splat4d::train::exposure::equalise(&mut dataset, &gains);
-        let text: Vec<String> = gains
-            .iter()
-            .map(|g| {
-                format!(
-                    "{} [{:.3}, {:.3}, {:.3}]",
-                    g.camera, g.gain[0], g.gain[1], g.gain[2]
-                )
-            })
-            .collect();
-        tracing::info!("exposure gains (frames divided by): {}", text.join(", "));
-        gains
+        match_exposure(&mut dataset, &points, ctx)
     } else {
         Vec::new()
     };
@@ -130,9 +165,7 @@ pub fn run(
         ctx.progress,
     ) {
         Ok(summary) => summary,
-        Err(TrainError::Interrupted { iteration, .. }) => bail!(
-            "training stopped after iteration {iteration} (a checkpoint was kept); run the same `pipeline run` again to continue from it, or add --force to start over"
-        ),
+        Err(TrainError::Interrupted { iteration, .. }) => return Err(interrupted(iteration)),
         Err(e) => return Err(e.into()),
     };
     tracing::info!(

@@ -28,6 +28,7 @@ mod render_backend;
 mod runner;
 mod slurm;
 mod stage_graph;
+mod train_chunks;
 mod train_demo;
 mod train_stage;
 mod viewer_demo;

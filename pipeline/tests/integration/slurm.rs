@@ -653,3 +653,94 @@ fn cancel_leaves_no_job_behind_and_a_capture_with_jobs_is_not_run_twice() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// A clip cut into three time chunks (`[chunks]`, the settings of `train_chunks.rs`) trains
+/// one job per chunk once its frames are known: the first after `init`, the other two
+/// after the first (they train on its static scene), the `train` job that merges them
+/// after all three, and `render`, `eval` and `export` after that. The model is the one a
+/// local run trains.
+#[test]
+fn a_clip_in_chunks_trains_one_job_per_chunk_and_gives_the_local_model() {
+    let Some(cluster) = Cluster::start() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("take02");
+    let settings = "[sync]\nmethod = \"timestamps\"\n[init]\nmoments = 2\nsweep_size = 64\nsweep_max_planes = 64\n\
+        [train]\niterations = 8\nbatch_size = 1\ncheckpoint_every = 4\n\
+        [train.densify]\nfrom_iteration = 2\nuntil_iteration = 6\nevery = 2\nopacity_reset_every = 0\n\
+        [chunks]\nseconds = 0.34\noverlap_seconds = 0.07\n\
+        [render]\nframes = 2\nvideo = false\n[eval]\nheldout_per_camera = 1\n[export]\nsteps = 1\nviewer = false\n\
+        [cluster]\ncpus = 1\n";
+    common::tiny_capture(&root, settings);
+    let out = cluster.pipeline(&["--quiet", "run", root.to_str().unwrap(), "--to", "init"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let pristine = tmp.path().join("pristine");
+    common::copy_dir(&root, &pristine);
+
+    let said = submit(&cluster, &[root.to_str().unwrap()]);
+    assert!(said.contains("train → job"), "{said}");
+    let rows = cluster.wait_for_jobs(&root, Duration::from_secs(180));
+    for name in ["train", "render", "eval", "export"] {
+        assert_eq!(row(&rows, name)["state"], "done", "{rows:#?}");
+    }
+    let submission = Submission::read(&root.join("work")).unwrap();
+    let jobs: Vec<(&str, Option<usize>)> = submission
+        .jobs
+        .iter()
+        .map(|j| (j.stage.as_str(), j.chunk))
+        .collect();
+    assert_eq!(
+        jobs,
+        [
+            ("train", Some(0)),
+            ("train", Some(1)),
+            ("train", Some(2)),
+            ("train", None),
+            ("render", None),
+            ("eval", None),
+            ("export", None),
+        ]
+    );
+    let id = |k: usize| submission.jobs[k].job_id.clone();
+    assert_eq!(submission.jobs[0].after, None);
+    assert_eq!(submission.jobs[1].after, Some(id(0)));
+    assert_eq!(submission.jobs[2].after, Some(id(0)));
+    assert_eq!(
+        submission.jobs[3].after,
+        Some(format!("{}:{}:{}", id(0), id(1), id(2)))
+    );
+    for job in &submission.jobs {
+        let record = cluster.job_record(&job.job_id);
+        assert!(record.contains("JobState=COMPLETED"), "{record}");
+    }
+    // Each chunk's job trained its own chunk.
+    let train = root.join("work/train");
+    for k in 0..3 {
+        assert!(train.join(format!("chunks/{k:03}/chunk.json")).is_file());
+        let log = root
+            .join("work/.cluster/logs")
+            .join(format!("train-{}.log", id(k)));
+        let text = fs::read_to_string(&log).unwrap_or_else(|e| panic!("{}: {e}", log.display()));
+        assert!(text.contains(&format!("chunk {}/3", k + 1)), "{text}");
+    }
+
+    // The same capture trained locally, at the same path, gives the same model.
+    let submitted = tmp.path().join("submitted");
+    fs::rename(&root, &submitted).unwrap();
+    fs::rename(&pristine, &root).unwrap();
+    let out = cluster.pipeline(&["--quiet", "run", root.to_str().unwrap(), "--only", "train"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(
+        fs::read(root.join("work/train/model.bin")).unwrap(),
+        fs::read(submitted.join("work/train/model.bin")).unwrap()
+    );
+}

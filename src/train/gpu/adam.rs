@@ -19,7 +19,9 @@ use std::sync::Arc;
 struct AdamUniform {
     count: u32,
     stride: u32,
-    pad0: [u32; 2],
+    /// Values before this one are frozen (`Adam::frozen` Gaussians × stride).
+    first: u32,
+    pad0: u32,
     beta1: f32,
     beta2: f32,
     one_minus_beta1: f32,
@@ -65,6 +67,8 @@ pub struct GpuAdam {
     /// Opacity factors of 1, for views the decay does not factor.
     pub(super) ones: wgpu::Buffer,
     step: u64,
+    /// The first `frozen` Gaussians are left alone (`Adam::frozen`).
+    frozen: usize,
 }
 
 impl GpuAdam {
@@ -95,6 +99,7 @@ impl GpuAdam {
                 v: Packed::zeros(device, count, colour_len, "Adam second moments"),
                 ones: storage_init(device, &vec![1.0f32; count.max(1)], "no opacity factor"),
                 step: 0,
+                frozen: 0,
             })
         })?;
         adam.write(&adam.params, &pack_params(model), &model.colours);
@@ -123,6 +128,7 @@ impl GpuAdam {
         a.write(&a.m, &pack_buffers(&adam.m), &adam.m.colours);
         a.write(&a.v, &pack_buffers(&adam.v), &adam.v.colours);
         a.step = adam.step;
+        a.frozen = adam.frozen.min(a.count);
         Ok(a)
     }
 
@@ -269,7 +275,8 @@ impl GpuAdam {
         let base = AdamUniform {
             count: 0,
             stride: 1,
-            pad0: [0; 2],
+            first: 0,
+            pad0: 0,
             beta1: BETA1,
             beta2: BETA2,
             one_minus_beta1: 1.0 - BETA1,
@@ -292,6 +299,7 @@ impl GpuAdam {
             (
                 PARAM_FLOATS * self.count,
                 PARAM_FLOATS,
+                PARAM_FLOATS * self.frozen,
                 param_rates,
                 &self.grads.params,
                 &self.params.params,
@@ -301,6 +309,7 @@ impl GpuAdam {
             (
                 self.colour_len,
                 self.colour_stride.max(1),
+                self.colour_stride * self.frozen,
                 colour_rates,
                 &self.grads.colours,
                 &self.params.colours,
@@ -309,7 +318,7 @@ impl GpuAdam {
             ),
         ];
         let mut pass = enc.begin_compute_pass(&Default::default());
-        for (count, stride, rates, g, p, m, v) in groups {
+        for (count, stride, first, rates, g, p, m, v) in groups {
             if count == 0 {
                 continue;
             }
@@ -318,6 +327,7 @@ impl GpuAdam {
                 &AdamUniform {
                     count: count as u32,
                     stride: stride as u32,
+                    first: first as u32,
                     rates,
                     ..base
                 },

@@ -1,12 +1,13 @@
 // Adam on a flat parameter buffer, `src/train/optim.rs` step for step in f32: the host
 // passes β₁, β₂, 1 − β₁, 1 − β₂ and ε as it computes them, the bias corrections of this
 // step, and one learning rate per position in a stride (position min(i mod stride, 19));
-// a negative rate leaves the value and its moments alone (padding).
+// a negative rate leaves the value and its moments alone (padding), and so does an index
+// before `first` (the frozen Gaussians' values).
 
 struct AdamParams {
     count: u32,
     stride: u32,
-    pad0: u32,
+    first: u32,
     pad1: u32,
     beta1: f32,
     beta2: f32,
@@ -33,7 +34,7 @@ fn adam_step(
     @builtin(local_invocation_index) lid: u32,
 ) {
     let i = flat_index(wid, nwg, lid);
-    if i >= A.count {
+    if i >= A.count || i < A.first {
         return;
     }
     let j = min(i % A.stride, 19u);

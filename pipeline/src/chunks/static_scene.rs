@@ -1,0 +1,175 @@
+//! The static scene shared by every chunk: the first chunk's Gaussians that stand still
+//! over its frames, frozen as static Gaussians (each its slice at the chunk's middle: no
+//! velocity, alive for all time), so they draw the same at every moment of the clip.
+
+use splat4d::Gaussians;
+use splat4d::export::bake::{SH_COEFFS, bake_rows, linear_motion};
+use splat4d::train::densify::gather_gaussians;
+
+/// Log temporal scale of a frozen static Gaussian: σ = e¹¹ model units (hours of clip),
+/// so its temporal weight is 1 wherever a clip can reach (the engine clamps at 12).
+pub const STATIC_LOG_TIME_SCALE: f32 = 11.0;
+
+/// Whether Gaussian `i` stands still over the model times `window`: it lives through all
+/// of it (its temporal weight at least ½ at both ends) and moves less than its own size
+/// (its largest spatial σ) from one end to the other.
+pub fn stands_still(model: &Gaussians<f32>, i: usize, window: (f64, f64)) -> bool {
+    let (_, velocity, s44, cov) = linear_motion(model, i);
+    let centre = model.means[i][3] as f64;
+    let alive = |t: f64| (t - centre).powi(2) <= 2.0 * std::f64::consts::LN_2 * s44;
+    let length = (window.1 - window.0).abs();
+    let speed = velocity.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let size = (0..3).map(|a| cov[a][a]).fold(0.0, f64::max).sqrt();
+    alive(window.0) && alive(window.1) && speed * length <= size
+}
+
+/// The indices of `model`'s Gaussians that stand still over `window`, and of the others.
+pub fn split(model: &Gaussians<f32>, window: (f64, f64)) -> (Vec<usize>, Vec<usize>) {
+    (0..model.len()).partition(|&i| stands_still(model, i, window))
+}
+
+/// `model`'s Gaussians `rows` frozen at model time `t`: each its slice at `t` (conditional
+/// mean and covariance, opacity × temporal weight, colour folded at `t`) as a 4D Gaussian
+/// that does not move and lives for all time. Rows culled at `t` are left out.
+pub fn freeze(model: &Gaussians<f32>, rows: &[usize], t: f64) -> Gaussians<f32> {
+    let part = gather_gaussians(model, rows);
+    let mut out = Gaussians::new(model.capacity, model.time);
+    out.active = model.active;
+    let spatial = model.capacity.spatial_count().min(SH_COEFFS);
+    let coeffs = 3 * model.coeffs_per_channel();
+    for splat in bake_rows(&part, t, 0.0).into_iter().flatten() {
+        let [x, y, z] = splat.position;
+        out.means.push([x, y, z, t as f32]);
+        let [a, b, c] = splat.log_scale;
+        out.log_scales.push([a, b, c, STATIC_LOG_TIME_SCALE]);
+        // ql = qr = q is the 3D rotation q that leaves time alone.
+        out.rot_left.push(splat.rotation);
+        out.rot_right.push(splat.rotation);
+        out.opacity_logits.push(splat.opacity_logit);
+        let start = out.colours.len();
+        out.colours.resize(start + coeffs, 0.0);
+        for (s, sh) in splat.sh.iter().take(spatial).enumerate() {
+            out.colours[start + 3 * s..start + 3 * s + 3].copy_from_slice(sh);
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use shared_types::{Camera, Distortion, Intrinsics, WorldToCamera};
+    use splat4d::model::{ColourDegrees, TimeMapping};
+    use splat4d::{CpuBackend, RenderBackend, RenderOptions};
+
+    /// A wall of slowly drifting, long-lived Gaussians with colour in every degree, a
+    /// short-lived one and a fast one.
+    fn model() -> Gaussians<f32> {
+        let mut m = Gaussians::new(
+            ColourDegrees::FULL,
+            TimeMapping::frames_over_30(0.0, 30.0, 4.0),
+        );
+        for k in 0..12 {
+            let (x, y) = ((k % 4) as f32 * 0.3 - 0.45, (k / 4) as f32 * 0.3 - 0.3);
+            let i = m.push(
+                [x, y, 0.0, 2.0],
+                [-2.0, -2.5, -3.0, 1.5],
+                1.0,
+                [0.2 + 0.05 * k as f32, 0.5, 0.7],
+            );
+            // A small tilt of the 4D rotation: a slow drift and a rotated ellipse.
+            m.rot_left[i] = [1.0, 0.02, 0.1 * k as f32 / 12.0, 0.03];
+            m.rot_right[i] = [1.0, 0.0, 0.1 * k as f32 / 12.0, 0.0];
+            let n = m.coeffs_per_channel();
+            for (j, c) in m.colours[i * 3 * n..(i + 1) * 3 * n]
+                .iter_mut()
+                .enumerate()
+                .skip(3)
+            {
+                *c = 0.05 * ((j * 7 + k) % 5) as f32 - 0.1;
+            }
+        }
+        // Short-lived (σt = e^-2 model units) and fast (strongly tilted in x–t).
+        m.push(
+            [0.0, 0.0, 0.2, 2.0],
+            [-2.0, -2.0, -2.0, -2.0],
+            2.0,
+            [1.0, 0.0, 0.0],
+        );
+        let fast = m.push(
+            [0.1, 0.1, 0.2, 2.0],
+            [-2.0, -2.0, -2.0, 1.5],
+            2.0,
+            [0.0, 1.0, 0.0],
+        );
+        m.rot_left[fast] = [0.9, 0.4, 0.0, 0.0];
+        m.rot_right[fast] = [0.9, -0.4, 0.0, 0.0];
+        m.active = ColourDegrees::FULL;
+        m
+    }
+
+    fn camera() -> Camera {
+        Camera {
+            name: "cam".into(),
+            intrinsics: Intrinsics::from_hfov(64, 48, 60.0),
+            distortion: Distortion::None,
+            world_to_camera: WorldToCamera::look_at(
+                glam::DVec3::new(0.2, -0.3, 2.0),
+                glam::DVec3::ZERO,
+                glam::DVec3::Y,
+            )
+            .unwrap(),
+        }
+    }
+
+    fn render(m: &Gaussians<f32>, t: f64) -> Vec<f32> {
+        let options = RenderOptions::default();
+        CpuBackend
+            .render(m, &camera(), t as f32, &options)
+            .unwrap()
+            .rgb
+    }
+
+    #[test]
+    fn the_wall_stands_still_and_the_short_lived_and_fast_ones_move() {
+        let m = model();
+        let (still, moving) = split(&m, (1.0, 3.0));
+        assert_eq!(still, (0..12).collect::<Vec<_>>());
+        assert_eq!(moving, [12, 13]);
+        // Over a window much longer than the wall lives, nothing stands still; the wall
+        // (σt ≈ e^1.5 = 4.5 around t = 2) is at least half alive up to about t = 7.3.
+        assert!(split(&m, (0.0, 100.0)).0.is_empty());
+        assert_eq!(split(&m, (6.0, 6.5)).0.len(), 12);
+        assert!(split(&m, (8.0, 8.5)).0.is_empty());
+    }
+
+    #[test]
+    fn a_frozen_wall_draws_its_slice_at_every_time() {
+        let m = model();
+        let rows: Vec<usize> = (0..12).collect();
+        let frozen = freeze(&m, &rows, 2.0);
+        assert_eq!(frozen.len(), 12);
+        let wall = gather_gaussians(&m, &rows);
+        let want = render(&wall, 2.0);
+        assert!(want.iter().any(|&v| v > 0.05), "the wall is not in view");
+        for t in [2.0, 0.0, 3.9, 50.0] {
+            let got = render(&frozen, t);
+            let err = got
+                .iter()
+                .zip(&want)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f32::max);
+            assert!(err < 2e-3, "t = {t}: max difference {err}");
+        }
+        // The original drifts: at another time it draws differently, the frozen one not.
+        let drifted = render(&wall, 3.9);
+        let moved = drifted
+            .iter()
+            .zip(&want)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f32::max);
+        assert!(moved > 1e-2, "the test wall does not move ({moved})");
+        // Frozen Gaussians stand still over any window.
+        assert_eq!(split(&frozen, (-1e3, 1e3)).0.len(), 12);
+    }
+}
