@@ -40,6 +40,22 @@ pub enum Command {
     ///
     /// Example: pipeline run my_capture/ --from frames --to train
     Run(RunArgs),
+    /// Serve the captures' exported browser viewers (work/export/viewer/) on 127.0.0.1
+    /// and open the first in the system's browser; Ctrl-C stops. Several captures are
+    /// listed on one index page.
+    ///
+    /// Example: pipeline view my_capture/
+    View {
+        /// The capture directories (their export stage has run).
+        #[arg(required = true)]
+        capture_dirs: Vec<PathBuf>,
+        /// Port on 127.0.0.1 (default 8765, or any free one when it is taken; 0: any).
+        #[arg(long)]
+        port: Option<u16>,
+        /// Print the URL without opening a browser (servers, SSH sessions).
+        #[arg(long)]
+        no_open: bool,
+    },
     /// Show each stage's state: done, stale (and why), missing, or failed.
     ///
     /// Example: pipeline status my_capture/

@@ -18,7 +18,8 @@
 //! - `report` shows progress, `status` prints the table, `cli` is the command line;
 //!   `simulate` and `ablation` are the `simulate`/`demo` and `bench ablation` commands,
 //!   `bench` the `bench sync` and `bench poses` commands (and their resumable results table),
-//!   `compare` the `metrics` command (image metrics between two images or folders).
+//!   `compare` the `metrics` command (image metrics between two images or folders), `view`
+//!   the `view` command (the exported viewers served on 127.0.0.1).
 #![cfg_attr(not(feature = "ffmpeg"), allow(unused))]
 
 pub mod bench;
@@ -44,6 +45,7 @@ pub mod stage_context;
 pub mod stage_def;
 pub mod stages;
 pub mod status;
+pub mod view;
 
 use std::path::Path;
 

@@ -37,6 +37,18 @@ impl CaptureLock {
 
     /// Take the lock of `work_dir` (created if needed) or fail at once if it is held.
     pub fn acquire(work_dir: &Path) -> Result<Self, LockError> {
+        Self::take(work_dir, false)
+    }
+
+    /// Take the lock of `work_dir` shared with other runs that take it shared (the runs of
+    /// one time chunk each, which write only their own chunk's folder), or fail at once if
+    /// a whole run holds it.
+    pub fn acquire_shared(work_dir: &Path) -> Result<Self, LockError> {
+        Self::take(work_dir, true)
+    }
+
+    /// The lock file of `work_dir` (created if needed), locked exclusively or shared.
+    fn take(work_dir: &Path, shared: bool) -> Result<Self, LockError> {
         let path = Self::path(work_dir);
         let io = |source| LockError::Io {
             path: path.clone(),
@@ -50,7 +62,12 @@ impl CaptureLock {
             .truncate(false)
             .open(&path)
             .map_err(io)?;
-        match file.try_lock() {
+        let taken = if shared {
+            file.try_lock_shared()
+        } else {
+            file.try_lock()
+        };
+        match taken {
             Ok(()) => {}
             Err(fs::TryLockError::WouldBlock) => {
                 let mut holder = String::new();
@@ -64,46 +81,17 @@ impl CaptureLock {
             }
             Err(fs::TryLockError::Error(e)) => return Err(io(e)),
         }
+        // Who holds it, for the message another run gets (the last of several sharing it).
         let note = format!(
-            "pid {}, started {}",
+            "pid {}{}, started {}",
             std::process::id(),
+            if shared { ", one time chunk" } else { "" },
             chrono::Utc::now().format("%Y-%m-%d %H:%M:%S UTC")
         );
         file.set_len(0).map_err(io)?;
         file.seek(SeekFrom::Start(0)).map_err(io)?;
         file.write_all(note.as_bytes()).map_err(io)?;
         Ok(Self { _file: file, path })
-    }
-
-    /// Take the lock of `work_dir` shared with other runs that take it shared (the runs of
-    /// one time chunk each, which write only their own chunk's folder), or fail at once if
-    /// a whole run holds it.
-    pub fn acquire_shared(work_dir: &Path) -> Result<Self, LockError> {
-        let path = Self::path(work_dir);
-        let io = |source| LockError::Io {
-            path: path.clone(),
-            source,
-        };
-        fs::create_dir_all(work_dir).map_err(io)?;
-        let mut file = OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(&path)
-            .map_err(io)?;
-        match file.try_lock_shared() {
-            Ok(()) => Ok(Self { _file: file, path }),
-            Err(fs::TryLockError::WouldBlock) => {
-                let mut holder = String::new();
-                let _ = file.read_to_string(&mut holder);
-                Err(LockError::Busy {
-                    path,
-                    holder: holder.trim().to_string(),
-                })
-            }
-            Err(fs::TryLockError::Error(e)) => Err(io(e)),
-        }
     }
 
     /// Whether some process holds the lock right now (used by `status` to tell a running

@@ -61,6 +61,11 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
         Command::Run(args) => run(args, reporter),
         Command::Submit(args) => submit(args, reporter),
         Command::Cancel { capture_dir } => cancel(&capture_dir, reporter),
+        Command::View {
+            capture_dirs,
+            port,
+            no_open,
+        } => view(&capture_dirs, port, no_open, reporter),
         Command::Status { capture_dir } => {
             let (capture, config) = open_capture(&capture_dir)?;
             let mut rows = stages::pipeline().status(&capture, &config)?;
@@ -208,6 +213,9 @@ fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
         .run(&capture, &config, &selection, reporter)
         .with_context(|| format!("run on {}", capture.root.display()))?;
     report_summary(&summary, reporter);
+    if summary.ran.iter().any(|s| s == "export") {
+        say_view(&capture.root, reporter);
+    }
     Ok(if summary.complete() {
         ExitCode::SUCCESS
     } else {
@@ -215,9 +223,58 @@ fn run(args: RunArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
     })
 }
 
+/// The command that shows a capture's exported viewer, when it has one.
+fn say_view(capture_dir: &std::path::Path, reporter: &Reporter) {
+    if pipeline::view::viewer_dir(capture_dir).is_ok() {
+        let program = std::env::current_exe()
+            .map(|p| p.display().to_string())
+            .unwrap_or_else(|_| "pipeline".into());
+        reporter.say(&format!(
+            "see the 4D scene in a browser: {program} view {}",
+            capture_dir.display()
+        ));
+    }
+}
+
 /// Submit each capture's stale stages to Slurm, one job per stage, chained by `afterok`.
 /// Every capture is tried; the command fails when one of them could not be submitted.
+/// `pipeline view`: serve the exported viewers until Ctrl-C.
+fn view(
+    capture_dirs: &[std::path::PathBuf],
+    port: Option<u16>,
+    no_open: bool,
+    reporter: &Reporter,
+) -> anyhow::Result<ExitCode> {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let site = pipeline::view::Site::of(capture_dirs)?;
+    let server = pipeline::view::Server::bind(site.clone(), port)?;
+    let url = server.url()?;
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    ctrlc::set_handler(move || flag.store(true, Ordering::SeqCst))
+        .context("cannot install the Ctrl-C handler")?;
+    for viewer in &site.viewers {
+        reporter.say(&format!("{}: {}", viewer.name, viewer.dir.display()));
+    }
+    // The URL on stdout, whatever the output mode: scripts read it there.
+    println!("viewer at {url}");
+    if !no_open && !pipeline::view::open_browser(&url) {
+        reporter.say("open that address in a browser (no browser to open here); Ctrl-C stops");
+    } else {
+        reporter.say("Ctrl-C stops");
+    }
+    server.serve_until(|| stop.load(Ordering::SeqCst))?;
+    reporter.say("stopped");
+    Ok(ExitCode::SUCCESS)
+}
+
 fn submit(args: SubmitArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
+    if args.stages.chunk.is_some() {
+        anyhow::bail!(
+            "--chunk trains one time chunk in `pipeline run`; `pipeline submit` makes one job per chunk itself (docs/cluster.md)"
+        );
+    }
     let pipeline = stages::pipeline();
     let names = pipeline.stage_names();
     let options = pipeline::cluster::SubmitOptions {
@@ -562,6 +619,7 @@ fn demo(
         capture.work_dir().display(),
         out_dir.display()
     ));
+    say_view(out_dir, reporter);
     Ok(if summary.failed.is_none() {
         ExitCode::SUCCESS
     } else {

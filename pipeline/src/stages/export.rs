@@ -55,8 +55,8 @@ pub fn run(
         report.seconds,
         match &report.viewer_index {
             Some(_) => format!(
-                "; open {} in a browser",
-                ctx.stage_dir("export").join("viewer/index.html").display()
+                "; `pipeline view {}` shows it in a browser",
+                ctx.capture.root.display()
             ),
             None => String::new(),
         }

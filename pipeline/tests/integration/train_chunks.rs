@@ -21,14 +21,6 @@ const SETTINGS: &str = "[sync]\nmethod = \"timestamps\"\n[init]\nmoments = 2\nsw
     [chunks]\nseconds = 0.34\noverlap_seconds = 0.07\n\
     [render]\nframes = 3\nvideo = false\n[eval]\nheldout_per_camera = 1\n[export]\nsteps = 1\nviewer = false\n";
 
-fn only(stage: &str, force: bool) -> Selection {
-    Selection {
-        only: Some(stage.into()),
-        force,
-        ..Default::default()
-    }
-}
-
 #[test]
 fn a_clip_in_three_chunks_trains_resumes_identically_and_renders_as_one() {
     let tmp = tempfile::tempdir().unwrap();
@@ -56,7 +48,7 @@ fn a_clip_in_three_chunks_trains_resumes_identically_and_renders_as_one() {
 
     // A stop after the first iteration keeps the first chunk's checkpoint.
     interrupt::request_stop();
-    let stopped = common::run_stages(&root, only("train", false));
+    let stopped = common::run_stages(&root, common::only("train", false));
     let (stage, error) = stopped.failed.expect("stopped");
     assert_eq!(stage, "train");
     assert!(
@@ -66,7 +58,7 @@ fn a_clip_in_three_chunks_trains_resumes_identically_and_renders_as_one() {
     assert!(root.join("work/.train.partial/chunks/000/ckpt").is_dir());
     assert!(!root.join("work/.train.partial/chunks/001").exists());
 
-    let resumed = common::run_stages(&root, only("train", false));
+    let resumed = common::run_stages(&root, common::only("train", false));
     assert_eq!(resumed.ran, ["train"], "{resumed:?}");
     let train = root.join("work/train");
     let resumed_model = fs::read(train.join("model.bin")).unwrap();
@@ -104,7 +96,7 @@ fn a_clip_in_three_chunks_trains_resumes_identically_and_renders_as_one() {
     assert!(log.lines().last().unwrap().starts_with("36,"), "{log}");
 
     // An uninterrupted run trains exactly that model.
-    let fresh = common::run_stages(&root, only("train", true));
+    let fresh = common::run_stages(&root, common::only("train", true));
     assert_eq!(fresh.ran, ["train"]);
     assert_eq!(fs::read(train.join("model.bin")).unwrap(), resumed_model);
 

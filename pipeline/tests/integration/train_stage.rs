@@ -18,14 +18,6 @@ fn run(root: &Path, sel: Selection) -> RunSummary {
     common::run_stages(root, sel)
 }
 
-fn only(stage: &str, force: bool) -> Selection {
-    Selection {
-        only: Some(stage.into()),
-        force,
-        ..Default::default()
-    }
-}
-
 #[test]
 fn train_stops_cleanly_resumes_identically_and_exports() {
     let tmp = tempfile::tempdir().unwrap();
@@ -85,7 +77,7 @@ fn train_stops_cleanly_resumes_identically_and_exports() {
     // A stop request: the stage stops after its first iteration with a checkpoint and
     // reports how to continue; the model is not written.
     interrupt::request_stop();
-    let stopped = run(&root, only("train", false));
+    let stopped = run(&root, common::only("train", false));
     let (stage, error) = stopped.failed.expect("stopped");
     assert_eq!(stage, "train");
     assert!(
@@ -96,7 +88,7 @@ fn train_stops_cleanly_resumes_identically_and_exports() {
     assert!(root.join("work/.train.partial/ckpt").is_dir());
 
     // The next run continues from that checkpoint …
-    let resumed = run(&root, only("train", false));
+    let resumed = run(&root, common::only("train", false));
     assert_eq!(resumed.ran, ["train"], "{resumed:?}");
     let resumed_model = fs::read(root.join("work/train/model.bin")).unwrap();
     let log = fs::read_to_string(root.join("work/train/log.csv")).unwrap();
@@ -107,7 +99,7 @@ fn train_stops_cleanly_resumes_identically_and_exports() {
     );
 
     // … to exactly the model of an uninterrupted run.
-    let fresh = run(&root, only("train", true));
+    let fresh = run(&root, common::only("train", true));
     assert_eq!(fresh.ran, ["train"]);
     assert_eq!(
         fs::read(root.join("work/train/model.bin")).unwrap(),
@@ -144,7 +136,7 @@ fn train_stops_cleanly_resumes_identically_and_exports() {
     assert_eq!(decay["neural"]["weights_moved"], 0.0);
 
     // Export: three time steps as 3DGS PLY, the 4D PLY, the .splatv.
-    let exported = run(&root, only("export", false));
+    let exported = run(&root, common::only("export", false));
     assert_eq!(exported.ran, ["export"], "{exported:?}");
     let report: serde_json::Value =
         serde_json::from_str(&fs::read_to_string(root.join("work/export/export.json")).unwrap())

@@ -92,6 +92,15 @@ pub fn fixture(name: &str) -> PathBuf {
         .join(name)
 }
 
+/// Just `stage`, forced or not.
+pub fn only(stage: &str, force: bool) -> pipeline::runner::Selection {
+    pipeline::runner::Selection {
+        only: Some(stage.into()),
+        force,
+        ..Default::default()
+    }
+}
+
 /// Run the real pipeline's `selection` on a capture directory, quietly.
 pub fn run_stages(
     root: &Path,
