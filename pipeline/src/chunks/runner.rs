@@ -80,6 +80,9 @@ struct Shared {
     exposure: Vec<CameraGain>,
     /// A backdrop was fitted behind the first chunk (`work/train/backdrop.bin`).
     backdrop: bool,
+    /// How far a Gaussian of the first chunk that stands still may drift
+    /// (`static_scene::max_drift`).
+    max_drift: f64,
 }
 
 /// One stage run's chunk training: the inputs every chunk shares.
@@ -253,7 +256,8 @@ impl Trainer<'_> {
                 copy(path, &ctx.output(splat4d::train::BACKDROP_FILE))?;
             }
             let model = splat4d::load_model(&summary.model_path)?;
-            let (still, _) = static_scene::split(&model, times);
+            let drift = static_scene::max_drift(dataset.scene_extent());
+            let (still, _) = static_scene::split(&model, times, drift);
             let scene = static_scene::freeze(&model, &still, 0.5 * (times.0 + times.1));
             tracing::info!(
                 "static scene: {} of the first chunk's {} Gaussians stand still",
@@ -265,6 +269,7 @@ impl Trainer<'_> {
                 background: summary.background,
                 exposure,
                 backdrop: summary.backdrop.is_some(),
+                max_drift: drift,
             };
             write_json(&ctx.output(SHARED_FILE), &shared)
                 .context("cannot write chunks/shared.json")?;
@@ -385,7 +390,7 @@ fn merge(ctx: &StageContext, plan: &ChunkPlan, iterations: u64) -> anyhow::Resul
             // The chunk's own Gaussians: the first chunk's that move, a later chunk's
             // after the frozen static scene.
             let own: Vec<usize> = if chunk.index == 0 {
-                static_scene::split(&trained, record.times).1
+                static_scene::split(&trained, record.times, shared.max_drift).1
             } else {
                 (scene.len()..trained.len()).collect()
             };
