@@ -20,6 +20,7 @@ pub mod train;
 
 use crate::config::CaptureConfig;
 use crate::runner::Pipeline;
+use crate::stage_context::StageContext;
 use crate::stage_def::StageDef;
 
 /// A stage's parameters: its own section, plus `heldout` (the held-out camera names) when
@@ -55,6 +56,18 @@ fn with_chunks(mut params: serde_json::Value, config: &CaptureConfig) -> serde_j
         map.insert("chunks".into(), config.section("chunks"));
     }
     params
+}
+
+/// The `train` stage: one model of the whole clip, or, for a clip longer than
+/// `[chunks] seconds`, one per time chunk merged into one (`crate::chunks`).
+fn run_train(ctx: &StageContext, config: &CaptureConfig) -> anyhow::Result<()> {
+    let index = rig::frames::FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
+    let plan = crate::chunks::plan::ChunkPlan::of_index(&index, &config.chunks);
+    if plan.is_chunked() {
+        crate::chunks::runner::run(ctx, &config.train, &config.decay, &config.engine, &plan)
+    } else {
+        train::run(ctx, &config.train, &config.decay, &config.engine)
+    }
 }
 
 /// The pipeline as `pipeline run` executes it.
@@ -114,15 +127,7 @@ pub fn pipeline() -> Pipeline {
                 .outputs(&["model.bin", "log.csv", crate::engine_inputs::TRAIN_RECORD])
                 .resumable()
                 .on_engine()
-                .run(|ctx, config| {
-                    train::run(
-                        ctx,
-                        &config.train,
-                        &config.decay,
-                        &config.engine,
-                        &config.chunks,
-                    )
-                }),
+                .run(run_train),
             StageDef::new("render", "render videos along camera paths")
                 .after(&["frames", "poses", "train"])
                 .output_one_of(&render::OUTPUTS)

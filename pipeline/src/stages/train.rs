@@ -106,26 +106,9 @@ pub(crate) fn interrupted(iteration: u64) -> anyhow::Error {
     )
 }
 
-/// The `train` stage: one model of the whole clip, or, for a clip longer than
-/// `[chunks] seconds`, one per time chunk merged into one (`crate::chunks`).
+/// The `train` stage on one model of the whole clip (a clip cut into time chunks is
+/// `crate::chunks::runner`'s).
 pub fn run(
-    ctx: &StageContext,
-    settings: &TrainSettings,
-    decay: &DecaySettings,
-    engine: &EngineSettings,
-    chunks: &crate::chunks::ChunkSettings,
-) -> anyhow::Result<()> {
-    let index = rig::frames::FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
-    let plan = crate::chunks::plan::ChunkPlan::of_index(&index, chunks);
-    if plan.is_chunked() {
-        crate::chunks::runner::run(ctx, settings, decay, engine, &plan)
-    } else {
-        run_whole(ctx, settings, decay, engine)
-    }
-}
-
-/// One model of the whole clip.
-fn run_whole(
     ctx: &StageContext,
     settings: &TrainSettings,
     decay: &DecaySettings,
