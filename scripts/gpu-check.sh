@@ -260,7 +260,7 @@ bundle_demo() {
   (cd "$root" && cargo build --release -p pipeline)
   rm -rf "$prep"
   "$target/release/pipeline" --quiet demo "$prep/demo" --to init
-  (cd "$root" && cargo build --release -p pipeline --no-default-features)
+  (cd "$root" && cargo build --release -p pipeline --no-default-features --features bundled-sqlite)
   strip -o "$dir/pipeline" "$target/release/pipeline"
   xz -9 -T0 -f "$dir/pipeline"
   # Not the COLMAP workspace and the point maps (read by poses and init, which have run)

@@ -12,6 +12,9 @@ PACKAGES=(
   # FFmpeg libraries (decode/encode video and audio) and the ffmpeg CLI used by tests
   libavcodec-dev libavformat-dev libavutil-dev libavdevice-dev libavfilter-dev
   libswscale-dev libswresample-dev ffmpeg
+  # SQLite, which COLMAP's database is (rusqlite links it; `--features bundled-sqlite`
+  # compiles it in instead)
+  libsqlite3-dev
   # OpenCV: the reference the tests hold the camera models and undistortion to (the
   # product links none); COLMAP: pose solving
   libopencv-dev colmap

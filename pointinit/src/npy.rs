@@ -120,11 +120,17 @@ pub fn read_pair_npz(path: &Path, names: &OutputNames) -> Result<PairMaps, NpyEr
         path: path.into(),
         source,
     };
-    let mut archive = npyz::npz::NpzArchive::open(path).map_err(io)?;
-    let found = archive.array_names().collect::<Vec<_>>().join(", ");
+    let file = std::fs::File::open(path).map_err(io)?;
+    let zip_error = |e| io(std::io::Error::new(std::io::ErrorKind::InvalidData, e));
+    let mut archive = zip::ZipArchive::new(std::io::BufReader::new(file)).map_err(zip_error)?;
+    // numpy's savez names each array's member `NAME.npy`.
+    let found = archive
+        .file_names()
+        .map(|n| n.strip_suffix(".npy").unwrap_or(n))
+        .collect::<Vec<_>>()
+        .join(", ");
     let get = |name: &str, required: bool| -> Result<Option<Array>, NpyError> {
-        let member = npyz::npz::file_name_from_array_name(name);
-        match archive.zip_archive().by_name(&member) {
+        match archive.by_name(&format!("{name}.npy")) {
             Ok(f) => array_from(open_npy(f, path)?, path).map(Some),
             Err(zip::result::ZipError::FileNotFound) if required => Err(NpyError::MissingArray {
                 path: path.into(),
@@ -132,7 +138,7 @@ pub fn read_pair_npz(path: &Path, names: &OutputNames) -> Result<PairMaps, NpyEr
                 found: found.clone(),
             }),
             Err(zip::result::ZipError::FileNotFound) => Ok(None),
-            Err(e) => Err(io(std::io::Error::new(std::io::ErrorKind::InvalidData, e))),
+            Err(e) => Err(zip_error(e)),
         }
     };
     pair_maps(names, path, get)
@@ -381,18 +387,22 @@ pub fn write_pair_npz(
     use npyz::WriterBuilder;
     let path = dir.join(format!("{}.npz", pair_stem(first, second)));
     shared_types::atomic::write_with(&path, |tmp| {
-        let mut npz = npyz::npz::NpzWriter::create(tmp)?;
+        // As numpy's savez: one stored `NAME.npy` member per array.
+        let mut npz = zip::ZipWriter::new(std::fs::File::create(tmp)?);
+        let options =
+            zip::write::FileOptions::default().compression_method(zip::CompressionMethod::Stored);
         for (name, shape, data) in pair_arrays(maps, names) {
+            npz.start_file(format!("{name}.npy"), options)?;
             let shape: Vec<u64> = shape.iter().map(|&d| d as u64).collect();
-            let mut w = npz
-                .array::<f32>(name, Default::default())?
+            let mut w = npyz::WriteOptions::new()
                 .default_dtype()
                 .shape(&shape)
+                .writer(&mut npz)
                 .begin_nd()?;
             w.extend(data)?;
             w.finish()?;
         }
-        npz.zip_writer().finish()?;
+        npz.finish()?;
         Ok(())
     })
 }

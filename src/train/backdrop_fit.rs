@@ -27,7 +27,8 @@ use crate::train::loss::image_loss;
 /// three seeds at a constant 0.01, 0.296–0.297 with the fall).
 const FIT_LR: [f32; 2] = [0.01, 0.001];
 
-/// The fit's steps: one training view each.
+/// The fit's steps: one training view each; a run of fewer training steps fits for as many
+/// as it trained, so a quick run stays quick.
 const FIT_STEPS: usize = 500;
 
 /// Training views rendered to measure the backdrop's coverage (evenly spread over the
@@ -39,6 +40,14 @@ pub(crate) struct FitSettings {
     /// The training loss's SSIM weight.
     pub lambda_ssim: f64,
     pub seed: u64,
+    /// The run's training steps: the fit takes as many, at most [`FIT_STEPS`].
+    pub iterations: usize,
+}
+
+impl FitSettings {
+    fn steps(&self) -> usize {
+        self.iterations.clamp(1, FIT_STEPS)
+    }
 }
 
 /// The backdrop to fit, `colour` everywhere: a sphere around `dataset`'s cameras at the far
@@ -70,8 +79,8 @@ pub(crate) fn sphere(
     Backdrop::around(&cameras, &static_points, colour, size)
 }
 
-/// `backdrop` ([`sphere`]) fitted behind `model` (trained on `colour`) for [`FIT_STEPS`]
-/// steps and baked faded to `colour` where the training views did not see it.
+/// `backdrop` ([`sphere`]) fitted behind `model` (trained on `colour`) for
+/// [`FitSettings::steps`] steps and baked faded to `colour` where the training views did not see it.
 pub(crate) fn learn_backdrop(
     mut backdrop: Backdrop,
     backend: &dyn RenderBackend,
@@ -82,7 +91,7 @@ pub(crate) fn learn_backdrop(
     progress: &dyn Progress,
 ) -> Result<Backdrop, (usize, RenderError)> {
     let mut uvs = UvCache::default();
-    progress.start(FIT_STEPS as u64, "view");
+    progress.start(settings.steps() as u64, "view");
     progress.message("fitting the backdrop behind the trained Gaussians");
     fit_behind(
         &mut backdrop,
@@ -99,7 +108,7 @@ pub(crate) fn learn_backdrop(
     Ok(faded)
 }
 
-/// [`FIT_STEPS`] Adam steps of `backdrop`'s texels behind `model`'s frozen Gaussians, each
+/// [`FitSettings::steps`] Adam steps of `backdrop`'s texels behind `model`'s frozen Gaussians, each
 /// on one training view drawn at random (seeded by `settings.seed`).
 fn fit_behind(
     backdrop: &mut Backdrop,
@@ -119,8 +128,9 @@ fn fit_behind(
         ..Default::default()
     };
     let n = dataset.views.len() as u64;
-    for step in 0..FIT_STEPS {
-        adam.lr = FIT_LR[0] * (FIT_LR[1] / FIT_LR[0]).powf(step as f32 / FIT_STEPS as f32);
+    let steps = settings.steps();
+    for step in 0..steps {
+        adam.lr = FIT_LR[0] * (FIT_LR[1] / FIT_LR[0]).powf(step as f32 / steps as f32);
         let index = (rng.next_u64() % n) as usize;
         let view = &dataset.views[index];
         let mut r = backend

@@ -781,6 +781,7 @@ pub fn train_from(
             let settings = backdrop_fit::FitSettings {
                 lambda_ssim: config.lambda_ssim,
                 seed: config.seed,
+                iterations: config.iterations as usize,
             };
             let backdrop = backdrop_fit::learn_backdrop(
                 backdrop, backend, &model, dataset, background, &settings, progress,

@@ -1,4 +1,5 @@
-//! The engine-only build (`cargo build -p pipeline --no-default-features`: no FFmpeg, no
+//! The engine-only build (`cargo build -p pipeline --no-default-features --features
+//! bundled-sqlite`: no FFmpeg, no
 //! OpenCV, no system SQLite; what a GPU node runs, docs/cluster.md) on a capture the full
 //! build prepared up to `init`: it links none of them, runs `train`, `render`, `eval` and `export`, and
 //! trains the same model as the full build; the stages that read videos say they need
@@ -21,7 +22,8 @@ fn engine_only_binary() -> Option<PathBuf> {
         None => {
             eprintln!(
                 "skipped: set PIPELINE_ENGINE_ONLY to a `cargo build -p pipeline \
-                 --no-default-features` binary (scripts/test.sh does)"
+                 --no-default-features --features bundled-sqlite` binary (scripts/test.sh \
+                 does)"
             );
             None
         }

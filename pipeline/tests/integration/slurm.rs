@@ -188,7 +188,7 @@ impl Cluster {
         let start = Instant::now();
         while !socket.exists() {
             assert!(
-                start.elapsed() < Duration::from_secs(10),
+                start.elapsed() < Duration::from_secs(60),
                 "munged did not start: {}",
                 cluster.logs()
             );
@@ -204,7 +204,7 @@ impl Cluster {
                 break;
             }
             assert!(
-                start.elapsed() < Duration::from_secs(30),
+                start.elapsed() < Duration::from_secs(120),
                 "the node never became idle ({state:?}): {}",
                 cluster.logs()
             );
@@ -290,7 +290,10 @@ impl Cluster {
     }
 
     /// Wait until no stage of the capture is queued or running in Slurm; the status rows.
-    fn wait_for_jobs(&self, capture: &Path, limit: Duration) -> Vec<serde_json::Value> {
+    /// The limit only stops a hung cluster: the jobs train, and beside the other tests on
+    /// a 2-core machine they take minutes.
+    fn wait_for_jobs(&self, capture: &Path) -> Vec<serde_json::Value> {
+        let limit = Duration::from_secs(15 * 60);
         let start = Instant::now();
         loop {
             let rows = status(self, capture);
@@ -410,7 +413,7 @@ fn every_stage_runs_as_a_chained_job_and_gives_what_a_local_run_gives() {
         said.contains("train → job") && said.contains("(1 GPU)"),
         "{said}"
     );
-    let rows = cluster.wait_for_jobs(&root, Duration::from_secs(90));
+    let rows = cluster.wait_for_jobs(&root);
     let names = pipeline::stages::pipeline().stage_names();
     for name in &names {
         assert_eq!(row(&rows, name)["state"], "done", "{rows:#?}");
@@ -511,7 +514,7 @@ fn two_captures_run_side_by_side() {
         &[a.to_str().unwrap(), b.to_str().unwrap(), "--to", "ingest"],
     );
     for capture in [&a, &b] {
-        let rows = cluster.wait_for_jobs(capture, Duration::from_secs(30));
+        let rows = cluster.wait_for_jobs(capture);
         assert_eq!(row(&rows, "ingest")["state"], "done", "{rows:#?}");
     }
     let started = |c: &Path| Manifest::read(&c.join("work/ingest")).unwrap().started;
@@ -530,7 +533,7 @@ fn a_failed_stage_cancels_its_dependents_and_a_fixed_resubmit_runs_only_the_rest
     let root = common::tiny_capture(&tmp.path().join("take"), &broken);
     let dir = root.to_str().unwrap();
     submit(&cluster, &[dir, "--to", "poses"]);
-    let rows = cluster.wait_for_jobs(&root, Duration::from_secs(30));
+    let rows = cluster.wait_for_jobs(&root);
     let first = Submission::read(&root.join("work")).unwrap();
     assert_eq!(row(&rows, "ingest")["state"], "done", "{rows:#?}");
     let sync = row(&rows, "sync");
@@ -568,7 +571,7 @@ fn a_failed_stage_cancels_its_dependents_and_a_fixed_resubmit_runs_only_the_rest
     fs::write(root.join("capture.toml"), cheap()).unwrap();
     let said = submit(&cluster, &[dir, "--to", "poses"]);
     assert!(said.contains("up to date: ingest"), "{said}");
-    let rows = cluster.wait_for_jobs(&root, Duration::from_secs(30));
+    let rows = cluster.wait_for_jobs(&root);
     let second = Submission::read(&root.join("work")).unwrap();
     let stages: Vec<&str> = second.jobs.iter().map(|j| j.stage.as_str()).collect();
     assert_eq!(stages, ["sync", "frames", "poses"]);
@@ -602,7 +605,7 @@ fn cancel_leaves_no_job_behind_and_a_capture_with_jobs_is_not_run_twice() {
     let start = Instant::now();
     while row(&status(&cluster, &root), "ingest")["state"] != "running" {
         assert!(
-            start.elapsed() < Duration::from_secs(20),
+            start.elapsed() < Duration::from_secs(120),
             "{}",
             cluster.logs()
         );
@@ -684,7 +687,7 @@ fn a_clip_in_chunks_trains_one_job_per_chunk_and_gives_the_local_model() {
 
     let said = submit(&cluster, &[root.to_str().unwrap()]);
     assert!(said.contains("train → job"), "{said}");
-    let rows = cluster.wait_for_jobs(&root, Duration::from_secs(180));
+    let rows = cluster.wait_for_jobs(&root);
     for name in ["train", "render", "eval", "export"] {
         assert_eq!(row(&rows, name)["state"], "done", "{rows:#?}");
     }
