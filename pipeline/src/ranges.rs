@@ -169,6 +169,7 @@ pub const RANGES: &[(&str, Range)] = &[
     ("export.steps", SOME),
     ("export.min_opacity", within(0.0, 1.0)),
     ("export.gltf_every", COUNT),
+    ("export.segment_seconds", at_least(0.0)),
     ("cluster.cpus", SOME),
     ("cluster.gpus", COUNT),
 ];

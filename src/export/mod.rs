@@ -76,6 +76,11 @@ pub struct ExportOptions {
     pub splatv: bool,
     /// Write `viewer/` (needs the built bundle, see [`viewer::find_viewer_bundle`]).
     pub viewer: bool,
+    /// The viewer's model in files of about this many seconds of the clip, which the
+    /// page loads ahead of the playhead and drops behind it (the static scene is one
+    /// more file, always loaded): a long clip never sits whole in the browser. 0, or a
+    /// clip up to 1.5 × this long: one file.
+    pub segment_seconds: f64,
     /// The built viewer bundle; `None` = find it (see [`viewer::find_viewer_bundle`]).
     #[serde(skip)]
     pub viewer_bundle: Option<PathBuf>,
@@ -101,6 +106,7 @@ impl Default for ExportOptions {
             model4d: true,
             splatv: false,
             viewer: true,
+            segment_seconds: 5.0,
             viewer_bundle: None,
             background: [0.0; 3],
             backdrop: None,

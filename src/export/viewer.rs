@@ -9,7 +9,7 @@
 //! down, z forward). `splatv.html` in the same bundle plays the export's `.splatv` with
 //! gsplat.js, a third-party player (a check that the file plays there).
 
-use super::web4d::{WebHeader, write_web_model};
+use super::web4d::{Segment, encode_segments};
 use super::{ExportError, write_atomic};
 use crate::CameraSet;
 use crate::model::{ColourDegrees, Gaussians, TimeMapping};
@@ -106,12 +106,28 @@ pub struct ViewerModel {
     pub degrees: ColourDegrees,
 }
 
+/// A time segment's model file in `scene.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct ViewerSegment {
+    /// File name relative to the viewer folder.
+    pub file: String,
+    pub bytes: usize,
+    pub gaussians: usize,
+    /// The model times at which any of its Gaussians can be drawn: the page has it
+    /// loaded whenever the playhead is inside.
+    pub reach: [f64; 2],
+}
+
 /// `scene.json`: what the page loads.
 #[derive(Clone, Debug, Serialize)]
 pub struct ViewerScene {
-    /// Layout version of this file (4: the native 4D model).
+    /// Layout version of this file (5: the native 4D model, in time segments).
     pub version: u32,
+    /// The Gaussians drawn throughout (the whole model when there are no segments).
     pub model: ViewerModel,
+    /// The rest of the model in time segments, in time order (empty for a short clip).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub segments: Vec<ViewerSegment>,
     /// The export's model times: the page steps through them (`,` / `.`, `?frame=N`).
     pub times: Vec<f64>,
     /// Seconds ↔ model time (playback runs at the capture's pace).
@@ -169,7 +185,8 @@ fn write_backdrop(backdrop: &Backdrop, dir: &Path) -> Result<ViewerBackdrop, Exp
 }
 
 /// Write `dir` (the viewer folder): the bundle, `model.4dgs` for the span of `times`
-/// (splats below `opts.min_opacity` left out), `backdrop.png` when `opts` has a learned
+/// (splats below `opts.min_opacity` left out; for a clip longer than 1.5 ×
+/// `opts.segment_seconds`, the static scene, and `model-NNN.4dgs` per time segment), `backdrop.png` when `opts` has a learned
 /// backdrop, and `scene.json` (with `opts.background`). Returns the path of `index.html`.
 pub fn write_viewer(
     model: &Gaussians<f32>,
@@ -187,15 +204,27 @@ pub fn write_viewer(
         .transpose()?;
     let lo = times.iter().copied().fold(f64::INFINITY, f64::min);
     let hi = times.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    let file = "model.4dgs";
-    let path = dir.join(file);
-    let header: WebHeader = write_web_model(model, [lo, hi], opts.min_opacity, &path)?;
-    let bytes = std::fs::metadata(&path)
-        .map_err(|source| ExportError::Io {
-            path: path.clone(),
-            source,
-        })?
-        .len() as usize;
+    let segment = opts.segment_seconds * model.time.units_per_second;
+    let mut files = encode_segments(model, [lo, hi], opts.min_opacity, segment).into_iter();
+    let always = files
+        .next()
+        .expect("encode_segments makes at least one file");
+    let write = |file: String, part: Segment| -> Result<ViewerSegment, ExportError> {
+        write_atomic(&dir.join(&file), &part.encoded.bytes)?;
+        Ok(ViewerSegment {
+            file,
+            bytes: part.encoded.bytes.len(),
+            gaussians: part.encoded.header.count,
+            reach: part.reach,
+        })
+    };
+    let degrees = always.encoded.header.degrees;
+    let first = write("model.4dgs".into(), always)?;
+    let segments = files
+        .enumerate()
+        .map(|(k, part)| write(format!("model-{k:03}.4dgs"), part))
+        .collect::<Result<Vec<_>, _>>()?;
+    remove_stale_segments(dir, &segments)?;
     let mean = model
         .means
         .iter()
@@ -203,13 +232,14 @@ pub fn write_viewer(
         .sum::<DVec3>()
         / model.len().max(1) as f64;
     let scene = ViewerScene {
-        version: 4,
+        version: 5,
         model: ViewerModel {
-            file: file.into(),
-            bytes,
-            gaussians: header.count,
-            degrees: header.degrees,
+            file: first.file,
+            bytes: first.bytes,
+            gaussians: first.gaussians,
+            degrees,
         },
+        segments,
         times: times.to_vec(),
         time: model.time,
         cameras: cameras
@@ -233,6 +263,25 @@ pub fn write_viewer(
         source,
     })?;
     Ok(dir.join("index.html"))
+}
+
+/// Remove `model-NNN.4dgs` files of an earlier export that `segments` does not list.
+fn remove_stale_segments(dir: &Path, segments: &[ViewerSegment]) -> Result<(), ExportError> {
+    let io = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| ExportError::Io { path, source }
+    };
+    for entry in std::fs::read_dir(dir).map_err(io(dir))? {
+        let name = entry.map_err(io(dir))?.file_name();
+        let name = name.to_string_lossy();
+        let stale = name.starts_with("model-")
+            && name.ends_with(".4dgs")
+            && !segments.iter().any(|s| s.file == name);
+        if stale {
+            std::fs::remove_file(dir.join(&*name)).map_err(io(&dir.join(&*name)))?;
+        }
+    }
+    Ok(())
 }
 
 /// Copy the bundle's files (not recursive beyond one level of folders) into `dest`.

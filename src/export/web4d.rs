@@ -130,9 +130,92 @@ struct Row {
 /// Encode `model` for times in `span` (model time): Gaussians with `σ(o) < min_opacity`
 /// or culled in time throughout `span` are left out.
 pub fn encode(model: &Gaussians<f32>, span: [f64; 2], min_opacity: f64) -> Encoded {
-    let degrees = model.active.min(model.capacity);
-    let (ns, nt) = (degrees.spatial_count(), degrees.temporal_count());
-    let ns_cap = model.capacity.spatial_count();
+    let rows = rows_of(model, span, min_opacity);
+    let header = header_for(model, &rows, span);
+    encode_rows(model, header, &rows)
+}
+
+/// One file of a model encoded in time segments ([`encode_segments`]).
+pub struct Segment {
+    /// The model times at which a Gaussian of this file can be drawn: the union of its
+    /// Gaussians' reaches in time (`[start, end]` of the clip for the always-drawn file).
+    pub reach: [f64; 2],
+    pub encoded: Encoded,
+}
+
+/// Encode `model` for `span` as [`encode`] does, split into files a page can load as the
+/// playhead moves: first the Gaussians drawn for longer than `segment` (model time; the
+/// static scene), then one file per segment of about `segment` holding the Gaussians
+/// whose time centre lies in it. Each Gaussian is in exactly one file, and every file
+/// shares the first's header (colour scales included) but for `count` and `span`
+/// (its `reach`). A span up to 1.5 segments long, or `segment <= 0`, gives one file.
+pub fn encode_segments(
+    model: &Gaussians<f32>,
+    span: [f64; 2],
+    min_opacity: f64,
+    segment: f64,
+) -> Vec<Segment> {
+    let rows = rows_of(model, span, min_opacity);
+    let header = header_for(model, &rows, span);
+    let length = span[1] - span[0];
+    let n = if segment > 0.0 && length > 1.5 * segment {
+        (length / segment).round() as usize
+    } else {
+        1
+    };
+    if n == 1 {
+        let encoded = encode_rows(model, header, &rows);
+        return vec![Segment {
+            reach: span,
+            encoded,
+        }];
+    }
+    let width = length / n as f64;
+    let reach_of = |r: &Row| {
+        let half = r.t_sigma * (-2.0 * TEMPORAL_CUTOFF.ln()).sqrt();
+        [
+            (r.t_mean - half).max(span[0]),
+            (r.t_mean + half).min(span[1]),
+        ]
+    };
+    // Part 0: Gaussians that reach over more than a segment; part 1 + k: segment k.
+    let mut parts: Vec<Vec<Row>> = (0..=n).map(|_| Vec::new()).collect();
+    for r in rows {
+        let [a, b] = reach_of(&r);
+        let k = if b - a > width {
+            0
+        } else {
+            1 + (((r.t_mean - span[0]) / width).floor().max(0.0) as usize).min(n - 1)
+        };
+        parts[k].push(r);
+    }
+    parts
+        .into_iter()
+        .enumerate()
+        .map(|(k, part)| {
+            let reach = if k == 0 {
+                span
+            } else {
+                let own = [span[0] + width * (k - 1) as f64, span[0] + width * k as f64];
+                part.iter()
+                    .map(reach_of)
+                    .fold(own, |acc, [a, b]| [acc[0].min(a), acc[1].max(b)])
+            };
+            let header = WebHeader {
+                count: part.len(),
+                span: reach,
+                ..header.clone()
+            };
+            Segment {
+                reach,
+                encoded: encode_rows(model, header, &part),
+            }
+        })
+        .collect()
+}
+
+/// The records of `model` for `span`, most important first (see [`encode`]).
+fn rows_of(model: &Gaussians<f32>, span: [f64; 2], min_opacity: f64) -> Vec<Row> {
     let mut rows: Vec<Row> = (0..model.len())
         .into_par_iter()
         .with_min_len(512)
@@ -169,13 +252,22 @@ pub fn encode(model: &Gaussians<f32>, span: [f64; 2], min_opacity: f64) -> Encod
             .total_cmp(&a.importance)
             .then(a.index.cmp(&b.index))
     });
+    rows
+}
 
-    // Colour coefficient k of Gaussian i, channel c (active degrees, file order).
-    let coeff = |i: usize, k: usize, c: usize| -> f32 {
-        let (j, s) = (k / ns, k % ns);
-        model.colour_of(i)[(j * ns_cap + s) * 3 + c]
-    };
-    let nk = ns * nt;
+/// Colour coefficient `k` (file order, active degrees) of Gaussian `i`, channel `c`.
+fn coeff(model: &Gaussians<f32>, i: usize, k: usize, c: usize) -> f32 {
+    let degrees = model.active.min(model.capacity);
+    let ns = degrees.spatial_count();
+    let (j, s) = (k / ns, k % ns);
+    model.colour_of(i)[(j * model.capacity.spatial_count() + s) * 3 + c]
+}
+
+/// The header of a file of `rows`: the colour coefficients' quantisation scales from an
+/// even sample of them.
+fn header_for(model: &Gaussians<f32>, rows: &[Row], span: [f64; 2]) -> WebHeader {
+    let degrees = model.active.min(model.capacity);
+    let nk = degrees.coeff_count();
     // Each coefficient's magnitudes over an even sample of the records, gathered in one
     // pass over the sample (each Gaussian's coefficients are contiguous).
     let step = rows.len().div_ceil(SCALE_SAMPLE).max(1);
@@ -184,7 +276,7 @@ pub fn encode(model: &Gaussians<f32>, span: [f64; 2], min_opacity: f64) -> Encod
         for (k, m) in (1..nk).zip(&mut mags) {
             m.extend(
                 (0..3)
-                    .map(|c| coeff(r.index, k, c).abs())
+                    .map(|c| coeff(model, r.index, k, c).abs())
                     .filter(|v| v.is_finite()),
             );
         }
@@ -200,17 +292,22 @@ pub fn encode(model: &Gaussians<f32>, span: [f64; 2], min_opacity: f64) -> Encod
             if *q > 0.0 { *q / 127.0 } else { 1.0 }
         })
         .collect();
-
-    let texels = WebHeader::texels_for(degrees);
-    let header = WebHeader {
+    WebHeader {
         count: rows.len(),
-        texels,
+        texels: WebHeader::texels_for(degrees),
         degrees,
         period: colour_period(model),
         time: model.time,
         span,
         sh_scales,
-    };
+    }
+}
+
+/// The file of `rows` under `header` (whose `count` is `rows.len()`).
+fn encode_rows(model: &Gaussians<f32>, header: WebHeader, rows: &[Row]) -> Encoded {
+    let nk = header.degrees.coeff_count();
+    let coeff = |i: usize, k: usize, c: usize| coeff(model, i, k, c);
+    let texels = header.texels;
     let json = serde_json::to_vec(&header).expect("the header serialises");
     let start = (12 + json.len()).div_ceil(16) * 16;
     let record = texels * 16;
@@ -220,7 +317,7 @@ pub fn encode(model: &Gaussians<f32>, span: [f64; 2], min_opacity: f64) -> Encod
     bytes[12..12 + json.len()].copy_from_slice(&json);
     bytes[start..]
         .par_chunks_mut(record)
-        .zip(&rows)
+        .zip(rows)
         .for_each(|(out, r)| {
             let f = |v: f64| v as f32;
             // Within half-float range: no infinities, no zero widths (the page divides).
@@ -522,6 +619,71 @@ mod tests {
                     .powi(2)
         };
         assert!(imp(&rows[0]) >= imp(&rows[rows.len() - 1]));
+    }
+
+    #[test]
+    fn segments_hold_every_record_once_each_within_its_files_reach() {
+        // The moving model's Gaussians spread over a clip of 6 (model time), plus a still
+        // wall drawn throughout.
+        let mut model = moving_model();
+        for m in &mut model.means {
+            m[3] = 6.0 * (m[3] - 0.1) / 0.8;
+        }
+        for k in 0..20 {
+            model.push(
+                [k as f32 * 0.1, 0.0, 4.0, 3.0],
+                [-3.0, -3.0, -3.0, 11.0],
+                2.0,
+                [0.5; 3],
+            );
+        }
+        let span = [0.0, 6.0];
+        let whole = encode(&model, span, 1.0 / 255.0);
+        let (_, all) = decode(&whole.bytes).unwrap();
+        let parts = encode_segments(&model, span, 1.0 / 255.0, 1.5);
+        assert_eq!(parts.len(), 5, "the wall's file and four segments");
+        assert_eq!(parts[0].reach, span);
+        let mut seen = Vec::new();
+        for (k, p) in parts.iter().enumerate() {
+            let (h, rows) = decode(&p.encoded.bytes).unwrap();
+            assert_eq!(
+                h.sh_scales, whole.header.sh_scales,
+                "one header for every file"
+            );
+            assert_eq!(h.span, p.reach);
+            if k > 0 {
+                assert!(!rows.is_empty(), "segment {k} is empty");
+                let own = [1.5 * (k - 1) as f64, 1.5 * k as f64];
+                assert!(p.reach[0] <= own[0] && p.reach[1] >= own[1]);
+                assert!(p.reach[0] >= own[0] - 1.5 && p.reach[1] <= own[1] + 1.5);
+            }
+            for w in rows {
+                let half = w.t_sigma as f64 * (-2.0 * TEMPORAL_CUTOFF.ln()).sqrt();
+                let t = w.t_mean as f64;
+                if k == 0 {
+                    assert!(
+                        2.0 * half > 1.5,
+                        "a short-lived Gaussian among the always-drawn"
+                    );
+                } else {
+                    // σt went through a half float (3 digits).
+                    let tol = 2e-3 * half + 1e-9;
+                    assert!(p.reach[0] <= (t - half).max(0.0) + tol);
+                    assert!(p.reach[1] >= (t + half).min(6.0) - tol);
+                }
+                seen.push(w);
+            }
+        }
+        assert_eq!(seen.len(), all.len());
+        for w in &all {
+            assert!(seen.contains(w), "a record is missing from the segments");
+        }
+        // Short clips and `segment <= 0`: one file, the whole model's.
+        for segment in [0.0, 4.5] {
+            let one = encode_segments(&model, span, 1.0 / 255.0, segment);
+            assert_eq!(one.len(), 1);
+            assert_eq!(one[0].encoded.bytes, whole.bytes);
+        }
     }
 
     #[test]

@@ -450,26 +450,7 @@ fn viewer_matches_the_engine_at_cameras_times_and_a_novel_view_and_plays_the_spl
 /// A static grey backdrop, a red blob on the left early (t ≈ 0.1) and a blue blob on the
 /// right late (t ≈ 0.9). World z is up; the camera looks along +y.
 fn moving_scene() -> Gaussians<f32> {
-    let mut g = Gaussians::<f32>::new(
-        ColourDegrees::FULL,
-        TimeMapping {
-            start_seconds: 0.0,
-            units_per_second: 1.0,
-            duration: 1.0,
-        },
-    );
-    for i in 0..20 {
-        for k in 0..12 {
-            let x = -1.5 + 3.0 * i as f32 / 19.0;
-            let z = -1.0 + 2.0 * k as f32 / 11.0;
-            g.push(
-                [x, 0.8, z, 0.5],
-                [-2.0, -2.5, -2.0, 3.0],
-                2.0,
-                [0.55, 0.55, 0.5],
-            );
-        }
-    }
+    let mut g = grey_wall(1.0);
     for (cx, t, rgb) in [
         (-0.7f32, 0.1f32, [0.95, 0.1, 0.1]),
         (0.7, 0.9, [0.1, 0.2, 0.95]),
@@ -482,7 +463,32 @@ fn moving_scene() -> Gaussians<f32> {
             }
         }
     }
+    g
+}
+
+/// A still grey wall (240 Gaussians) at y = 0.8 in a clip of `seconds`, colour at DC.
+fn grey_wall(seconds: f64) -> Gaussians<f32> {
+    let mut g = Gaussians::<f32>::new(
+        ColourDegrees::FULL,
+        TimeMapping {
+            start_seconds: 0.0,
+            units_per_second: 1.0,
+            duration: seconds,
+        },
+    );
     g.active = ColourDegrees::DC;
+    for i in 0..20 {
+        for k in 0..12 {
+            let x = -1.5 + 3.0 * i as f32 / 19.0;
+            let z = -1.0 + 2.0 * k as f32 / 11.0;
+            g.push(
+                [x, 0.8, z, 0.5],
+                [-2.0, -2.5, -2.0, 3.0],
+                2.0,
+                [0.55, 0.55, 0.5],
+            );
+        }
+    }
     g
 }
 
@@ -605,6 +611,135 @@ fn viewer_shows_the_scene_and_changes_with_time() {
     assert!(
         diff as f64 / total as f64 > 5.0,
         "screenshots barely differ: {diff}"
+    );
+}
+
+/// A 12-second clip: the grey wall throughout and, in each second, a blob that lives
+/// about a second, red on the left in even seconds and blue on the right in odd ones.
+fn long_scene() -> Gaussians<f32> {
+    let mut g = grey_wall(12.0);
+    for second in 0..12 {
+        let (cx, rgb) = if second % 2 == 0 {
+            (-0.7f32, [0.95, 0.1, 0.1])
+        } else {
+            (0.7, [0.1, 0.2, 0.95])
+        };
+        for i in 0..6 {
+            for k in 0..6 {
+                let x = cx - 0.3 + 0.6 * i as f32 / 5.0;
+                let z = -0.3 + 0.6 * k as f32 / 5.0;
+                g.push(
+                    [x, 0.0, z, second as f32 + 0.5],
+                    [-2.2, -2.2, -2.2, -1.3],
+                    3.0,
+                    rgb,
+                );
+            }
+        }
+    }
+    g
+}
+
+#[test]
+fn a_long_clip_plays_from_time_segments_as_from_one_file() {
+    let Some(browser) = Browser::find() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let model = long_scene();
+    let cameras = two_cameras();
+    let times: Vec<f64> = (0..=48).map(|k| k as f64 / 4.0).collect();
+    for (name, segment_seconds) in [("segments", 2.0), ("one", 0.0)] {
+        let opts = ExportOptions {
+            gltf: false,
+            model4d: false,
+            segment_seconds,
+            viewer_bundle: Some(browser.bundle.clone()),
+            ..Default::default()
+        };
+        export_all(
+            &model,
+            &cameras,
+            &times,
+            &dir.path().join(name),
+            &opts,
+            &NoProgress,
+        )
+        .unwrap();
+    }
+    let scene: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(dir.path().join("segments/viewer/scene.json")).unwrap(),
+    )
+    .unwrap();
+    let segments = scene["segments"]
+        .as_array()
+        .expect("scene.json lists segments");
+    assert_eq!(segments.len(), 6, "12 s in 2-s segments");
+    assert_eq!(
+        scene["model"]["gaussians"], 240,
+        "the wall alone is drawn throughout"
+    );
+    let one: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("one/viewer/scene.json")).unwrap())
+            .unwrap();
+    assert!(one.get("segments").is_none());
+    let port = serve(dir.path().to_path_buf());
+
+    // Frames in a segment's middle, at its boundaries, the clip's ends, and one reached by
+    // stepping inside the page from the start (segments loaded and dropped on the way).
+    let cases: Vec<(String, f64)> = [
+        ("frame=2", 0.5),
+        ("frame=16", 4.0),
+        ("frame=17", 4.25),
+        ("frame=26", 6.5),
+        ("frame=48", 12.0),
+        ("frame=0&goto=38", 9.5),
+    ]
+    .iter()
+    .map(|&(q, t)| (q.to_string(), t))
+    .collect();
+    let shots_dir = dir.path().join("shots");
+    std::fs::create_dir_all(&shots_dir).unwrap();
+    let mut pairs = Vec::new();
+    for folder in ["segments", "one"] {
+        for (n, (q, _)) in cases.iter().enumerate() {
+            pairs.push((
+                format!("http://127.0.0.1:{port}/{folder}/viewer/index.html?ui=0&play=0&{q}"),
+                shots_dir.join(format!("{folder}{n}.png")),
+            ));
+        }
+    }
+    browser.screenshots(&shots_dir.join("profile"), (640, 480), &pairs);
+    let mut failures = Vec::new();
+    for (n, (q, t)) in cases.iter().enumerate() {
+        let seg = image::open(shots_dir.join(format!("segments{n}.png")))
+            .unwrap()
+            .to_rgb8();
+        let whole = image::open(shots_dir.join(format!("one{n}.png")))
+            .unwrap()
+            .to_rgb8();
+        let engine = engine_render(&model, &cameras.cameras[0], *t, [0.0; 3]);
+        keep(
+            &shots_dir.join(format!("segments{n}.png")),
+            &format!("segments_{n}.png"),
+            &engine,
+        );
+        let state: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(shots_dir.join(format!("segments{n}.png.json"))).unwrap(),
+        )
+        .unwrap();
+        let held = state["segments"].as_array().map_or(0, |a| a.len());
+        let (a, b) = (psnr(&seg, &engine), psnr(&seg, &whole));
+        eprintln!(
+            "{q} (t = {t}): {a:.2} dB against the engine, {b:.2} dB against one file; {held} segments held"
+        );
+        if a < FLOOR_DB || b < FLOOR_DB || !(1..=3).contains(&held) {
+            failures.push(format!("{q}: {a:.2} / {b:.2} dB, {held} segments"));
+        }
+    }
+    assert!(
+        failures.is_empty(),
+        "segmented playback differs or holds too much: {failures:?}"
     );
 }
 

@@ -17,6 +17,7 @@
 import { NEAR, createRenderer, recordsPerRow } from "./renderer.js";
 import { createSorter } from "./sort.js";
 import { loadModel } from "./web4d.js";
+import { mergeModels, neededSegments, wantedSegments } from "./segments.js";
 import { floatTarget } from "./float_target.js";
 import { centreOf, orbitControls, quatToRows, rowsToQuat } from "./camera.js";
 
@@ -59,9 +60,11 @@ async function main() {
     quiet: 0, // frames drawn with it
     ready: false,
     loaded: 0,
+    fresh: 0, // the first version of the model drawn now
   };
   const changed = () => state.version++;
   const sorter = createSorter(({ version, order, n }) => {
+    if (version < state.fresh) return; // an order of the model before the last merge
     renderer.setOrder(order, n);
     state.sorted = version;
     state.quiet = 0;
@@ -204,24 +207,56 @@ async function main() {
   });
 
   // ---- data -----------------------------------------------------------------------
+  // `model.4dgs` streams in and is drawn as it arrives. A long clip's other files (time
+  // segments) load once it is in: those at the playhead and the next segment's worth of
+  // the clip, the rest dropped (segments.js); `model` is then all loaded files in one.
   const progress = $("progress");
-  let model = null;
-  const loading = loadModel(
-    scene.model.file,
-    scene.model.bytes,
-    (header) => ({ perRow: recordsPerRow(gl, header.texels) }),
-    (m) => {
-      model = m;
-      progress.value = m.loaded / m.count;
-      setStatus(`loading ${scene.model.file}: ${m.loaded} / ${m.count} Gaussians`);
-    },
-  );
-  loading
-    .then(() => {
+  const layout = (header) => ({ perRow: recordsPerRow(gl, header.texels) });
+  const segments = scene.segments || [];
+  const ahead = segments.length ? (t1 - t0) / segments.length : 0;
+  let model = null; // what is drawn
+  let base = null; // `model.4dgs`, once complete
+  const held = new Map(); // segment index → { model } (null while it loads)
+  let merged = []; // the segments in `model`
+  loadModel(scene.model.file, scene.model.bytes, layout, (m) => {
+    model = m;
+    progress.value = m.loaded / m.count;
+    setStatus(`loading ${scene.model.file}: ${m.loaded} / ${m.count} Gaussians`);
+  })
+    .then((m) => {
+      base = m;
       document.body.classList.add("loaded");
       setStatus("");
     })
     .catch(fail);
+  /// Load what the playhead wants, drop what it left, and merge when the set changed.
+  const holdSegments = () => {
+    if (!base || !segments.length) return;
+    const wanted = wantedSegments(segments, state.time, ahead, [t0, t1]);
+    for (const k of wanted) {
+      if (held.has(k)) continue;
+      const entry = { model: null };
+      held.set(k, entry);
+      loadModel(segments[k].file, segments[k].bytes, layout, () => {})
+        .then((m) => {
+          entry.model = m;
+        })
+        .catch(fail);
+    }
+    for (const k of [...held.keys()]) if (!wanted.includes(k)) held.delete(k);
+    const ready = [...held.keys()].filter((k) => held.get(k).model).sort((a, b) => a - b);
+    const waiting = neededSegments(segments, state.time).filter((k) => !ready.includes(k));
+    const text = waiting.length ? `loading ${waiting.map((k) => segments[k].file).join(", ")}` : "";
+    if ($("status").textContent !== text && (text || $("status").textContent.startsWith("loading model-"))) setStatus(text);
+    if (ready.join() === merged.join()) return;
+    merged = ready;
+    model = ready.length ? mergeModels([base, ...ready.map((k) => held.get(k).model)], base.perRow) : base;
+    renderer.reset();
+    sorter.reset();
+    state.loaded = 0;
+    changed();
+    state.fresh = state.version;
+  };
   let gotoFrame = params.has("goto") ? clampFrame(params.get("goto")) : null;
   setPlaying(params.get("play") !== "0");
 
@@ -240,6 +275,7 @@ async function main() {
       const t = playFrom.time - t0 + ((now - playFrom.wall) / 1000) * unitsPerSecond;
       setTime(t0 + (((t % span) + span) % span));
     }
+    holdSegments();
     if (model) {
       const uploaded = renderer.upload(model);
       if (uploaded !== state.loaded) {
@@ -262,7 +298,8 @@ async function main() {
       if (target) target.end(v);
       state.quiet++;
     }
-    const ready = !!model && state.loaded === model.count && state.sorted === state.version && state.quiet >= 2;
+    const drawn = neededSegments(segments, state.time).every((k) => merged.includes(k));
+    const ready = !!model && drawn && state.loaded === model.count && state.sorted === state.version && state.quiet >= 2;
     if (ready && gotoFrame !== null) {
       setTime(times[gotoFrame]); // ?goto: one step inside the page, as the keys do
       gotoFrame = null;
@@ -276,6 +313,7 @@ async function main() {
       camera: state.camera,
       loaded: state.loaded,
       total: model ? model.count : scene.model.gaussians,
+      segments: merged,
     };
   };
   requestAnimationFrame(frame);

@@ -219,6 +219,12 @@ export function createRenderer(gl) {
       gl.bindTexture(gl.TEXTURE_2D, null);
       return uploadedRows === model.rows ? model.count : uploadedRows * model.perRow;
     },
+    /// Start over with another model (the page's loaded time segments changed).
+    reset() {
+      uploadedRows = 0;
+      this.allocated = false;
+      drawCount = 0;
+    },
     /// The Gaussians to draw, back to front.
     setOrder(order, count) {
       gl.bindBuffer(gl.ARRAY_BUFFER, indexBuffer);

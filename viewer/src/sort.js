@@ -106,6 +106,10 @@ export function createSorter(onSorted) {
       w.postMessage(m);
       sent = upTo;
     },
+    /// Start over with another model: `feed` sends it from its first record.
+    reset() {
+      sent = 0;
+    },
     /// Ask for the order of the fed records for `view` at `time` (the latest request wins).
     request(version, view, time, near) {
       const m = { type: "sort", version, count: sent, r2: view.rotation[2], tz: view.translation[2], near, time };

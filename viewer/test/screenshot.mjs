@@ -1,8 +1,10 @@
 // Drive headless Chromium (Debian's /usr/bin/chromium, no browser download) with
 // playwright-core: open each URL, wait until the viewer reports the requested frame as
-// rendered (window.viewerState.ready), and save a screenshot of the page.
+// rendered (window.viewerState.ready), and save a screenshot of the page (OUT.png) and
+// the viewer's state then (OUT.png.json).
 // Usage: node test/screenshot.mjs [--viewport=WxH] CHROMIUM PROFILE_DIR URL OUT.png [URL OUT.png ...]
 // (default viewport 640x480; with ?ui=0 in the URL the screenshot is the canvas alone).
+import { writeFileSync } from "node:fs";
 import { chromium } from "playwright-core";
 
 let args = process.argv.slice(2);
@@ -57,6 +59,7 @@ try {
     if (error) throw new Error(`the viewer reports: ${error}`);
     await page.screenshot({ path: out });
     const state = await page.evaluate(() => JSON.stringify(window.viewerState));
+    writeFileSync(`${out}.json`, state);
     console.log(`${url} -> ${out} ${state}`);
   }
 } catch (e) {

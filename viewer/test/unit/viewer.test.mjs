@@ -5,6 +5,7 @@ import assert from "node:assert/strict";
 import { centreOf, orbitControls, poseFrom, quatToRows, rowsToQuat } from "../../src/camera.js";
 import { depthSort, sortScratch } from "../../src/sort.js";
 import { reach2 } from "../../src/web4d.js";
+import { mergeModels, neededSegments, wantedSegments } from "../../src/segments.js";
 
 let seed = 7;
 const rand = () => ((seed = (seed * 1103515245 + 12345) % 2147483648) / 2147483648);
@@ -107,4 +108,52 @@ test("the depth sort draws back to front and leaves out what the engine culls", 
   for (let k = 1; k < count; k++) {
     assert.ok(depth(out[k - 1]) >= depth(out[k]) - span / 65535, `entry ${k} is nearer than the one after it`);
   }
+});
+
+test("the page holds the segments at the playhead and just ahead, wrapping round", () => {
+  // Three 2-s segments of a 6-s clip, each reaching 0.5 s past its own part.
+  const segments = [
+    { reach: [0, 2.5] },
+    { reach: [1.5, 4.5] },
+    { reach: [3.5, 6] },
+  ];
+  assert.deepEqual(neededSegments(segments, 0.2), [0]);
+  assert.deepEqual(neededSegments(segments, 2.0), [0, 1]);
+  assert.deepEqual(neededSegments(segments, 6), [2]);
+  assert.deepEqual(wantedSegments(segments, 0.2, 1, [0, 6]), [0]);
+  assert.deepEqual(wantedSegments(segments, 1.0, 1, [0, 6]), [0, 1]);
+  assert.deepEqual(wantedSegments(segments, 4.8, 1, [0, 6]), [2]);
+  // Near the end, the start of the clip comes next.
+  assert.deepEqual(wantedSegments(segments, 5.5, 1, [0, 6]), [0, 2]);
+  for (let t = 0; t <= 6; t += 0.25) {
+    const wanted = wantedSegments(segments, t, 1, [0, 6]);
+    for (const k of neededSegments(segments, t)) assert.ok(wanted.includes(k), `t = ${t}: segment ${k}`);
+    assert.ok(wanted.length <= 3);
+  }
+});
+
+test("merged files keep every record and field in order", () => {
+  const perRow = 2;
+  const texels = 3;
+  const file = (count, base) => {
+    const m = { header: { count, texels }, count, texels, perRow, rows: Math.ceil(count / perRow), loaded: count };
+    m.data = new Uint32Array(m.rows * perRow * texels * 4);
+    for (let i = 0; i < count * texels * 4; i++) m.data[i] = base + i;
+    for (const [name, k] of [["position", 3], ["velocity", 3], ["tMean", 1], ["tSigma", 1], ["opacity", 1], ["reach2", 1]]) {
+      m[name] = Float32Array.from({ length: k * count }, (_, i) => base + 0.5 * i);
+    }
+    return m;
+  };
+  const a = file(3, 1000);
+  const b = file(2, 5000);
+  const m = mergeModels([a, b], perRow);
+  assert.equal(m.count, 5);
+  assert.equal(m.header.count, 5);
+  assert.equal(m.rows, 3);
+  assert.equal(m.loaded, 5);
+  const words = texels * 4;
+  assert.deepEqual(Array.from(m.data.subarray(0, 3 * words)), Array.from(a.data.subarray(0, 3 * words)));
+  assert.deepEqual(Array.from(m.data.subarray(3 * words, 5 * words)), Array.from(b.data.subarray(0, 2 * words)));
+  assert.deepEqual(Array.from(m.position), [...a.position, ...b.position]);
+  assert.deepEqual(Array.from(m.reach2), [...a.reach2, ...b.reach2]);
 });
