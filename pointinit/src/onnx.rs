@@ -1,4 +1,6 @@
-//! Running a MASt3R-style point-map model (ONNX) in pure Rust with `tract-onnx`.
+//! Running a MASt3R-style point-map model (ONNX) in pure Rust with `tract-onnx`, in a
+//! build with the `onnx` feature; without it, [`PointMapModel::load`] is
+//! [`OnnxError::NotBuilt`].
 //!
 //! The model takes two images (`1×3×H×W` float32, normalised like MASt3R:
 //! `(rgb/255 − 0.5) / 0.5`) and returns both views' point maps (`1×H'×W'×3`) in the first
@@ -6,15 +8,16 @@
 //! input size come from [`ModelConfig`]. Anything wrong with the file or its shapes is an
 //! [`OnnxError`], never a panic (tract's own panics on malformed graphs are caught too).
 
-use std::panic::AssertUnwindSafe;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use image::RgbImage;
 use serde::{Deserialize, Serialize};
+#[cfg(feature = "onnx")]
 use tract_onnx::prelude::*;
 
-use super::npy::{Array, OutputNames, PairMaps, point_map};
+#[cfg(feature = "onnx")]
+use super::npy::{Array, point_map};
+use super::npy::{OutputNames, PairMaps};
 
 /// Names and input size of a point-map model.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -41,6 +44,10 @@ impl Default for ModelConfig {
 /// Why a model could not be loaded or run.
 #[derive(Debug, thiserror::Error)]
 pub enum OnnxError {
+    #[error(
+        "{path}: this build runs no ONNX models; build with the `onnx` feature (`cargo build --release -p pipeline --features onnx`), or export the point maps to .npz and set [init] source = \"npz\""
+    )]
+    NotBuilt { path: PathBuf },
     #[error("cannot read ONNX model {path}: {source}")]
     Io {
         path: PathBuf,
@@ -63,10 +70,16 @@ pub enum OnnxError {
     },
 }
 
+/// The optimised graph (none can exist without the `onnx` feature).
+#[cfg(feature = "onnx")]
+type Plan = std::sync::Arc<TypedRunnableModel>;
+#[cfg(not(feature = "onnx"))]
+type Plan = std::convert::Infallible;
+
 /// A loaded, optimised point-map model ready to run on image pairs.
 pub struct PointMapModel {
     path: PathBuf,
-    plan: Arc<TypedRunnableModel>,
+    plan: Plan,
     config: ModelConfig,
 }
 
@@ -79,8 +92,9 @@ impl std::fmt::Debug for PointMapModel {
     }
 }
 
+#[cfg(feature = "onnx")]
 fn caught<T>(f: impl FnOnce() -> TractResult<T>) -> Result<T, String> {
-    match std::panic::catch_unwind(AssertUnwindSafe(f)) {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)) {
         Ok(Ok(v)) => Ok(v),
         Ok(Err(e)) => Err(format!("{e:#}")),
         Err(p) => Err(format!(
@@ -94,7 +108,19 @@ fn caught<T>(f: impl FnOnce() -> TractResult<T>) -> Result<T, String> {
 }
 
 impl PointMapModel {
+    /// Without the `onnx` feature: [`OnnxError::NotBuilt`].
+    #[cfg(not(feature = "onnx"))]
+    pub fn load(path: &Path, _config: &ModelConfig) -> Result<Self, OnnxError> {
+        Err(OnnxError::NotBuilt { path: path.into() })
+    }
+
+    #[cfg(not(feature = "onnx"))]
+    pub fn run(&self, _first: &RgbImage, _second: &RgbImage) -> Result<PairMaps, OnnxError> {
+        match self.plan {}
+    }
+
     /// Load and optimise `path` for inputs of `config.input_size`.
+    #[cfg(feature = "onnx")]
     pub fn load(path: &Path, config: &ModelConfig) -> Result<Self, OnnxError> {
         let bytes = std::fs::read(path).map_err(|source| OnnxError::Io {
             path: path.into(),
@@ -131,6 +157,7 @@ impl PointMapModel {
     }
 
     /// Run on one image pair (any size: resized to the model's input size).
+    #[cfg(feature = "onnx")]
     pub fn run(&self, first: &RgbImage, second: &RgbImage) -> Result<PairMaps, OnnxError> {
         let [w, h] = self.config.input_size;
         let outputs = caught(|| {
@@ -209,6 +236,7 @@ impl PointMapModel {
 }
 
 /// `1×3×h×w` MASt3R-normalised tensor of `img` resized to `w×h` (bilinear).
+#[cfg(feature = "onnx")]
 pub fn image_tensor(img: &RgbImage, w: u32, h: u32) -> TractResult<Tensor> {
     let resized;
     let img = if img.dimensions() == (w, h) {

@@ -3,7 +3,7 @@
 //! OpenCV, no system SQLite; what a GPU node runs, docs/cluster.md) on a capture the full
 //! build prepared up to `init`: it links none of them, runs `train`, `render`, `eval` and `export`, and
 //! trains the same model as the full build; the stages that read videos say they need
-//! the full build. `scripts/test.sh` builds the binary and names it in
+//! the full build, and an ONNX LPIPS model that it needs the `onnx` feature. `scripts/test.sh` builds the binary and names it in
 //! `PIPELINE_ENGINE_ONLY`; without it the test says so and passes, except under
 //! `CI=true`, where that is a failure.
 
@@ -107,4 +107,34 @@ fn the_engine_only_build_trains_renders_evaluates_and_exports_what_the_full_buil
     );
     // The refused stage left the earlier outputs as they were.
     assert!(engine_dir.join("work/ingest/streams.json").is_file());
+
+    // An ONNX model needs the `onnx` feature, which this build (like a default one) leaves out.
+    let metrics = std::fs::read(engine_dir.join("work/eval/metrics.json")).unwrap();
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../fixtures/onnx/lpips_tiny/mean_abs_diff.onnx"),
+        engine_dir.join("lpips.onnx"),
+    )
+    .unwrap();
+    let toml = engine_dir.join("capture.toml");
+    let text = std::fs::read_to_string(&toml).unwrap();
+    let with_onnx = text.replace("[eval]\n", "[eval]\nlpips = \"lpips.onnx\"\n");
+    assert_ne!(text, with_onnx, "capture.toml has an [eval] section");
+    std::fs::write(&toml, with_onnx).unwrap();
+    let (ok, text) = run(
+        &engine,
+        &["run", engine_capture, "--only", "eval", "--force"],
+    );
+    assert!(!ok, "eval ran an ONNX model without the feature: {text}");
+    assert!(
+        text.contains("lpips.onnx")
+            && text.contains("runs no ONNX models")
+            && text.contains("--features onnx"),
+        "{text}"
+    );
+    assert_eq!(
+        std::fs::read(engine_dir.join("work/eval/metrics.json")).unwrap(),
+        metrics,
+        "the refused eval changed the earlier metrics"
+    );
 }

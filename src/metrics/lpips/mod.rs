@@ -4,7 +4,8 @@
 //!   `scripts/setup.sh` installs (`weights`: the file format and where it is looked for;
 //!   `conv`: the layers). The default. It runs on the CPU, or on a GPU (`gpu`, WGSL
 //!   kernels) when the caller names one ([`LpipsDevice`]); the CPU path is the reference.
-//! - `onnx`: a user-supplied ONNX model (`[eval] lpips = "model.onnx"`), run with tract.
+//! - `onnx`: a user-supplied ONNX model (`[eval] lpips = "model.onnx"`), run with tract
+//!   in a build with the `onnx` feature (`onnx_absent` without it: a clear error).
 //!
 //! [`Lpips::installed`] is the default network, or `None` when no weights are installed
 //! (callers then report LPIPS as skipped with [`weights::INSTALL_HINT`], never a number).
@@ -14,6 +15,10 @@ mod alex;
 mod conv;
 mod gpu;
 mod maps;
+#[cfg(feature = "onnx")]
+mod onnx;
+#[cfg(not(feature = "onnx"))]
+#[path = "onnx_absent.rs"]
 mod onnx;
 pub mod weights;
 mod winograd;
@@ -71,6 +76,10 @@ pub enum LpipsError {
         "LPIPS-alex on the GPU ({adapter}) failed: {message}; evaluate with backend = \"cpu\" to compute it on the CPU"
     )]
     Gpu { adapter: String, message: String },
+    #[error(
+        "{path}: this build runs no ONNX models; build with the `onnx` feature (`cargo build --release -p pipeline --features onnx`), or leave [eval] lpips unset for the built-in LPIPS-alex"
+    )]
+    OnnxNotBuilt { path: PathBuf },
     #[error("running LPIPS model {path} on a {width}×{height} image failed: {message}")]
     Run {
         path: PathBuf,
