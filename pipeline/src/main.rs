@@ -316,6 +316,9 @@ fn submit(args: SubmitArgs, reporter: &Reporter) -> anyhow::Result<ExitCode> {
                     }
                 }
                 reporter.say(&line);
+                for note in &done.notes {
+                    reporter.say(&format!("  note: {note}"));
+                }
             }
             Err(e) => {
                 failed += 1;

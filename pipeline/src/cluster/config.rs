@@ -171,6 +171,18 @@ impl ClusterSettings {
         }
     }
 
+    /// Which of `stage`'s request values a setting gives (the others are defaults).
+    pub fn set_by_user(&self, stage: &str) -> super::nodes::SetByUser {
+        let own = self.stages.get(stage);
+        super::nodes::SetByUser {
+            cpus: own.and_then(|s| s.cpus).or(self.cpus).is_some(),
+            mem: own
+                .and_then(|s| s.mem.as_ref())
+                .or(self.mem.as_ref())
+                .is_some(),
+        }
+    }
+
     /// What is wrong with these settings' values, if anything: a time or memory Slurm
     /// would refuse.
     pub fn value_problem(&self) -> Option<String> {

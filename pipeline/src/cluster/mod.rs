@@ -9,12 +9,15 @@
 //!
 //! - `config`: the `[cluster]` settings (capture.toml, and a user-level file).
 //! - `jobs`: the jobs file, each job's script and `sbatch` arguments.
+//! - `nodes`: what the nodes offer (`sinfo`); every request is checked against them
+//!   before anything is queued.
 //! - `slurm`: the Slurm commands and the parsers of their output.
 //! - `user_file`: the user-level `[cluster]` file.
 
 pub mod config;
 pub mod jobs;
 pub mod memory;
+pub mod nodes;
 pub mod slurm;
 pub mod user_file;
 
@@ -66,6 +69,11 @@ pub enum ClusterError {
         source: SlurmError,
         hint: &'static str,
     },
+    #[error(
+        "nothing submitted for {capture}: {message} (docs/cluster.md)",
+        capture = .capture.display()
+    )]
+    DoesNotFit { capture: PathBuf, message: String },
     #[error("cannot tell which stages of {capture} are stale: {message}", capture = .capture.display())]
     Stages { capture: PathBuf, message: String },
     #[error(
@@ -111,6 +119,8 @@ pub struct Submitted {
     pub jobs: Vec<SubmittedJob>,
     /// Selected stages that are up to date (not submitted).
     pub up_to_date: Vec<String>,
+    /// What `submit` changed in the requests to fit the nodes (a default lowered).
+    pub notes: Vec<String>,
 }
 
 /// Submit the stale stages of a capture as a chain of jobs. Refused while the capture has
@@ -169,6 +179,7 @@ pub fn submit(
             capture: root,
             jobs: Vec::new(),
             up_to_date,
+            notes: Vec::new(),
         });
     }
     let binary = match &settings.pipeline {
@@ -199,12 +210,6 @@ pub fn submit(
                 source,
             })
     };
-    let logs = jobs::cluster_dir(&work).join("logs");
-    std::fs::create_dir_all(&logs).map_err(|source| ClusterError::Write {
-        path: logs.clone(),
-        source,
-    })?;
-    write(&submission)?;
     // Counted once, and only when a job needs it (it may probe the recordings).
     let frames = std::cell::OnceCell::new();
     // A clip cut into time chunks trains one job per chunk when its frames are known now
@@ -215,31 +220,69 @@ pub fn submit(
         .then(|| crate::chunks::plan::ChunkPlan::read(&work, &config.chunks))
         .flatten()
         .filter(|plan| plan.is_chunked() && !options.selection.force);
+    // Every job's request, checked against the nodes before any is queued.
+    let nodes = nodes::read()?;
+    let mut requests = Vec::new();
+    let mut notes = Vec::new();
     for &i in &chosen {
         let stage = &pipeline.stages[i];
         let gpu = stage.engine && config.engine.backend != crate::engine_inputs::BackendChoice::Cpu;
         let mut request = settings.request(stage.name, gpu, &binary);
-        let chunks = match &chunked {
-            Some(plan) if stage.name == "train" => Some(plan),
-            _ => None,
-        };
         if request.mem.is_none()
             && memory::sized(stage.name)
             && let Some(mut frames) =
                 *frames.get_or_init(|| memory::footprint(&work, capture, config))
         {
-            if let Some(plan) = chunks {
+            if let Some(plan) = chunked.as_ref().filter(|_| stage.name == "train") {
                 frames = frames.share(plan.largest_window(), plan.frames());
             }
             request.mem = memory::request(stage.name, frames, config.train.densify.max_gaussians);
         }
+        match nodes::check(
+            stage.name,
+            &request,
+            settings.set_by_user(stage.name),
+            &nodes,
+        ) {
+            Ok(None) => {}
+            Ok(Some(cpus)) => {
+                let note = format!(
+                    "cpus: the default {} is more than the nodes of the jobs' partition have; the jobs ask for {cpus} (set [cluster] cpus to choose)",
+                    request.cpus
+                );
+                if !notes.contains(&note) {
+                    notes.push(note);
+                }
+                request.cpus = cpus;
+            }
+            Err(message) => {
+                return Err(ClusterError::DoesNotFit {
+                    capture: root.clone(),
+                    message,
+                });
+            }
+        }
+        requests.push(request);
+    }
+    let logs = jobs::cluster_dir(&work).join("logs");
+    std::fs::create_dir_all(&logs).map_err(|source| ClusterError::Write {
+        path: logs.clone(),
+        source,
+    })?;
+    write(&submission)?;
+    for (&i, request) in chosen.iter().zip(&requests) {
+        let stage = &pipeline.stages[i];
+        let chunks = match &chunked {
+            Some(plan) if stage.name == "train" => Some(plan),
+            _ => None,
+        };
         let previous = submission.jobs.last().map(|j| j.job_id.clone());
         let mut queue = |chunk: Option<usize>, after: Option<String>| {
             let job = StageJob {
                 stage: stage.name,
                 chunk,
                 root: &root,
-                request: &request,
+                request,
                 after: after.as_deref(),
                 hold: after.is_none(),
                 run_args: &options.run_args,
@@ -307,6 +350,7 @@ pub fn submit(
         capture: root,
         jobs: submission.jobs,
         up_to_date,
+        notes,
     })
 }
 

@@ -233,7 +233,7 @@ fn parse_columns(stdout: &str, columns: &[Column]) -> Vec<JobInfo> {
 }
 
 /// Run a Slurm command; its stdout, or its stderr as the error.
-fn call(program: &str, args: &[String]) -> Result<String, SlurmError> {
+pub(super) fn call(program: &str, args: &[String]) -> Result<String, SlurmError> {
     let output = Command::new(program)
         .args(args)
         .output()

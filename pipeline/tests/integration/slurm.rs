@@ -747,3 +747,82 @@ fn a_clip_in_chunks_trains_one_job_per_chunk_and_gives_the_local_model() {
         fs::read(submitted.join("work/train/model.bin")).unwrap()
     );
 }
+
+#[test]
+fn requests_no_node_can_satisfy_are_refused_before_anything_is_queued_and_a_default_is_lowered() {
+    let Some(cluster) = Cluster::start() else {
+        return;
+    };
+    let cpus: u32 = host_node_config()
+        .and_then(|c| c.get("CPUs").and_then(|v| v.parse().ok()))
+        .unwrap_or(1);
+    let tmp = tempfile::tempdir().unwrap();
+    let root = common::tiny_capture(&tmp.path().join("take01"), common::CHEAP);
+    let capture = root.to_str().unwrap();
+    // Each setting no node has: an error naming it, what the nodes have, and nothing queued.
+    let too_many = cpus + 62;
+    for (cluster_table, words) in [
+        (
+            format!("[cluster]\ncpus = {too_many}\n"),
+            vec![
+                format!("cpus = {too_many}"),
+                format!("at most {cpus}"),
+                "[cluster] cpus".into(),
+            ],
+        ),
+        (
+            "[cluster]\ncpus = 1\npartition = \"nope\"\n".into(),
+            vec!["\"nope\"".into(), "partitions: test".into()],
+        ),
+        (
+            "[cluster]\ncpus = 1\nmem = \"100T\"\n".into(),
+            vec!["mem = \"100T\"".into(), "[cluster] mem".into()],
+        ),
+        (
+            "[cluster]\ncpus = 1\ngpus = 3\n[engine]\nbackend = \"auto\"\n".into(),
+            vec!["3 GPU(s)".into(), "gpu:2".into()],
+        ),
+    ] {
+        fs::write(
+            root.join("capture.toml"),
+            format!("{}{cluster_table}", common::CHEAP),
+        )
+        .unwrap();
+        let out = cluster.pipeline(&["submit", capture]);
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(!out.status.success(), "{cluster_table}: {text}");
+        for w in &words {
+            assert!(text.contains(w.as_str()), "{w:?} not in: {text}");
+        }
+        assert!(text.contains("nothing submitted"), "{text}");
+        assert!(
+            Submission::read(&root.join("work")).is_none(),
+            "a job file was written for {cluster_table}"
+        );
+    }
+    let queue = cluster
+        .command("squeue")
+        .args(["-h", "-t", "all"])
+        .output()
+        .unwrap();
+    assert_eq!(
+        String::from_utf8_lossy(&queue.stdout).trim(),
+        "",
+        "jobs were queued"
+    );
+
+    // The default CPUs on a smaller node: lowered, said, and the job runs.
+    fs::write(root.join("capture.toml"), common::CHEAP).unwrap();
+    let said = submit(&cluster, &[capture, "--only", "ingest"]);
+    if cpus < pipeline::cluster::config::DEFAULT_CPUS {
+        assert!(said.contains(&format!("the jobs ask for {cpus}")), "{said}");
+    } else {
+        assert!(!said.contains("note:"), "{said}");
+    }
+    let rows = cluster.wait_for_jobs(&root);
+    assert_eq!(row(&rows, "ingest")["state"], "done", "{rows:#?}");
+}
