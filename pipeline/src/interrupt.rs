@@ -1,4 +1,6 @@
-//! Ctrl-C during `pipeline run` and `pipeline demo`. A stage that can stop cleanly (the
+//! Ctrl-C (SIGINT, and SIGTERM and SIGHUP alike: what Slurm sends a job it cancels,
+//! requeues or ends at its time limit) during `pipeline run` and `pipeline demo`. A stage
+//! that can stop cleanly (the
 //! train stage) marks the time it runs with [`Graceful`] and polls [`stop_requested`]:
 //! the first Ctrl-C then asks it to stop after its current iteration (it writes a
 //! checkpoint and the next run resumes from it). At any other time, or on a second

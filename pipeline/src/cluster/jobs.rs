@@ -145,6 +145,11 @@ impl StageJob<'_> {
             ),
             format!("--chdir={}", self.root.to_string_lossy()),
             "--kill-on-invalid-dep=yes".to_string(),
+            // Back in the queue after a node failure or preemption (or `scontrol
+            // requeue`): the stage continues from its last checkpoint.
+            "--requeue".to_string(),
+            // A requeued job's log goes on after the earlier runs' instead of over them.
+            "--open-mode=append".to_string(),
         ];
         if let Some(after) = self.after {
             args.push(format!("--dependency=afterok:{after}"));
@@ -160,6 +165,9 @@ impl StageJob<'_> {
         }
         if let Some(t) = &r.time {
             args.push(format!("--time={t}"));
+            if let Some(minutes) = super::nodes::minutes(t) {
+                args.push(format!("--signal=B:USR1@{}", warning_seconds(minutes)));
+            }
         }
         args.push(format!("--cpus-per-task={}", r.cpus));
         if let Some(m) = &r.mem {
@@ -223,9 +231,18 @@ impl StageJob<'_> {
              cd \"$capture\" || exit 2\n\
              export {env}={token}\n\
              {setup}\
-             {command}\n\
-             status=$?\n\
+             # In the background, so that the time limit's warning (USR1) reaches this\n\
+             # script: the stage stops at a checkpoint and the job goes back in the queue.\n\
+             {command} &\n\
+             child=$!\n\
+             trap 'warned=1; kill -TERM \"$child\" 2>/dev/null' USR1\n\
+             wait \"$child\"; status=$?\n\
+             while kill -0 \"$child\" 2>/dev/null; do wait \"$child\"; status=$?; done\n\
              {keep_log}\
+             if [ -n \"$warned\" ]; then\n\
+             \x20 echo \"the job's time is nearly up: {stage} stopped at a checkpoint; requeueing job $SLURM_JOB_ID to continue\" >&2\n\
+             \x20 scontrol requeue \"$SLURM_JOB_ID\"\n\
+             fi\n\
              exit $status\n",
             token = quote(self.token),
             host = self.host.replace(['"', '`', '$', '\\'], ""),
@@ -233,6 +250,13 @@ impl StageJob<'_> {
             command = command.join(" "),
         )
     }
+}
+
+/// How long before a time limit of `minutes` Slurm warns the job (`--signal`): a tenth
+/// of it, between 30 s and 5 minutes, time for a training to reach its next iteration
+/// and write a checkpoint.
+fn warning_seconds(minutes: u64) -> u64 {
+    (minutes * 6).clamp(30, 300)
 }
 
 /// `text` as one shell word (single quotes).
@@ -289,10 +313,13 @@ mod tests {
                 "--output=/shared/take 03/work/.cluster/logs/train-%j.log",
                 "--chdir=/shared/take 03",
                 "--kill-on-invalid-dep=yes",
+                "--requeue",
+                "--open-mode=append",
                 "--dependency=afterok:41",
                 "--partition=gpu",
                 "--account=lab",
                 "--time=12:00:00",
+                "--signal=B:USR1@300",
                 "--cpus-per-task=8",
                 "--mem=64G",
                 "--gres=gpu:a100:2",
@@ -353,9 +380,11 @@ mod tests {
         assert!(script.contains("export PIPELINE_SUBMISSION=abc123\n"));
         assert!(script.contains("module load cuda/12.2\n"));
         assert!(script.contains(
-            "apptainer exec --nv /shared/4c4d.sif /shared/bin/pipeline run \"$capture\" --only render --force --backend gpu\n"
+            "apptainer exec --nv /shared/4c4d.sif /shared/bin/pipeline run \"$capture\" --only render --force --backend gpu &\n"
         ), "{script}");
         assert!(script.contains("cp -f \"$log\" \"$capture/work/render/slurm-$SLURM_JOB_ID.log\""));
+        assert!(script.contains("trap 'warned=1; kill -TERM \"$child\" 2>/dev/null' USR1\n"));
+        assert!(script.contains("scontrol requeue \"$SLURM_JOB_ID\""));
         assert!(script.trim_end().ends_with("exit $status"));
     }
 
@@ -376,7 +405,7 @@ mod tests {
         assert_eq!(job.name(), "train[2]:take03");
         let script = job.script();
         assert!(
-            script.contains("/shared/bin/pipeline run \"$capture\" --only train --chunk 2\n"),
+            script.contains("/shared/bin/pipeline run \"$capture\" --only train --chunk 2 &\n"),
             "{script}"
         );
         assert!(!script.contains("cp -f"), "{script}");

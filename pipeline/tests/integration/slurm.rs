@@ -137,7 +137,7 @@ impl Cluster {
                  SlurmdPort={slurmd}\n\
                  AuthType=auth/munge\n\
                  CredType=cred/munge\n\
-                 AuthInfo=socket={socket}\n\
+                 AuthInfo=socket={socket},cred_expire=10\n\
                  SlurmUser=root\n\
                  SlurmdUser=root\n\
                  StateSaveLocation={r}/state\n\
@@ -815,14 +815,161 @@ fn requests_no_node_can_satisfy_are_refused_before_anything_is_queued_and_a_defa
         "jobs were queued"
     );
 
-    // The default CPUs on a smaller node: lowered, said, and the job runs.
+    // The default CPUs on a smaller node: lowered, said, and asked of Slurm.
     fs::write(root.join("capture.toml"), common::CHEAP).unwrap();
     let said = submit(&cluster, &[capture, "--only", "ingest"]);
-    if cpus < pipeline::cluster::config::DEFAULT_CPUS {
+    let default = pipeline::cluster::config::DEFAULT_CPUS;
+    if cpus < default {
         assert!(said.contains(&format!("the jobs ask for {cpus}")), "{said}");
     } else {
         assert!(!said.contains("note:"), "{said}");
     }
+    let id = Submission::read(&root.join("work"))
+        .unwrap()
+        .job_of("ingest")
+        .unwrap()
+        .job_id
+        .clone();
+    let record = cluster.job_record(&id);
+    assert!(
+        record.contains(&format!("NumCPUs={} ", cpus.min(default))),
+        "{record}"
+    );
+    let out = cluster.pipeline(&["cancel", capture]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// The highest iteration of the checkpoints in `ckpt` (`NNNNNN.bin`), 0 when none.
+fn last_checkpoint(ckpt: &Path) -> u64 {
+    fs::read_dir(ckpt)
+        .map(|entries| {
+            entries
+                .filter_map(|e| {
+                    let name = e.ok()?.file_name().into_string().ok()?;
+                    name.strip_suffix(".bin")?.parse().ok()
+                })
+                .max()
+                .unwrap_or(0)
+        })
+        .unwrap_or(0)
+}
+
+/// Poll `done` every 100 ms; the limit only stops a hung cluster.
+fn wait_until(cluster: &Cluster, what: &str, mut done: impl FnMut() -> bool) {
+    let start = Instant::now();
+    while !done() {
+        assert!(
+            start.elapsed() < Duration::from_secs(10 * 60),
+            "waited 10 min for {what}{}",
+            cluster.logs()
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// A training job warned of its time limit (Slurm's `--signal=B:USR1`, sent here with
+/// `scancel --signal`) stops at a checkpoint and requeues itself; one requeued while it
+/// trains (`scontrol requeue`, as after a node failure) comes back too. Each time it
+/// continues from its last checkpoint, and the model is the local run's, byte for byte.
+#[test]
+fn a_train_job_warned_or_requeued_continues_from_its_checkpoint_to_the_local_model() {
+    let Some(cluster) = Cluster::start() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path().join("take04");
+    let settings = common::CHEAP
+        .replace("iterations = 10", "iterations = 150")
+        .replace("checkpoint_every = 0", "checkpoint_every = 10")
+        + "[cluster]\ncpus = 1\n";
+    common::tiny_capture(&root, &settings);
+    let capture = root.to_str().unwrap();
+    let out = cluster.pipeline(&["--quiet", "run", capture, "--to", "init"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let pristine = tmp.path().join("pristine");
+    common::copy_dir(&root, &pristine);
+
+    submit(&cluster, &[capture, "--only", "train"]);
+    let work = root.join("work");
+    let id = Submission::read(&work)
+        .unwrap()
+        .job_of("train")
+        .unwrap()
+        .job_id
+        .clone();
+    // The stage trains in `work/.train.partial/` until it is done.
+    let ckpt = work.join(".train.partial/ckpt");
+    // Requeued, and running again (after `cred_expire`, 10 s on this cluster).
+    let restarts = |n: u32| {
+        let record = cluster.job_record(&id);
+        record.contains(&format!("Restarts={n} ")) && record.contains("JobState=RUNNING")
+    };
+    // The warning, mid-training.
+    wait_until(&cluster, "a first checkpoint", || {
+        last_checkpoint(&ckpt) > 0
+    });
+    let warn = cluster
+        .command("scancel")
+        .args(["--signal=USR1", "--batch", &id])
+        .output()
+        .unwrap();
+    assert!(
+        warn.status.success(),
+        "{}",
+        String::from_utf8_lossy(&warn.stderr)
+    );
+    wait_until(&cluster, "the warned job to run again", || restarts(1));
+    // A requeue, once it has trained further.
+    let before = last_checkpoint(&ckpt);
+    wait_until(&cluster, "a later checkpoint", || {
+        last_checkpoint(&ckpt) > before
+    });
+    let requeue = cluster
+        .command("scontrol")
+        .args(["requeue", &id])
+        .output()
+        .unwrap();
+    assert!(
+        requeue.status.success(),
+        "{}",
+        String::from_utf8_lossy(&requeue.stderr)
+    );
+    wait_until(&cluster, "the requeued job to run again", || restarts(2));
+
     let rows = cluster.wait_for_jobs(&root);
-    assert_eq!(row(&rows, "ingest")["state"], "done", "{rows:#?}");
+    assert_eq!(row(&rows, "train")["state"], "done", "{rows:#?}");
+    let record = cluster.job_record(&id);
+    assert!(
+        record.contains("JobState=COMPLETED") && record.contains("Restarts=2 "),
+        "{record}"
+    );
+    let logs = fs::read_dir(work.join(".cluster/logs"))
+        .unwrap()
+        .map(|e| fs::read_to_string(e.unwrap().path()).unwrap_or_default())
+        .collect::<String>();
+    assert!(logs.contains("time is nearly up"), "{logs}");
+
+    // The same capture trained locally, uninterrupted, at the same path.
+    let submitted = tmp.path().join("submitted");
+    fs::rename(&root, &submitted).unwrap();
+    fs::rename(&pristine, &root).unwrap();
+    let out = cluster.pipeline(&["--quiet", "run", capture, "--only", "train"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        fs::read(root.join("work/train/model.bin")).unwrap()
+            == fs::read(submitted.join("work/train/model.bin")).unwrap(),
+        "the interrupted job trained another model than the local run"
+    );
 }
