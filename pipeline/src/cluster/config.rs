@@ -90,6 +90,14 @@ pub struct JobRequest {
     pub program: PathBuf,
 }
 
+/// Which of a request's values the user set (the others are defaults or sized by
+/// `submit`); an error names a setting only where there is one to change.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SetByUser {
+    pub cpus: bool,
+    pub mem: bool,
+}
+
 impl ClusterSettings {
     /// These settings with every key that `over` sets replaced by its value.
     pub fn overridden_by(self, over: &Self) -> Self {
@@ -172,9 +180,9 @@ impl ClusterSettings {
     }
 
     /// Which of `stage`'s request values a setting gives (the others are defaults).
-    pub fn set_by_user(&self, stage: &str) -> super::nodes::SetByUser {
+    pub fn set_by_user(&self, stage: &str) -> SetByUser {
         let own = self.stages.get(stage);
-        super::nodes::SetByUser {
+        SetByUser {
             cpus: own.and_then(|s| s.cpus).or(self.cpus).is_some(),
             mem: own
                 .and_then(|s| s.mem.as_ref())

@@ -5,7 +5,7 @@
 //! release`. Where only a default does not fit (`cpus`), the request is lowered to what
 //! the nodes have, and `submit` says so.
 
-use super::config::JobRequest;
+use super::config::{JobRequest, SetByUser};
 use super::slurm::{self, SlurmError};
 
 /// `sinfo --Node --noheader --format=…`: node, partition (`*` marks the default), CPUs,
@@ -157,14 +157,6 @@ pub fn memory_mb(text: &str) -> Option<u64> {
         _ => return None,
     };
     Some(n * scale)
-}
-
-/// Which of a request's values the user set (the others are defaults or sized by
-/// `submit`); an error names a setting only where there is one to change.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct SetByUser {
-    pub cpus: bool,
-    pub mem: bool,
 }
 
 /// Whether `request` (of `stage`'s job) fits a node of its partition. `Ok(Some(n))`: it

@@ -249,6 +249,16 @@ impl Cluster {
         command
     }
 
+    /// A Slurm command on this cluster, asserting success.
+    fn slurm(&self, program: &str, args: &[&str]) {
+        let out = self.command(program).args(args).output().unwrap();
+        assert!(
+            out.status.success(),
+            "{program} {args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+
     /// `pipeline ARGS` on this cluster.
     fn pipeline(&self, args: &[&str]) -> Output {
         self.command(env!("CARGO_BIN_EXE_pipeline"))
@@ -916,32 +926,14 @@ fn a_train_job_warned_or_requeued_continues_from_its_checkpoint_to_the_local_mod
     wait_until(&cluster, "a first checkpoint", || {
         last_checkpoint(&ckpt) > 0
     });
-    let warn = cluster
-        .command("scancel")
-        .args(["--signal=USR1", "--batch", &id])
-        .output()
-        .unwrap();
-    assert!(
-        warn.status.success(),
-        "{}",
-        String::from_utf8_lossy(&warn.stderr)
-    );
+    cluster.slurm("scancel", &["--signal=USR1", "--batch", &id]);
     wait_until(&cluster, "the warned job to run again", || restarts(1));
     // A requeue, once it has trained further.
     let before = last_checkpoint(&ckpt);
     wait_until(&cluster, "a later checkpoint", || {
         last_checkpoint(&ckpt) > before
     });
-    let requeue = cluster
-        .command("scontrol")
-        .args(["requeue", &id])
-        .output()
-        .unwrap();
-    assert!(
-        requeue.status.success(),
-        "{}",
-        String::from_utf8_lossy(&requeue.stderr)
-    );
+    cluster.slurm("scontrol", &["requeue", &id]);
     wait_until(&cluster, "the requeued job to run again", || restarts(2));
 
     let rows = cluster.wait_for_jobs(&root);
