@@ -61,8 +61,8 @@ fn submit_takes_several_captures_and_a_stage_range() {
     ));
 }
 
-/// Without Slurm's commands on PATH, `submit` names the missing command and submits
-/// nothing; `status` still prints its table.
+/// Without Slurm's commands on PATH, `submit` names the first missing one (`sinfo`, read
+/// before anything is queued) and submits nothing; `status` still prints its table.
 #[test]
 fn submit_without_slurm_says_what_is_missing() {
     let tmp = tempfile::tempdir().unwrap();
@@ -79,7 +79,7 @@ fn submit_without_slurm_says_what_is_missing() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(
-        err.contains("`sbatch` was not found") && err.contains("login node"),
+        err.contains("`sinfo` was not found") && err.contains("login node"),
         "{err}"
     );
     let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
