@@ -48,6 +48,15 @@ fn payload_floats(n: u64, capacity: ColourDegrees) -> Option<u64> {
 
 /// Write `model` to `path` (atomically, through a temporary file).
 pub fn save_model(model: &Gaussians<f32>, path: &Path) -> Result<(), ModelFileError> {
+    let buf = encode_model(model, path)?;
+    crate::atomic::write_atomic(path, &buf).map_err(|source| ModelFileError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// The bytes [`save_model`] writes; `path` is only used in error messages.
+pub fn encode_model(model: &Gaussians<f32>, path: &Path) -> Result<Vec<u8>, ModelFileError> {
     model
         .check_consistent()
         .map_err(|reason| ModelFileError::Inconsistent {
@@ -88,12 +97,7 @@ pub fn save_model(model: &Gaussians<f32>, path: &Path) -> Result<(), ModelFileEr
     }
     model.opacity_logits.iter().for_each(|&v| put(v));
     model.colours.iter().for_each(|&v| put(v));
-
-    let io = |source| ModelFileError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    crate::atomic::write_atomic(path, &buf).map_err(io)
+    Ok(buf)
 }
 
 /// Read a model written by [`save_model`].

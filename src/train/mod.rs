@@ -329,6 +329,9 @@ pub struct TrainSummary {
     /// Where the iterations ran: `host` (render and backward by the backend, loss and
     /// Adam on the host) or `gpu` (the whole step on the GPU).
     pub placement: &'static str,
+    /// Checkpoints that were damaged or not this run's, passed over (and renamed
+    /// `*.damaged`) on resuming, newest first.
+    pub skipped_checkpoints: Vec<checkpoint::Skipped>,
     /// The background colour the model was trained on (`[train] background` resolved).
     pub background: [f32; 3],
     /// The learned backdrop's file, when the model was trained on one.
@@ -535,14 +538,19 @@ pub fn train_from(
     let ckpt_dir = out_dir.join("ckpt");
     let extent = dataset.scene_extent() as f32;
 
-    let latest = if resume {
-        checkpoint::list(&ckpt_dir).last().copied()
+    let fingerprint = checkpoint::fingerprint(dataset);
+    let (resumed, skipped_checkpoints) = if resume {
+        checkpoint::latest_good(&ckpt_dir, fingerprint)?
     } else {
-        None
+        (None, Vec::new())
     };
-    let (mut model, mut adam, mut stats, start) = match latest {
-        Some(it) => {
-            let c = checkpoint::load(&ckpt_dir, it)?;
+    for s in &skipped_checkpoints {
+        progress.message(&s.to_string());
+    }
+    let latest = resumed.as_ref().map(|c| c.iteration);
+    let (mut model, mut adam, mut stats, start) = match resumed {
+        Some(c) => {
+            let it = c.iteration;
             if c.seed != config.seed {
                 return Err(TrainError::Resume(format!(
                     "checkpoint {it} was made with seed {}, the config says {}; restore the seed or start afresh",
@@ -614,7 +622,7 @@ pub fn train_from(
             stats: stats.clone(),
             hook_state: hooks.save_state(),
         };
-        let p = checkpoint::save(&ckpt_dir, &c)?;
+        let p = checkpoint::save(&ckpt_dir, &c, fingerprint)?;
         checkpoint::prune(&ckpt_dir, config.keep_checkpoints);
         Ok::<PathBuf, TrainError>(p)
     };
@@ -807,6 +815,7 @@ pub fn train_from(
         placement: stepper.placement(),
         background,
         backdrop: backdrop_path,
+        skipped_checkpoints,
     })
 }
 

@@ -24,7 +24,7 @@ use splat4d::Gaussians;
 use splat4d::model::init::gaussians_from_points;
 use splat4d::train::densify::gather_gaussians;
 use splat4d::train::exposure::CameraGain;
-use splat4d::train::{Background, PointCloud, Start, TrainError, train_from};
+use splat4d::train::{Background, PointCloud, Start, train_from};
 
 use super::plan::{Chunk, ChunkPlan};
 use super::static_scene;
@@ -32,7 +32,7 @@ use crate::engine_inputs::{EngineSettings, TrainRecord, load_dataset_window};
 use crate::interrupt::Graceful;
 use crate::stage_context::StageContext;
 use crate::stages::train::{
-    DecaySettings, StageHooks, TrainSettings, initial_points, interrupted, match_exposure,
+    DecaySettings, StageHooks, TrainSettings, finished, initial_points, match_exposure,
 };
 
 /// The static scene's file under `work/train/`.
@@ -288,7 +288,7 @@ impl Trainer<'_> {
         let mut method = splat4d::decay::DecayHooks::new(self.decay)
             .map_err(|e| anyhow::anyhow!("capture.toml [decay]: {e}"))?;
         let mut hooks = StageHooks { inner: &mut method };
-        let summary = match train_from(
+        let summary = finished(train_from(
             self.backend.as_ref(),
             config,
             dataset,
@@ -297,11 +297,7 @@ impl Trainer<'_> {
             self.ctx.resume,
             &mut hooks,
             self.ctx.progress,
-        ) {
-            Ok(summary) => summary,
-            Err(TrainError::Interrupted { iteration, .. }) => return Err(interrupted(iteration)),
-            Err(e) => return Err(e.into()),
-        };
+        ))?;
         let model = splat4d::load_model(&summary.model_path)?;
         let report = splat4d::decay::report::report(&method, &model);
         write_json(&dir.join("decay.json"), &report).context("cannot write decay.json")?;

@@ -7,7 +7,9 @@
 use anyhow::Context;
 use splat4d::Gaussians;
 use splat4d::decay::DecayConfig;
-use splat4d::train::{ModelAccess, PointCloud, TrainConfig, TrainError, TrainHooks, View};
+use splat4d::train::{
+    ModelAccess, PointCloud, TrainConfig, TrainError, TrainHooks, TrainSummary, View,
+};
 
 use crate::engine_inputs::{EngineSettings, load_dataset};
 use crate::interrupt::{Graceful, stop_requested};
@@ -99,11 +101,21 @@ pub(crate) fn match_exposure(
     gains
 }
 
-/// The error of a training run stopped by Ctrl-C.
-pub(crate) fn interrupted(iteration: u64) -> anyhow::Error {
-    anyhow::anyhow!(
-        "training stopped after iteration {iteration} (a checkpoint was kept); run the same `pipeline run` again to continue from it, or add --force to start over"
-    )
+/// A training run's outcome for the stage: the checkpoints it passed over on resuming are
+/// logged as warnings, and a run stopped by Ctrl-C (or a cluster's signal) says how to go on.
+pub(crate) fn finished(result: Result<TrainSummary, TrainError>) -> anyhow::Result<TrainSummary> {
+    match result {
+        Ok(summary) => {
+            for s in &summary.skipped_checkpoints {
+                tracing::warn!("{s}; resumed from iteration {}", summary.started_at);
+            }
+            Ok(summary)
+        }
+        Err(TrainError::Interrupted { iteration, .. }) => Err(anyhow::anyhow!(
+            "training stopped after iteration {iteration} (a checkpoint was kept); run the same `pipeline run` again to continue from it, or add --force to start over"
+        )),
+        Err(e) => Err(e.into()),
+    }
 }
 
 /// The `train` stage on one model of the whole clip (a clip cut into time chunks is
@@ -137,7 +149,7 @@ pub fn run(
     let _graceful = Graceful::enter();
     let backend = crate::engine_inputs::training_backend_for(engine.backend)?;
     ctx.record_tool("training backend", &backend.describe());
-    let summary = match splat4d::train::train(
+    let summary = finished(splat4d::train::train(
         backend.as_ref(),
         settings,
         &dataset,
@@ -146,11 +158,7 @@ pub fn run(
         ctx.resume,
         &mut hooks,
         ctx.progress,
-    ) {
-        Ok(summary) => summary,
-        Err(TrainError::Interrupted { iteration, .. }) => return Err(interrupted(iteration)),
-        Err(e) => return Err(e.into()),
-    };
+    ))?;
     tracing::info!(
         "trained {} iterations ({} this run) on {} (step on the {}) in {:.0} s: {} Gaussians, last batch PSNR {:.2} dB",
         summary.iterations,
