@@ -353,6 +353,24 @@ struct FileProbe {
     /// End of the last frame (seconds, file clock).
     end: f64,
     audio: Option<AudioInfo>,
+    /// Where the file's own clock starts, when that start is the muxer's arbitrary choice
+    /// ([`arbitrary_start`]): its first video or audio timestamp. 0 otherwise.
+    start: f64,
+}
+
+#[cfg(feature = "ffmpeg")]
+/// Whether a container's timestamps start at an arbitrary value rather than on a clock
+/// the cameras could share: MPEG transport and program streams (AVCHD `.MTS`, `.m2ts`,
+/// `.ts`, `.MPG`, `.VOB`) start at the muxer's delay (1.4 s from FFmpeg, anything from a
+/// camcorder) on a 33-bit 90 kHz clock that wraps every 26.5 hours (FFmpeg unwraps it
+/// within a file). MP4/MOV (which the recorder writes on a shared clock), Matroska and MXF
+/// (timecode is metadata, timestamps start at 0) keep theirs.
+fn arbitrary_start(input: &ffmpeg::format::context::Input) -> bool {
+    let format = input.format();
+    format
+        .name()
+        .split(',')
+        .any(|n| n == "mpegts" || n == "mpeg")
 }
 
 #[cfg(feature = "ffmpeg")]
@@ -382,6 +400,15 @@ fn probe_file(path: &Path) -> Result<FileProbe, SourceError> {
             rotation,
             stream.avg_frame_rate(),
         )
+    };
+    let audio_index = input.streams().best(Type::Audio).map(|s| s.index());
+    let start = if arbitrary_start(&input) {
+        std::iter::once(index)
+            .chain(audio_index)
+            .map(|i| stream_start(&input, i))
+            .fold(f64::INFINITY, f64::min)
+    } else {
+        0.0
     };
     let audio = match input.streams().best(Type::Audio) {
         Some(stream) => {
@@ -434,6 +461,7 @@ fn probe_file(path: &Path) -> Result<FileProbe, SourceError> {
         times,
         end,
         audio,
+        start,
     })
 }
 
@@ -510,9 +538,10 @@ pub fn probe_camera(
                 path: file.clone(),
             });
         }
-        // A chapter continues where the previous one ended.
+        // The camera's clock is its first file's (from 0 where that file's start is
+        // arbitrary); a chapter continues where the previous one ended.
         let chapter_offset = if chapters.is_empty() {
-            0.0
+            -probe.start
         } else {
             offset - probe.times[0]
         };

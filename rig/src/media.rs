@@ -6,11 +6,11 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 
 /// Video file extensions (lower case; names are compared case-insensitively): ISO media
-/// (MP4/MOV), Matroska/WebM, AVI, and MPEG transport and program streams (AVCHD `.MTS`,
-/// broadcast `.ts`, `.mpg`). Files with another name are videos too when their content is
+/// (MP4/MOV), Matroska/WebM, AVI, MPEG transport and program streams (AVCHD `.MTS`,
+/// broadcast `.ts`, `.mpg`) and MXF (professional cameras). Files with another name are videos too when their content is
 /// one of [`Container`]'s formats.
 pub const VIDEO_EXTENSIONS: &[&str] = &[
-    "mp4", "mov", "m4v", "mkv", "webm", "avi", "mts", "m2ts", "ts", "mpg", "mpeg",
+    "mp4", "mov", "m4v", "mkv", "webm", "avi", "mts", "m2ts", "ts", "mpg", "mpeg", "mxf",
 ];
 /// Image extensions (lower case) of an image-sequence camera's frames (FFmpeg decodes them).
 pub const IMAGE_EXTENSIONS: &[&str] = &["jpg", "jpeg", "png", "bmp", "tif", "tiff"];
@@ -62,7 +62,15 @@ pub enum Container {
     MpegTs,
     /// MPEG program stream (`.mpg`, DVD `.VOB`).
     MpegPs,
+    /// Material Exchange Format (`.MXF`, Sony XDCAM, Canon Cinema EOS).
+    Mxf,
 }
+
+/// The SMPTE universal label that starts an MXF file's header partition pack (after a
+/// run-in this does not look for).
+const MXF_PARTITION_KEY: [u8; 13] = [
+    0x06, 0x0E, 0x2B, 0x34, 0x02, 0x05, 0x01, 0x01, 0x0D, 0x01, 0x02, 0x01, 0x01,
+];
 
 /// Bytes [`sniff`] reads: enough for two 192-byte transport packets.
 pub const SNIFF_BYTES: usize = 2 * 192;
@@ -86,6 +94,9 @@ pub fn sniff(head: &[u8]) -> Option<Container> {
     }
     if head.starts_with(&[0x00, 0x00, 0x01, 0xBA]) {
         return Some(Container::MpegPs);
+    }
+    if head.starts_with(&MXF_PARTITION_KEY) {
+        return Some(Container::Mxf);
     }
     // Transport streams: a 0x47 sync byte starting each of the first two packets.
     let sync_at = |offset: usize, step: usize| {
@@ -229,6 +240,9 @@ mod tests {
         );
         assert_eq!(sniff(b"RIFF\0\0\0\0AVI LIST"), Some(Container::Avi));
         assert_eq!(sniff(&[0, 0, 1, 0xBA, 0x44]), Some(Container::MpegPs));
+        let mxf = [&MXF_PARTITION_KEY[..], &[0x02, 0x04, 0x00]].concat();
+        assert_eq!(sniff(&mxf), Some(Container::Mxf));
+        assert_eq!(sniff(&MXF_PARTITION_KEY[..4]), None, "a bare SMPTE prefix");
         let mut ts = vec![0u8; 2 * 188];
         ts[0] = 0x47;
         ts[188] = 0x47;

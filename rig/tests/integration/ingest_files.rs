@@ -178,6 +178,160 @@ fn transport_streams_and_unnamed_containers_are_videos() {
     assert_eq!(files, [other.join("take")]);
 }
 
+/// The first video and audio timestamps of `path` as FFmpeg reads them (its own clock).
+fn raw_starts(path: &Path) -> (f64, f64) {
+    let out = std::process::Command::new("ffprobe")
+        .args([
+            "-v",
+            "error",
+            "-show_entries",
+            "stream=codec_type,start_time",
+        ])
+        .args(["-of", "csv=p=0"])
+        .arg(path)
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    let start = |kind: &str| {
+        text.lines()
+            .find_map(|l| {
+                let mut fields = l.split(',');
+                (fields.next()? == kind).then(|| fields.next()?.parse::<f64>().ok())?
+            })
+            .unwrap_or_else(|| panic!("no {kind} start in {text}"))
+    };
+    (start("video"), start("audio"))
+}
+
+/// Camcorder files: an AVCHD `.MTS` starts its clock at the muxer's delay (1.4 s) and a
+/// transport stream's 33-bit clock can wrap inside a file; their clocks start at 0 on
+/// ingest with the delay between video and audio kept, so `timestamps` puts them beside an
+/// MP4 (whose own clock is kept). An MXF's timecode (time of day) is not taken as a start.
+#[test]
+fn camcorder_clocks_start_at_zero_and_keep_their_audio_delay() {
+    if !ffmpeg_available() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let h264 = H264_AAC.to_vec();
+    let cams: [(&str, &str, f64, f64, Vec<&str>); 4] = [
+        (
+            "cam0",
+            "00000.MTS",
+            0.2,
+            2.0,
+            [h264.as_slice(), &["-f", "mpegts", "-mpegts_m2ts_mode", "1"]].concat(),
+        ),
+        (
+            "cam1",
+            "00001.ts",
+            0.0,
+            5.0,
+            [
+                h264.as_slice(),
+                &["-output_ts_offset", "95441", "-f", "mpegts"],
+            ]
+            .concat(),
+        ),
+        (
+            "cam2",
+            "C0001.MXF",
+            0.0,
+            2.0,
+            vec![
+                "-c:v",
+                "mpeg2video",
+                "-c:a",
+                "pcm_s16le",
+                "-timecode",
+                "10:00:00:00",
+                "-f",
+                "mxf",
+            ],
+        ),
+        ("cam3", "GX010001.MP4", 0.2, 2.0, h264.clone()),
+    ];
+    let mut inputs = Vec::new();
+    let mut raw = Vec::new();
+    for (cam, file, audio_delay, seconds, out_args) in &cams {
+        let folder = dir.path().join(cam);
+        std::fs::create_dir_all(&folder).unwrap();
+        let path = folder.join(file);
+        let (delay, t) = (audio_delay.to_string(), seconds.to_string());
+        let mut args = vec!["-f", "lavfi", "-i", "testsrc2=size=320x240:rate=25"];
+        args.extend([
+            "-itsoffset",
+            &delay,
+            "-f",
+            "lavfi",
+            "-i",
+            "sine=f=440:sample_rate=48000",
+        ]);
+        args.extend(["-t", &t, "-pix_fmt", "yuv420p"]);
+        args.extend(out_args.iter().copied());
+        let p = path.to_string_lossy().to_string();
+        args.push(&p);
+        ffmpeg(&args);
+        raw.push(raw_starts(&path));
+        inputs.push((cam.to_string(), folder));
+    }
+    // The cases are what they claim: the AVCHD clock starts late, the wrapped one is far
+    // from 0 as FFmpeg unwraps it, the MXF carries a timecode and starts at 0.
+    assert!(raw[0].0 > 1.0, "{raw:?}");
+    assert!(raw[1].0.abs() > 1.0, "{raw:?}");
+    assert!(raw[2].0.abs() < 1e-6, "{raw:?}");
+
+    let streams = ingest(&inputs, &IngestOptions::default(), &NoProgress).unwrap();
+    for (i, c) in streams.cameras.iter().enumerate() {
+        let (video, audio) = raw[i];
+        let transport = i < 2;
+        let shift = if transport { video.min(audio) } else { 0.0 };
+        let frames = (cams[i].3 * 25.0) as usize;
+        assert_eq!(c.video.frame_count, frames, "{}", c.name);
+        assert!(
+            (c.timestamps[0] - (video - shift)).abs() < 1e-3,
+            "{}: {:?}",
+            c.name,
+            c.timestamps
+        );
+        assert!(
+            c.timestamps
+                .windows(2)
+                .all(|w| (w[1] - w[0] - 0.04).abs() < 1e-3),
+            "{}: one frame every 40 ms, across the wrap: {:?}",
+            c.name,
+            c.timestamps
+        );
+        let track = decode_audio(c).unwrap().unwrap();
+        assert!(
+            (track.start_s - (audio - shift)).abs() < 1e-3,
+            "{}: audio at {}",
+            c.name,
+            track.start_s
+        );
+        if transport {
+            // The audio-to-video delay survives: the file's first timestamp becomes 0.
+            assert!(
+                c.timestamps[0].min(track.start_s).abs() < 1e-9,
+                "{}",
+                c.name
+            );
+        }
+    }
+    let cam0 = &streams.cameras[0];
+    let audio0 = decode_audio(cam0).unwrap().unwrap();
+    assert!(
+        cam0.timestamps[0].abs() < 1e-3 && (audio0.start_s - 0.2).abs() < 0.03,
+        "{}",
+        audio0.start_s
+    );
+    // On one clock now: every camera's first frame within a frame of the others.
+    let firsts: Vec<f64> = streams.cameras.iter().map(|c| c.timestamps[0]).collect();
+    let spread = firsts.iter().cloned().fold(f64::MIN, f64::max)
+        - firsts.iter().cloned().fold(f64::MAX, f64::min);
+    assert!(spread < 0.04, "{firsts:?}");
+}
+
 /// A phone's display matrix (portrait, upside down) turns the frames as a player shows
 /// them: the size in `streams.json` is the displayed one, and every decoded frame equals
 /// what FFmpeg's own command line (which applies the matrix) decodes, at full size and
