@@ -81,10 +81,15 @@ impl CaptureLock {
             }
             Err(fs::TryLockError::Error(e)) => return Err(io(e)),
         }
-        // Who holds it, for the message another run gets (the last of several sharing it).
+        // Who holds it, for the message another run gets (the last of several sharing it):
+        // on a cluster's shared filesystem the holder may be on another node.
+        let job = std::env::var("SLURM_JOB_ID")
+            .map(|id| format!(", Slurm job {id}"))
+            .unwrap_or_default();
         let note = format!(
-            "pid {}{}, started {}",
+            "pid {} on {}{job}{}, started {}",
             std::process::id(),
+            host_name(),
             if shared { ", one time chunk" } else { "" },
             chrono::Utc::now().format("%Y-%m-%d %H:%M:%S UTC")
         );
@@ -112,4 +117,14 @@ impl CaptureLock {
     pub fn file(&self) -> &Path {
         &self.path
     }
+}
+
+/// This machine's host name (in the lock's holder note and the jobs' error messages).
+pub(crate) fn host_name() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|h| h.trim().to_string())
+        .ok()
+        .filter(|h| !h.is_empty())
+        .or_else(|| std::env::var("HOSTNAME").ok())
+        .unwrap_or_else(|| "an unnamed host".into())
 }

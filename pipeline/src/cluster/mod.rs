@@ -186,7 +186,7 @@ pub fn submit(
         Some(p) => p.clone(),
         None => std::env::current_exe().map_err(ClusterError::NoBinary)?,
     };
-    let host = hostname();
+    let host = crate::lock::host_name();
     let mut submission = Submission {
         token: crate::manifest::hash_bytes(
             format!(
@@ -535,16 +535,6 @@ pub fn cancel(capture: &Capture, wait: Duration) -> Result<Vec<SubmittedJob>, Cl
         std::thread::sleep(Duration::from_millis(200));
     }
     Ok(active.into_iter().map(|(j, _)| j).collect())
-}
-
-/// This machine's host name (for the jobs' error messages).
-fn hostname() -> String {
-    std::fs::read_to_string("/proc/sys/kernel/hostname")
-        .map(|h| h.trim().to_string())
-        .ok()
-        .filter(|h| !h.is_empty())
-        .or_else(|| std::env::var("HOSTNAME").ok())
-        .unwrap_or_else(|| "the submitting host".into())
 }
 
 #[cfg(test)]

@@ -421,7 +421,13 @@ fn a_second_run_on_the_same_capture_is_refused() {
     let msg = format!("{err:#}");
     assert!(
         msg.contains("locked by another `pipeline` run")
-            && msg.contains(&format!("pid {}", std::process::id())),
+            && msg.contains(&format!(
+                "pid {} on {}",
+                std::process::id(),
+                std::fs::read_to_string("/proc/sys/kernel/hostname")
+                    .unwrap()
+                    .trim()
+            )),
         "{msg}"
     );
     assert_eq!(counts(&probe), (0, 0, 0));

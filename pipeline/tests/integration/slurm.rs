@@ -885,6 +885,7 @@ fn wait_until(cluster: &Cluster, what: &str, mut done: impl FnMut() -> bool) {
 /// `scancel --signal`) stops at a checkpoint and requeues itself; one requeued while it
 /// trains (`scontrol requeue`, as after a node failure) comes back too. Each time it
 /// continues from its last checkpoint, and the model is the local run's, byte for byte.
+/// While it trains, a second run of the capture is refused, naming the job.
 #[test]
 fn a_train_job_warned_or_requeued_continues_from_its_checkpoint_to_the_local_model() {
     let Some(cluster) = Cluster::start() else {
@@ -926,6 +927,30 @@ fn a_train_job_warned_or_requeued_continues_from_its_checkpoint_to_the_local_mod
     wait_until(&cluster, "a first checkpoint", || {
         last_checkpoint(&ckpt) > 0
     });
+    // Meanwhile a second run of the capture is refused: a plain one because the capture has
+    // jobs in Slurm; one inside the submission (as another of its jobs, on another node,
+    // would be) by the capture's lock, which names the training job holding it.
+    let out = cluster.pipeline(&["run", capture, "--only", "train"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("has jobs in Slurm"),
+        "{err}"
+    );
+    let token = Submission::read(&work).unwrap().token;
+    let out = cluster
+        .command(env!("CARGO_BIN_EXE_pipeline"))
+        .env(pipeline::cluster::jobs::SUBMISSION_ENV, &token)
+        .args(["run", capture, "--only", "train"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    let host = fs::read_to_string("/proc/sys/kernel/hostname").unwrap();
+    assert!(
+        !out.status.success()
+            && err.contains("locked by another `pipeline` run")
+            && err.contains(&format!("on {}, Slurm job {id}", host.trim())),
+        "{err}"
+    );
     cluster.slurm("scancel", &["--signal=USR1", "--batch", &id]);
     wait_until(&cluster, "the warned job to run again", || restarts(1));
     // A requeue, once it has trained further.
