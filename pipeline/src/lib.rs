@@ -28,6 +28,7 @@ pub mod cli;
 pub mod cluster;
 pub mod compare;
 pub mod config;
+pub mod disk;
 pub mod engine_inputs;
 pub mod heldout;
 pub mod interrupt;

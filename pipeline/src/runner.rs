@@ -567,9 +567,22 @@ fn execute(
             Ok(manifest)
         }
         Err(e) => {
+            let full = crate::disk::is_full(&e);
+            let last = work.join(stage.name);
+            let needed = full.then(|| crate::disk::needed(&partial, &last, stage.resumable));
             if !stage.resumable {
                 let _ = fs::remove_dir_all(&partial);
             }
+            let e = match needed {
+                Some(needed) => e.context(crate::disk::advice(
+                    &work,
+                    stage.name,
+                    needed,
+                    crate::disk::size_of(&last),
+                    stage.resumable,
+                )),
+                None => e,
+            };
             let failed = RunRecord {
                 state: RunState::Failed,
                 error: Some(crate::error_chain(&e)),

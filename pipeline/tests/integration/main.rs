@@ -14,6 +14,7 @@ mod bench_tradeoff;
 mod cli;
 mod decay_demo;
 mod demo_quality;
+mod disk_full;
 mod end_to_end;
 mod engine_only;
 mod eval_moving;
