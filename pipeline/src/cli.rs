@@ -56,6 +56,35 @@ pub enum Command {
         #[arg(long)]
         no_open: bool,
     },
+    /// Make a capture directory from a dataset folder laid out the way another tool lays
+    /// it out: links to its videos or images in `raw/`, its calibration as
+    /// `calibration.json`, and `capture.toml` with the dataset's held-out cameras and
+    /// `timestamps` sync. Then `pipeline run DIR`.
+    ///
+    /// Example: pipeline import n3v coffee_martini/ cm4/ --train farthest:4 --frames 0..300
+    Import {
+        /// The dataset's layout.
+        #[arg(value_enum)]
+        format: crate::import::Format,
+        /// The dataset's folder.
+        source: PathBuf,
+        /// The capture directory to make (new or empty).
+        capture_dir: PathBuf,
+        /// Training cameras: the dataset's names separated by commas, or `farthest:N` (the
+        /// N cameras farthest apart: the 4C4D paper's sparse protocol). The others are held
+        /// out. Default: the dataset's own protocol.
+        #[arg(long)]
+        train: Option<crate::import::TrainChoice>,
+        /// Frames FIRST..END of the footage (END excluded).
+        #[arg(long, value_parser = parse_frame_range)]
+        frames: Option<(usize, usize)>,
+        /// Working size: the long side of the frames, pixels (`[frames] long_side`).
+        #[arg(long)]
+        long_side: Option<u32>,
+        /// Copy the footage instead of linking to it.
+        #[arg(long)]
+        copy: bool,
+    },
     /// Show each stage's state: done, stale (and why), missing, or failed.
     ///
     /// Example: pipeline status my_capture/
@@ -430,6 +459,20 @@ pub enum BenchCommand {
         #[arg(long)]
         quick: bool,
     },
+}
+
+/// `FIRST..END` → (first, end), END after FIRST.
+fn parse_frame_range(s: &str) -> Result<(usize, usize), String> {
+    let bad = || format!("{s}: write FIRST..END, e.g. 0..300");
+    let (a, b) = s.split_once("..").ok_or_else(bad)?;
+    let (a, b) = (
+        a.trim().parse().map_err(|_| bad())?,
+        b.trim().parse().map_err(|_| bad())?,
+    );
+    if b <= a {
+        return Err(format!("{s}: END must be after FIRST"));
+    }
+    Ok((a, b))
 }
 
 #[cfg(test)]

@@ -31,6 +31,7 @@ pub mod config;
 pub mod disk;
 pub mod engine_inputs;
 pub mod heldout;
+pub mod import;
 pub mod interrupt;
 pub mod layout;
 pub mod lock;

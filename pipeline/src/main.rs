@@ -66,6 +66,42 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
             port,
             no_open,
         } => view(&capture_dirs, port, no_open, reporter),
+        Command::Import {
+            format,
+            source,
+            capture_dir,
+            train,
+            frames,
+            long_side,
+            copy,
+        } => {
+            let request = pipeline::import::Request {
+                format,
+                source,
+                dest: capture_dir.clone(),
+                train: train.unwrap_or(pipeline::import::TrainChoice::Protocol),
+                frames,
+                long_side,
+                copy,
+            };
+            let summary = pipeline::import::import(&request)?;
+            let names = |range: std::ops::Range<usize>| {
+                summary.cameras[range]
+                    .iter()
+                    .map(|(c, d)| format!("{c} ({d})"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            };
+            reporter.say(&format!("training cameras: {}", names(0..summary.training)));
+            if !summary.heldout.is_empty() {
+                reporter.say(&format!(
+                    "held out: {}",
+                    names(summary.training..summary.cameras.len())
+                ));
+            }
+            reporter.say(&format!("next: pipeline run {}", capture_dir.display()));
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Status { capture_dir } => {
             let (capture, config) = open_capture(&capture_dir)?;
             let mut rows = stages::pipeline().status(&capture, &config)?;

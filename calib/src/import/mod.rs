@@ -230,6 +230,14 @@ fn from_colmap(dir: &Path) -> Result<CameraSet, ImportError> {
     Ok(CameraSet::new(cameras))
 }
 
+/// An OpenCV FileStorage YAML text as a JSON value (`!!opencv-matrix` entries become
+/// `{rows, cols, dt, data}` tables): for readers of other tools' files.
+pub fn opencv_yaml_value(text: &str) -> Result<Value, String> {
+    let y: serde_yaml::Value =
+        serde_yaml::from_str(&opencv_yaml_to_yaml(text)).map_err(|e| e.to_string())?;
+    serde_json::to_value(y).map_err(|e| e.to_string())
+}
+
 /// OpenCV's FileStorage YAML (`%YAML:1.0`, `!!opencv-matrix`) → plain YAML.
 fn opencv_yaml_to_yaml(text: &str) -> String {
     text.lines()

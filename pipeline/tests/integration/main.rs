@@ -20,6 +20,7 @@ mod engine_only;
 mod eval_moving;
 mod fuzz_config;
 mod heldout_real;
+mod import;
 mod init_accuracy;
 mod known_lenses;
 mod layout_errors;
