@@ -592,3 +592,83 @@ fn the_import_command_names_the_cameras_and_the_next_step() {
         .unwrap();
     assert!(String::from_utf8_lossy(&out.stderr).contains("END must be after FIRST"));
 }
+
+/// A Neural 3D Video dataset made of the tiny simulated capture (its four videos, its true
+/// cameras as LLFF poses) imports and runs through `pipeline run` to a trained model.
+#[test]
+fn an_imported_n3v_dataset_runs_through_the_pipeline_to_a_model() {
+    let tmp = tempfile::tempdir().unwrap();
+    let tiny = crate::common::tiny_capture(&tmp.path().join("tiny"), "");
+    let set = calib::import::import_calibration(&tiny.join("calibration.json")).unwrap();
+    let src = tmp.path().join("n3v");
+    std::fs::create_dir_all(&src).unwrap();
+    let mut data = Vec::new();
+    for i in 0..4 {
+        let c = set.get(&format!("cam{i}")).unwrap();
+        let k = &c.intrinsics;
+        assert!(
+            k.fx == k.fy && k.cx == k.width as f64 / 2.0 && k.cy == k.height as f64 / 2.0,
+            "LLFF holds one focal length and a centred principal point: {k:?}"
+        );
+        let c2w = c.world_to_camera.rotation().transpose();
+        let cols = [
+            c2w.y_axis,
+            c2w.x_axis,
+            -c2w.z_axis,
+            c.world_to_camera.centre(),
+        ];
+        let hwf = [k.height as f64, k.width as f64, k.fx];
+        for r in 0..3 {
+            cols.iter().for_each(|col| data.push(col[r]));
+            data.push(hwf[r]);
+        }
+        data.extend([0.5, 20.0]);
+        let video = std::fs::read_dir(tiny.join(format!("raw/cam{i}")))
+            .unwrap()
+            .next()
+            .unwrap()
+            .unwrap()
+            .path();
+        std::fs::copy(video, src.join(format!("cam{i:02}.mp4"))).unwrap();
+    }
+    npy_f64(&src.join("poses_bounds.npy"), 4, 17, &data);
+    let dest = tmp.path().join("capture");
+    let summary = import(&Request {
+        format: Format::N3v,
+        source: src,
+        dest: dest.clone(),
+        train: "cam00,cam01,cam02,cam03".parse().unwrap(),
+        frames: Some((0, 10)),
+        long_side: Some(160),
+        copy: false,
+    })
+    .unwrap();
+    assert_eq!(summary.training, 4);
+    // The test's short schedule (everything but `[sync]`, which the import wrote).
+    let cheap = crate::common::CHEAP.replace("[sync]\nmethod = \"timestamps\"\n", "");
+    let mut toml = std::fs::read_to_string(dest.join("capture.toml")).unwrap();
+    toml = toml.replace("[frames]\n", &format!("{cheap}[frames]\n"));
+    std::fs::write(dest.join("capture.toml"), toml).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+        .args(["--quiet", "run"])
+        .arg(&dest)
+        .args(["--to", "train"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let frames: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dest.join("work/frames/frames.json")).unwrap(),
+    )
+    .unwrap();
+    println!(
+        "frames.json: {}",
+        &frames.to_string()[..200.min(frames.to_string().len())]
+    );
+    assert!(dest.join("work/train/model.bin").is_file());
+    let poses = std::fs::read_to_string(dest.join("work/poses/cameras.json")).unwrap();
+    assert!(poses.contains("cam3"), "{poses}");
+}
