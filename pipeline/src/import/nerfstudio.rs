@@ -124,6 +124,73 @@ pub fn read(source: &Path) -> Result<Dataset, ImportError> {
     })
 }
 
+/// A `transforms.json` for `cameras` (in `index`'s camera order, each at its frames' size,
+/// with its lens) over the frames of `index`: one frame per camera per output frame,
+/// `file_path` its image under `prefix` (relative to the file), its intrinsics, lens and
+/// camera-to-world in OpenGL axes, as nerfstudio writes them. [`read`] reads it back.
+pub fn transforms(
+    cameras: &[Camera],
+    index: &rig::frames::FramesIndex,
+    prefix: &str,
+) -> Result<Value, String> {
+    let mut frames = Vec::new();
+    for frame in &index.frames {
+        for (camera, view) in cameras.iter().zip(&frame.views) {
+            let k = &camera.intrinsics;
+            let w = &camera.world_to_camera;
+            let c2w = w.rotation().transpose();
+            let (x, y, z, c) = (c2w.x_axis, -c2w.y_axis, -c2w.z_axis, w.centre());
+            let row = |r: usize| [x[r], y[r], z[r], c[r]];
+            let mut entry = serde_json::json!({
+                "file_path": format!("{prefix}/{}", view.file),
+                "transform_matrix": [row(0), row(1), row(2), [0.0, 0.0, 0.0, 1.0]],
+                "fl_x": k.fx, "fl_y": k.fy, "cx": k.cx, "cy": k.cy, "w": k.width, "h": k.height,
+            });
+            match camera.distortion {
+                Distortion::None => entry["camera_model"] = "PINHOLE".into(),
+                Distortion::Opencv {
+                    k1,
+                    k2,
+                    p1,
+                    p2,
+                    k3,
+                    k4,
+                    k5,
+                    k6,
+                    s1,
+                    s2,
+                    s3,
+                    s4,
+                    tau_x,
+                    tau_y,
+                } if [k4, k5, k6, s1, s2, s3, s4, tau_x, tau_y]
+                    .iter()
+                    .all(|&v| v == 0.0) =>
+                {
+                    entry["camera_model"] = "OPENCV".into();
+                    for (key, v) in [("k1", k1), ("k2", k2), ("k3", k3), ("p1", p1), ("p2", p2)] {
+                        entry[key] = v.into();
+                    }
+                }
+                Distortion::Fisheye { k1, k2, k3, k4 } => {
+                    entry["camera_model"] = "OPENCV_FISHEYE".into();
+                    for (key, v) in [("k1", k1), ("k2", k2), ("k3", k3), ("k4", k4)] {
+                        entry[key] = v.into();
+                    }
+                }
+                Distortion::Opencv { .. } => {
+                    return Err(format!(
+                        "camera {}: its lens has rational, thin-prism or tilt terms, which transforms.json cannot hold",
+                        camera.name
+                    ));
+                }
+            }
+            frames.push(entry);
+        }
+    }
+    Ok(serde_json::json!({ "frames": frames }))
+}
+
 /// A JSON file; a NaN or an infinity (which Python's `json` writes) is named as such.
 pub(crate) fn parse_json(path: &Path) -> Result<Value, ImportError> {
     let text = super::read_text(path)?;

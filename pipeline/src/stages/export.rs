@@ -39,6 +39,7 @@ pub fn run(
             .map(|(camera, _)| camera)
             .collect(),
     );
+    write_transforms(ctx, &index, &poses.set, &cameras_file)?;
     let times = options.times(&model, index.frames.len());
     let report = splat4d::export::export_all(
         &model,
@@ -68,3 +69,38 @@ pub fn run(
     .context("cannot write export.json")?;
     Ok(())
 }
+
+/// `transforms.json`: the capture's cameras (at the frames' size, with their lenses) and
+/// every frame in `work/frames/`, as nerfstudio and tools that read its format open them.
+fn write_transforms(
+    ctx: &StageContext,
+    index: &FramesIndex,
+    set: &CameraSet,
+    cameras_file: &std::path::Path,
+) -> anyhow::Result<()> {
+    let cameras = index
+        .cameras
+        .iter()
+        .map(|c| {
+            let camera = set
+                .get(&c.name)
+                .with_context(|| format!("{} has no camera {}", cameras_file.display(), c.name))?;
+            Ok(shared_types::camera::Camera {
+                intrinsics: camera.intrinsics.scaled_to(c.width, c.height),
+                ..camera.clone()
+            })
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    match crate::import::nerfstudio::transforms(&cameras, index, "../frames") {
+        Ok(value) => {
+            write_json(&ctx.output(TRANSFORMS_FILE), &value).context("cannot write transforms.json")
+        }
+        Err(why) => {
+            tracing::warn!("no transforms.json: {why}");
+            Ok(())
+        }
+    }
+}
+
+/// The cameras and frames for nerfstudio, in `work/export/`.
+pub const TRANSFORMS_FILE: &str = "transforms.json";

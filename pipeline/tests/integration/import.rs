@@ -673,3 +673,82 @@ fn an_imported_n3v_dataset_runs_through_the_pipeline_to_a_model() {
     let poses = std::fs::read_to_string(dest.join("work/poses/cameras.json")).unwrap();
     assert!(poses.contains("cam3"), "{poses}");
 }
+
+/// `transforms.json` is ours to write too (the export stage writes one): written for known
+/// cameras over a frames index and read back by the importer, it gives the same cameras.
+#[test]
+fn transforms_json_written_for_a_capture_reads_back_as_the_same_cameras() {
+    let tmp = tempfile::tempdir().unwrap();
+    let lens = Distortion::radial_tangential(0.03, -0.02, 0.0004, 0.0002, 0.001);
+    let mut cams = truth(|i| (general(i), if i == 3 { Distortion::None } else { lens }));
+    cams[4].distortion = Distortion::Fisheye {
+        k1: 0.1,
+        k2: -0.02,
+        k3: 0.003,
+        k4: 0.0,
+    };
+    let names: Vec<String> = (0..5).map(|i| format!("cam{i}")).collect();
+    for (c, n) in cams.iter_mut().zip(&names) {
+        c.name = n.clone();
+    }
+    let frames: Vec<rig::frames::AlignedFrame> = (0..2)
+        .map(|k| rig::frames::AlignedFrame {
+            index: k,
+            time_s: k as f64 / 30.0,
+            views: names
+                .iter()
+                .map(|n| rig::frames::View {
+                    source_frame: k,
+                    timestamp_s: k as f64 / 30.0,
+                    residual_s: 0.0,
+                    file: format!("{n}/{k:06}.png"),
+                })
+                .collect(),
+        })
+        .collect();
+    let index = rig::frames::FramesIndex {
+        fps: 30.0,
+        start_s: 0.0,
+        cameras: names
+            .iter()
+            .map(|n| rig::frames::CameraImages {
+                name: n.clone(),
+                width: W,
+                height: H,
+            })
+            .collect(),
+        frames,
+        warnings: Vec::new(),
+    };
+    let work = tmp.path().join("work");
+    for n in &names {
+        for k in 0..2 {
+            blank_image(&work.join(format!("frames/{n}/{k:06}.png")));
+        }
+    }
+    let value = pipeline::import::nerfstudio::transforms(&cams, &index, "../frames").unwrap();
+    std::fs::create_dir_all(work.join("export")).unwrap();
+    std::fs::write(work.join("export/transforms.json"), value.to_string()).unwrap();
+    let back = pipeline::import::nerfstudio::read(&work.join("export")).unwrap();
+    for c in &cams {
+        let got = back.cameras.iter().find(|b| b.name == c.name).unwrap();
+        assert_eq!(
+            (got.intrinsics, got.distortion),
+            (c.intrinsics, c.distortion)
+        );
+        for p in POINTS {
+            let p = DVec3::from_array(p);
+            let (a, b) = (c.project(p).unwrap().0, got.project(p).unwrap().0);
+            assert!(a.distance(b) < 1e-9, "{}: {a} vs {b}", c.name);
+        }
+        let pipeline::import::Footage::Images(list) = &back.footage[&c.name] else {
+            panic!("images")
+        };
+        assert_eq!(list.len(), 2);
+    }
+    // A lens transforms.json cannot hold is refused, naming the camera.
+    cams[1].distortion =
+        Distortion::from_opencv_coefficients(&[0.1, 0.0, 0.0, 0.0, 0.0, 0.2, 0.0, 0.0]).unwrap();
+    let e = pipeline::import::nerfstudio::transforms(&cams, &index, "../frames").unwrap_err();
+    assert!(e.contains("camera cam1") && e.contains("rational"), "{e}");
+}

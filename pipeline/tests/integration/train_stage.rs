@@ -170,4 +170,19 @@ fn train_stops_cleanly_resumes_identically_and_exports() {
     assert!(root.join("work/export/scene.splatv").is_file());
     let reloaded = splat4d::export::read_model_ply(&root.join("work/export/model4d.ply")).unwrap();
     assert_eq!(reloaded.len(), model.len());
+    // The cameras for nerfstudio: every camera, each frame's image found from work/export/.
+    let back = pipeline::import::nerfstudio::read(&root.join("work/export")).unwrap();
+    let frames: serde_json::Value =
+        serde_json::from_str(&fs::read_to_string(root.join("work/frames/frames.json")).unwrap())
+            .unwrap();
+    assert_eq!(
+        back.cameras.len(),
+        frames["cameras"].as_array().unwrap().len()
+    );
+    for images in back.footage.values() {
+        let pipeline::import::Footage::Images(list) = images else {
+            panic!("images")
+        };
+        assert_eq!(list.len(), frames["frames"].as_array().unwrap().len());
+    }
 }
