@@ -752,3 +752,172 @@ fn transforms_json_written_for_a_capture_reads_back_as_the_same_cameras() {
     let e = pipeline::import::nerfstudio::transforms(&cams, &index, "../frames").unwrap_err();
     assert!(e.contains("camera cam1") && e.contains("rational"), "{e}");
 }
+
+/// The tiny simulated capture's frames as images (ffmpeg, as a dataset's tool extracts
+/// them) under D3DGS's, nerfstudio's and EasyVolcap's layouts: each imports and trains.
+#[test]
+fn image_datasets_of_every_layout_import_and_train() {
+    let tmp = tempfile::tempdir().unwrap();
+    let tiny = crate::common::tiny_capture(&tmp.path().join("tiny"), "");
+    let set = calib::import::import_calibration(&tiny.join("calibration.json")).unwrap();
+    let cams: Vec<Camera> = (0..4)
+        .map(|i| set.get(&format!("cam{i}")).unwrap().clone())
+        .collect();
+    let frames = tmp.path().join("frames");
+    for i in 0..4 {
+        let video = std::fs::read_dir(tiny.join(format!("raw/cam{i}")))
+            .unwrap()
+            .next()
+            .unwrap()
+            .unwrap()
+            .path();
+        let out = frames.join(i.to_string());
+        std::fs::create_dir_all(&out).unwrap();
+        let status = Command::new("ffmpeg")
+            .args(["-v", "error", "-i"])
+            .arg(&video)
+            .args(["-frames:v", "8", "-start_number", "0"])
+            .arg(out.join("%06d.png"))
+            .status()
+            .unwrap();
+        assert!(status.success());
+    }
+    let image = |i: usize, t: usize| frames.join(format!("{i}/{t:06}.png"));
+    let copy = |from: &Path, to: &Path| {
+        std::fs::create_dir_all(to.parent().unwrap()).unwrap();
+        std::fs::copy(from, to).unwrap();
+    };
+    let (w, h) = (cams[0].intrinsics.width, cams[0].intrinsics.height);
+
+    // D3DGS: every camera in train_meta.json.
+    let d3dgs = tmp.path().join("d3dgs");
+    let per_step = |f: &dyn Fn(usize, &Camera) -> serde_json::Value| {
+        (0..8)
+            .map(|t| {
+                (cams.iter().enumerate())
+                    .map(|(i, c)| f(i * 100 + t, c))
+                    .collect::<Vec<_>>()
+            })
+            .collect::<Vec<_>>()
+    };
+    let meta = serde_json::json!({
+        "w": w, "h": h,
+        "k": per_step(&|_, c| {
+            let k = &c.intrinsics;
+            serde_json::json!([[k.fx, 0.0, k.cx], [0.0, k.fy, k.cy], [0.0, 0.0, 1.0]])
+        }),
+        "w2c": per_step(&|_, c| {
+            let (r, t) = (c.world_to_camera.rotation, c.world_to_camera.translation);
+            serde_json::json!([
+                [r[0][0], r[0][1], r[0][2], t[0]],
+                [r[1][0], r[1][1], r[1][2], t[1]],
+                [r[2][0], r[2][1], r[2][2], t[2]],
+                [0.0, 0.0, 0.0, 1.0]
+            ])
+        }),
+        "fn": per_step(&|it, _| format!("{}/{:06}.png", it / 100, it % 100).into()),
+        "cam_id": per_step(&|it, _| (it / 100).into()),
+    });
+    for i in 0..4 {
+        for t in 0..8 {
+            copy(&image(i, t), &d3dgs.join(format!("ims/{i}/{t:06}.png")));
+        }
+    }
+    std::fs::write(d3dgs.join("train_meta.json"), meta.to_string()).unwrap();
+
+    // nerfstudio: a folder per camera.
+    let ns = tmp.path().join("ns");
+    let mut ns_frames = Vec::new();
+    for (i, c) in cams.iter().enumerate() {
+        let c2w = c.world_to_camera.rotation().transpose();
+        let (x, y, z, o) = (
+            c2w.x_axis,
+            -c2w.y_axis,
+            -c2w.z_axis,
+            c.world_to_camera.centre(),
+        );
+        let row = |r: usize| [x[r], y[r], z[r], o[r]];
+        for t in 0..8 {
+            let file = format!("images/cam_{i}/{t:06}.png");
+            copy(&image(i, t), &ns.join(&file));
+            let k = &c.intrinsics;
+            ns_frames.push(serde_json::json!({
+                "file_path": file,
+                "transform_matrix": [row(0), row(1), row(2), [0.0, 0.0, 0.0, 1.0]],
+                "fl_x": k.fx, "fl_y": k.fy, "cx": k.cx, "cy": k.cy, "w": w, "h": h,
+            }));
+        }
+    }
+    std::fs::write(
+        ns.join("transforms.json"),
+        serde_json::json!({"frames": ns_frames}).to_string(),
+    )
+    .unwrap();
+
+    // EasyVolcap: rotation matrices, OpenCV's pixel convention.
+    let ev = tmp.path().join("ev");
+    let m = |rows: usize, cols: usize, data: &[f64]| {
+        let v: Vec<String> = data.iter().map(|v| format!("{v:.16e}")).collect();
+        format!(
+            "!!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ {} ]\n",
+            v.join(", ")
+        )
+    };
+    let mut intri = String::from("%YAML:1.0\n---\nnames: [ \"a\", \"b\", \"c\", \"d\" ]\n");
+    let mut extri = String::from("%YAML:1.0\n---\n");
+    for (i, (c, n)) in cams.iter().zip(["a", "b", "c", "d"]).enumerate() {
+        let k = &c.intrinsics;
+        intri += &format!(
+            "K_{n}: {}",
+            m(
+                3,
+                3,
+                &[k.fx, 0.0, k.cx - 0.5, 0.0, k.fy, k.cy - 0.5, 0.0, 0.0, 1.0]
+            )
+        );
+        extri += &format!(
+            "Rot_{n}: {}",
+            m(3, 3, c.world_to_camera.rotation.as_flattened())
+        );
+        extri += &format!("T_{n}: {}", m(3, 1, &c.world_to_camera.translation));
+        for t in 0..8 {
+            copy(&image(i, t), &ev.join(format!("images/{n}/{t:06}.png")));
+        }
+    }
+    std::fs::write(ev.join("intri.yml"), intri).unwrap();
+    std::fs::write(ev.join("extri.yml"), extri).unwrap();
+
+    let cheap = crate::common::CHEAP.replace("[sync]\nmethod = \"timestamps\"\n", "");
+    for (format, src) in [
+        (Format::D3dgs, d3dgs),
+        (Format::Nerfstudio, ns),
+        (Format::Easyvolcap, ev),
+    ] {
+        let dest = tmp.path().join(format!("{format:?}-capture"));
+        let summary = import(&Request {
+            format,
+            source: src,
+            dest: dest.clone(),
+            train: TrainChoice::Protocol,
+            frames: None,
+            long_side: None,
+            copy: false,
+        })
+        .unwrap();
+        assert_eq!(summary.training, 4, "{format:?}");
+        let toml = std::fs::read_to_string(dest.join("capture.toml")).unwrap() + &cheap;
+        std::fs::write(dest.join("capture.toml"), toml).unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_pipeline"))
+            .args(["--quiet", "run"])
+            .arg(&dest)
+            .args(["--to", "train"])
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{format:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(dest.join("work/train/model.bin").is_file(), "{format:?}");
+    }
+}
