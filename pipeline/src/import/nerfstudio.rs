@@ -146,37 +146,12 @@ pub fn transforms(
                 "transform_matrix": [row(0), row(1), row(2), [0.0, 0.0, 0.0, 1.0]],
                 "fl_x": k.fx, "fl_y": k.fy, "cx": k.cx, "cy": k.cy, "w": k.width, "h": k.height,
             });
-            match camera.distortion {
-                Distortion::None => entry["camera_model"] = "PINHOLE".into(),
-                Distortion::Opencv {
-                    k1,
-                    k2,
-                    p1,
-                    p2,
-                    k3,
-                    k4,
-                    k5,
-                    k6,
-                    s1,
-                    s2,
-                    s3,
-                    s4,
-                    tau_x,
-                    tau_y,
-                } if [k4, k5, k6, s1, s2, s3, s4, tau_x, tau_y]
-                    .iter()
-                    .all(|&v| v == 0.0) =>
-                {
-                    entry["camera_model"] = "OPENCV".into();
-                    for (key, v) in [("k1", k1), ("k2", k2), ("k3", k3), ("p1", p1), ("p2", p2)] {
-                        entry[key] = v.into();
-                    }
-                }
-                Distortion::Fisheye { k1, k2, k3, k4 } => {
-                    entry["camera_model"] = "OPENCV_FISHEYE".into();
-                    for (key, v) in [("k1", k1), ("k2", k2), ("k3", k3), ("k4", k4)] {
-                        entry[key] = v.into();
-                    }
+            let c = camera.distortion.coefficients();
+            let (model, keys): (_, &[&str]) = match camera.distortion {
+                Distortion::None => ("PINHOLE", &[]),
+                Distortion::Fisheye { .. } => ("OPENCV_FISHEYE", &["k1", "k2", "k3", "k4"]),
+                Distortion::Opencv { .. } if c.len() <= 5 => {
+                    ("OPENCV", &["k1", "k2", "p1", "p2", "k3"])
                 }
                 Distortion::Opencv { .. } => {
                     return Err(format!(
@@ -184,6 +159,10 @@ pub fn transforms(
                         camera.name
                     ));
                 }
+            };
+            entry["camera_model"] = model.into();
+            for (key, v) in keys.iter().zip(&c) {
+                entry[*key] = (*v).into();
             }
             frames.push(entry);
         }

@@ -61,6 +61,24 @@ const POINTS: [[f64; 3]; 4] = [
     [0.1, 0.4, 0.3],
 ];
 
+/// A request with the defaults: footage linked, every frame, the dataset's size.
+fn plain(
+    format: Format,
+    source: impl Into<PathBuf>,
+    dest: impl Into<PathBuf>,
+    train: TrainChoice,
+) -> Request {
+    Request {
+        format,
+        source: source.into(),
+        dest: dest.into(),
+        train,
+        frames: None,
+        long_side: None,
+        copy: false,
+    }
+}
+
 /// Import `source` as `format` into a new folder; every camera of the capture, read back
 /// from its calibration.json, projects the known points where the known camera does.
 fn import_and_reproject(
@@ -72,16 +90,7 @@ fn import_and_reproject(
     tolerance: f64,
 ) -> (PathBuf, pipeline::import::Summary) {
     let dest = source.parent().unwrap().join("capture");
-    let summary = import(&Request {
-        format,
-        source: source.to_path_buf(),
-        dest: dest.clone(),
-        train,
-        frames: None,
-        long_side: None,
-        copy: false,
-    })
-    .unwrap();
+    let summary = import(&plain(format, source, &dest, train)).unwrap();
     let set = calib::import::import_calibration(&dest.join("calibration.json")).unwrap();
     assert_eq!(set.cameras.len(), truth.len());
     for (capture, dataset) in &summary.cameras {
@@ -239,17 +248,9 @@ fn n3v_poses_bounds_reproject_and_its_protocols_choose_the_cameras() {
 
     // Bad datasets: a video without a row, a NaN, a non-empty destination, an unknown camera.
     let err = |src: &Path, dest: &Path, train: TrainChoice| {
-        import(&Request {
-            format: Format::N3v,
-            source: src.to_path_buf(),
-            dest: dest.to_path_buf(),
-            train,
-            frames: None,
-            long_side: None,
-            copy: false,
-        })
-        .unwrap_err()
-        .to_string()
+        import(&plain(Format::N3v, src, dest, train))
+            .unwrap_err()
+            .to_string()
     };
     let extra = tmp.path().join("extra");
     write_n3v(&extra, &cams, false);
@@ -372,15 +373,12 @@ fn nerfstudio_transforms_reproject_through_opengl_axes_and_the_applied_transform
 
     let bad = tmp.path().join("bad");
     write_nerfstudio(&bad, &cams, true);
-    let e = import(&Request {
-        format: Format::Nerfstudio,
-        source: bad.clone(),
-        dest: tmp.path().join("x"),
-        train: TrainChoice::Protocol,
-        frames: None,
-        long_side: None,
-        copy: false,
-    })
+    let e = import(&plain(
+        Format::Nerfstudio,
+        &bad,
+        tmp.path().join("x"),
+        TrainChoice::Protocol,
+    ))
     .unwrap_err()
     .to_string();
     assert!(
@@ -461,15 +459,12 @@ fn d3dgs_panoptic_meta_reprojects_and_holds_out_its_test_cameras() {
 
     let bad = tmp.path().join("bad");
     write_d3dgs(&bad, &cams, true);
-    let e = import(&Request {
-        format: Format::D3dgs,
-        source: bad.clone(),
-        dest: tmp.path().join("x"),
-        train: TrainChoice::Protocol,
-        frames: None,
-        long_side: None,
-        copy: false,
-    })
+    let e = import(&plain(
+        Format::D3dgs,
+        &bad,
+        tmp.path().join("x"),
+        TrainChoice::Protocol,
+    ))
     .unwrap_err()
     .to_string();
     assert!(
@@ -481,16 +476,19 @@ fn d3dgs_panoptic_meta_reprojects_and_holds_out_its_test_cameras() {
     );
 }
 
+/// An `!!opencv-matrix` entry as OpenCV's FileStorage writes it.
+fn opencv_matrix(rows: usize, cols: usize, data: &[f64]) -> String {
+    let values: Vec<String> = data.iter().map(|v| format!("{v:.16e}")).collect();
+    format!(
+        "!!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ {} ]\n",
+        values.join(", ")
+    )
+}
+
 /// EasyVolcap: OpenCV FileStorage YAML, Rodrigues `R_` for some cameras and `Rot_` for
 /// others, OpenCV's pixel convention.
 fn write_easyvolcap(dir: &Path, cams: &[Camera], drop_k: bool) {
-    let matrix = |rows: usize, cols: usize, data: &[f64]| {
-        let values: Vec<String> = data.iter().map(|v| format!("{v:.16e}")).collect();
-        format!(
-            "!!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ {} ]\n",
-            values.join(", ")
-        )
-    };
+    let matrix = opencv_matrix;
     let mut intri = String::from("%YAML:1.0\n---\nnames:\n");
     let mut extri = String::from("%YAML:1.0\n---\n");
     for i in 0..cams.len() {
@@ -545,15 +543,12 @@ fn easyvolcap_yaml_reprojects_with_rodrigues_or_matrix_rotations() {
     );
     let bad = tmp.path().join("bad");
     write_easyvolcap(&bad, &cams, true);
-    let e = import(&Request {
-        format: Format::Easyvolcap,
-        source: bad.clone(),
-        dest: tmp.path().join("x"),
-        train: TrainChoice::Protocol,
-        frames: None,
-        long_side: None,
-        copy: false,
-    })
+    let e = import(&plain(
+        Format::Easyvolcap,
+        &bad,
+        tmp.path().join("x"),
+        TrainChoice::Protocol,
+    ))
     .unwrap_err()
     .to_string();
     assert!(
@@ -593,6 +588,16 @@ fn the_import_command_names_the_cameras_and_the_next_step() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("END must be after FIRST"));
 }
 
+/// The one file of a folder (a camera's video).
+fn first_file(folder: &Path) -> PathBuf {
+    std::fs::read_dir(folder)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path()
+}
+
 /// A Neural 3D Video dataset made of the tiny simulated capture (its four videos, its true
 /// cameras as LLFF poses) imports and runs through `pipeline run` to a trained model.
 #[test]
@@ -623,12 +628,7 @@ fn an_imported_n3v_dataset_runs_through_the_pipeline_to_a_model() {
             data.push(hwf[r]);
         }
         data.extend([0.5, 20.0]);
-        let video = std::fs::read_dir(tiny.join(format!("raw/cam{i}")))
-            .unwrap()
-            .next()
-            .unwrap()
-            .unwrap()
-            .path();
+        let video = first_file(&tiny.join(format!("raw/cam{i}")));
         std::fs::copy(video, src.join(format!("cam{i:02}.mp4"))).unwrap();
     }
     npy_f64(&src.join("poses_bounds.npy"), 4, 17, &data);
@@ -765,12 +765,7 @@ fn image_datasets_of_every_layout_import_and_train() {
         .collect();
     let frames = tmp.path().join("frames");
     for i in 0..4 {
-        let video = std::fs::read_dir(tiny.join(format!("raw/cam{i}")))
-            .unwrap()
-            .next()
-            .unwrap()
-            .unwrap()
-            .path();
+        let video = first_file(&tiny.join(format!("raw/cam{i}")));
         let out = frames.join(i.to_string());
         std::fs::create_dir_all(&out).unwrap();
         let status = Command::new("ffmpeg")
@@ -856,13 +851,7 @@ fn image_datasets_of_every_layout_import_and_train() {
 
     // EasyVolcap: rotation matrices, OpenCV's pixel convention.
     let ev = tmp.path().join("ev");
-    let m = |rows: usize, cols: usize, data: &[f64]| {
-        let v: Vec<String> = data.iter().map(|v| format!("{v:.16e}")).collect();
-        format!(
-            "!!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ {} ]\n",
-            v.join(", ")
-        )
-    };
+    let m = opencv_matrix;
     let mut intri = String::from("%YAML:1.0\n---\nnames: [ \"a\", \"b\", \"c\", \"d\" ]\n");
     let mut extri = String::from("%YAML:1.0\n---\n");
     for (i, (c, n)) in cams.iter().zip(["a", "b", "c", "d"]).enumerate() {
@@ -894,16 +883,7 @@ fn image_datasets_of_every_layout_import_and_train() {
         (Format::Easyvolcap, ev),
     ] {
         let dest = tmp.path().join(format!("{format:?}-capture"));
-        let summary = import(&Request {
-            format,
-            source: src,
-            dest: dest.clone(),
-            train: TrainChoice::Protocol,
-            frames: None,
-            long_side: None,
-            copy: false,
-        })
-        .unwrap();
+        let summary = import(&plain(format, src, dest.clone(), TrainChoice::Protocol)).unwrap();
         assert_eq!(summary.training, 4, "{format:?}");
         let toml = std::fs::read_to_string(dest.join("capture.toml")).unwrap() + &cheap;
         std::fs::write(dest.join("capture.toml"), toml).unwrap();
