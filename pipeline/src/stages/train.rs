@@ -106,8 +106,12 @@ pub(crate) fn match_exposure(
 pub(crate) fn finished(result: Result<TrainSummary, TrainError>) -> anyhow::Result<TrainSummary> {
     match result {
         Ok(summary) => {
+            let then = match summary.started_at {
+                0 => "no good checkpoint was left: started over".to_string(),
+                it => format!("resumed from iteration {it}"),
+            };
             for s in &summary.skipped_checkpoints {
-                tracing::warn!("{s}; resumed from iteration {}", summary.started_at);
+                tracing::warn!("{s}; {then}");
             }
             Ok(summary)
         }
