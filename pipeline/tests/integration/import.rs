@@ -79,6 +79,13 @@ fn plain(
     }
 }
 
+/// The error of importing `source` as `format` with the dataset's protocol.
+fn import_error(format: Format, source: &Path, dest: &Path) -> String {
+    import(&plain(format, source, dest, TrainChoice::Protocol))
+        .unwrap_err()
+        .to_string()
+}
+
 /// Import `source` as `format` into a new folder; every camera of the capture, read back
 /// from its calibration.json, projects the known points where the known camera does.
 fn import_and_reproject(
@@ -373,14 +380,7 @@ fn nerfstudio_transforms_reproject_through_opengl_axes_and_the_applied_transform
 
     let bad = tmp.path().join("bad");
     write_nerfstudio(&bad, &cams, true);
-    let e = import(&plain(
-        Format::Nerfstudio,
-        &bad,
-        tmp.path().join("x"),
-        TrainChoice::Protocol,
-    ))
-    .unwrap_err()
-    .to_string();
+    let e = import_error(Format::Nerfstudio, &bad, &tmp.path().join("x"));
     assert!(
         e.contains("transforms.json") && e.contains("NaN") && e.contains("fl_x"),
         "{e}"
@@ -459,14 +459,7 @@ fn d3dgs_panoptic_meta_reprojects_and_holds_out_its_test_cameras() {
 
     let bad = tmp.path().join("bad");
     write_d3dgs(&bad, &cams, true);
-    let e = import(&plain(
-        Format::D3dgs,
-        &bad,
-        tmp.path().join("x"),
-        TrainChoice::Protocol,
-    ))
-    .unwrap_err()
-    .to_string();
+    let e = import_error(Format::D3dgs, &bad, &tmp.path().join("x"));
     assert!(
         e.contains("train_meta.json")
             && e.contains("camera 2")
@@ -543,14 +536,7 @@ fn easyvolcap_yaml_reprojects_with_rodrigues_or_matrix_rotations() {
     );
     let bad = tmp.path().join("bad");
     write_easyvolcap(&bad, &cams, true);
-    let e = import(&plain(
-        Format::Easyvolcap,
-        &bad,
-        tmp.path().join("x"),
-        TrainChoice::Protocol,
-    ))
-    .unwrap_err()
-    .to_string();
+    let e = import_error(Format::Easyvolcap, &bad, &tmp.path().join("x"));
     assert!(
         e.contains("intri.yml") && e.contains("`K_01` is missing"),
         "{e}"
