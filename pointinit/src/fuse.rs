@@ -2,14 +2,15 @@
 //! and the time of their frame, voxel downsampling, a cap on the count, and the random
 //! cloud of the last fallback. No model or file knowledge here.
 
-use std::collections::HashMap;
-
 use glam::{DVec2, DVec3};
 use image::RgbImage;
 use rand::{RngExt, SeedableRng};
+use rayon::prelude::*;
 use rand_chacha::ChaCha8Rng;
 use shared_types::Camera;
 use shared_types::PointCloud;
+
+use crate::grid::{Grid, cell_key};
 
 /// One point of the fused cloud (world frame).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -51,34 +52,16 @@ pub fn supported(xyz: &[DVec3], radius: f64, min_neighbours: usize) -> Vec<bool>
     if min_neighbours == 0 || radius.is_nan() || radius <= 0.0 {
         return vec![true; xyz.len()];
     }
-    let cell = |p: DVec3| (p / radius).floor().as_i64vec3().to_array();
-    let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
-    for (i, p) in xyz.iter().enumerate() {
-        grid.entry(cell(*p)).or_default().push(i);
-    }
+    let grid = Grid::new(xyz.iter().copied().enumerate(), radius);
     let r2 = radius * radius;
-    xyz.iter()
+    xyz.par_iter()
         .enumerate()
         .map(|(i, p)| {
-            let [x, y, z] = cell(*p);
-            let mut count = 0;
-            for dx in -1..=1 {
-                for dy in -1..=1 {
-                    for dz in -1..=1 {
-                        let Some(cell) = grid.get(&[x + dx, y + dy, z + dz]) else {
-                            continue;
-                        };
-                        count += cell
-                            .iter()
-                            .filter(|&&j| j != i && xyz[j].distance_squared(*p) <= r2)
-                            .count();
-                        if count >= min_neighbours {
-                            return true;
-                        }
-                    }
-                }
-            }
-            false
+            grid.near(*p)
+                .filter(|&j| j != i && xyz[j].distance_squared(*p) <= r2)
+                .take(min_neighbours)
+                .count()
+                >= min_neighbours
         })
         .collect()
 }
@@ -90,11 +73,10 @@ pub fn voxel_downsample(points: &[FusedPoint], voxel: f64) -> Vec<FusedPoint> {
         return points.to_vec();
     }
     type Cell = (DVec3, [f64; 3], f64, f64, usize);
-    let mut cells: HashMap<[i64; 3], Cell> = HashMap::new();
+    let mut cells: rustc_hash::FxHashMap<[i64; 3], Cell> = Default::default();
     for p in points {
-        let key = (p.xyz / voxel).floor().as_i64vec3().to_array();
         let e = cells
-            .entry(key)
+            .entry(cell_key(p.xyz, voxel))
             .or_insert((DVec3::ZERO, [0.0; 3], 0.0, 0.0, 0));
         e.0 += p.xyz;
         for c in 0..3 {

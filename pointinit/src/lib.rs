@@ -22,6 +22,7 @@
 
 mod config;
 mod error;
+mod grid;
 mod inputs;
 mod pairs;
 mod report;

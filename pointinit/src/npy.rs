@@ -388,7 +388,8 @@ pub fn write_pair_npz(
     let path = dir.join(format!("{}.npz", pair_stem(first, second)));
     shared_types::atomic::write_with(&path, |tmp| {
         // As numpy's savez: one stored `NAME.npy` member per array.
-        let mut npz = zip::ZipWriter::new(std::fs::File::create(tmp)?);
+        // Buffered: npyz hands the writer one element at a time.
+        let mut npz = zip::ZipWriter::new(std::io::BufWriter::new(std::fs::File::create(tmp)?));
         let options =
             zip::write::FileOptions::default().compression_method(zip::CompressionMethod::Stored);
         for (name, shape, data) in pair_arrays(maps, names) {
@@ -402,7 +403,7 @@ pub fn write_pair_npz(
             w.extend(data)?;
             w.finish()?;
         }
-        npz.finish()?;
+        npz.finish()?.into_inner().map_err(|e| e.into_error())?;
         Ok(())
     })
 }

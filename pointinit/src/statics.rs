@@ -5,12 +5,12 @@
 //! voxel-downsampled per moment. Sparse points of a pose solve join the static ones over
 //! the whole clip, unless a moving point lies beside them (then they saw the moving object).
 
-use std::collections::HashMap;
-
 use glam::DVec3;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::fuse::{FusedPoint, voxel_downsample};
+use super::grid::Grid;
 
 /// A point triangulated at one moment.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -39,38 +39,6 @@ pub struct StaticCounts {
     pub sparse_dropped: usize,
 }
 
-/// Points bucketed in cubes of edge `cell`, for radius searches.
-struct Grid {
-    cell: f64,
-    cells: HashMap<[i64; 3], Vec<usize>>,
-}
-
-impl Grid {
-    fn new(points: impl Iterator<Item = (usize, DVec3)>, cell: f64) -> Self {
-        let mut cells: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
-        for (i, p) in points {
-            cells.entry(Self::key(p, cell)).or_default().push(i);
-        }
-        Self { cell, cells }
-    }
-
-    fn key(p: DVec3, cell: f64) -> [i64; 3] {
-        (p / cell).floor().as_i64vec3().to_array()
-    }
-
-    /// Indices in the 27 cells around `p` (a superset of those within one `cell` of it).
-    fn near(&self, p: DVec3) -> impl Iterator<Item = usize> + '_ {
-        let [x, y, z] = Self::key(p, self.cell);
-        (-1..=1)
-            .flat_map(move |dx| {
-                (-1..=1).flat_map(move |dy| (-1..=1).map(move |dz| [x + dx, y + dy, z + dz]))
-            })
-            .filter_map(|k| self.cells.get(&k))
-            .flatten()
-            .copied()
-    }
-}
-
 /// Tag, merge and downsample `points` (see the module doc): static within `radius` of a
 /// point of another moment, static points within `merge` merged; `sparse` are a pose solve's
 /// points (xyz, colour) and `clip` the model times of the first and last moment.
@@ -92,7 +60,7 @@ pub fn split_static(
     let is_static: Vec<bool> = match given {
         Some(tags) => tags.to_vec(),
         None => points
-            .iter()
+            .par_iter()
             .map(|p| {
                 grid.as_ref().is_some_and(|g| {
                     g.near(p.xyz)
