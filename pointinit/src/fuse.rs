@@ -5,8 +5,8 @@
 use glam::{DVec2, DVec3};
 use image::RgbImage;
 use rand::{RngExt, SeedableRng};
-use rayon::prelude::*;
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 use shared_types::Camera;
 use shared_types::PointCloud;
 

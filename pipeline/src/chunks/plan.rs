@@ -110,19 +110,29 @@ impl ChunkPlan {
         self.chunks.len() > 1
     }
 
-    /// The aligned frames of the init's moments: `per_chunk` spread over each chunk's core
-    /// (`spread(frames, count)` gives offsets into a run of frames).
+    /// The aligned frames of the init's moments. One chunk: `spread(frames, per_chunk)`
+    /// over the clip (offsets into it, its ends included). Several: each chunk's core cut
+    /// into `per_chunk` equal parts, a moment at each part's middle, so that the moments are
+    /// evenly spaced over the whole clip and no two chunks' moments sit side by side at a
+    /// boundary (the ends of neighbouring cores are adjacent frames).
     pub fn moments(
         &self,
         per_chunk: usize,
         spread: impl Fn(usize, usize) -> Vec<usize>,
     ) -> Vec<usize> {
+        if let [only] = self.chunks.as_slice() {
+            let start = only.core.start;
+            return spread(only.core.len(), per_chunk)
+                .into_iter()
+                .map(|i| start + i)
+                .collect();
+        }
         self.chunks
             .iter()
             .flat_map(|c| {
-                spread(c.core.len(), per_chunk)
-                    .into_iter()
-                    .map(move |i| c.core.start + i)
+                let (start, len) = (c.core.start, c.core.len());
+                let count = per_chunk.min(len);
+                (0..count).map(move |k| start + (2 * k + 1) * len / (2 * count))
             })
             .collect()
     }
@@ -194,11 +204,20 @@ mod tests {
     }
 
     #[test]
-    fn moments_are_spread_over_each_chunk() {
-        let plan = ChunkPlan::new(&times(60, 30.0), 30.0, &settings(1.0, 0.2));
+    fn moments_are_evenly_spaced_over_the_chunks_and_the_clip_ends_without_chunks() {
         let spread = |frames: usize, count: usize| -> Vec<usize> {
             (0..count).map(|k| k * (frames - 1) / (count - 1)).collect()
         };
-        assert_eq!(plan.moments(3, spread), [0, 14, 29, 30, 44, 59]);
+        // Two chunks of 30 frames: parts of 10 frames, a moment in each part's middle,
+        // 10 frames apart across the boundary too.
+        let plan = ChunkPlan::new(&times(60, 30.0), 30.0, &settings(1.0, 0.2));
+        assert_eq!(plan.moments(3, spread), [5, 15, 25, 35, 45, 55]);
+        // More moments than a chunk has frames: one per frame.
+        let plan = ChunkPlan::new(&times(4, 30.0), 30.0, &settings(1.0 / 15.0, 0.0));
+        assert_eq!(plan.chunks.len(), 2);
+        assert_eq!(plan.moments(6, spread), [0, 1, 2, 3]);
+        // One model: the spread over the whole clip, its ends included.
+        let plan = ChunkPlan::new(&times(60, 30.0), 30.0, &settings(0.0, 0.2));
+        assert_eq!(plan.moments(3, spread), [0, 29, 59]);
     }
 }

@@ -336,7 +336,10 @@ fn window_times(dataset: &splat4d::train::Dataset) -> (f64, f64) {
 /// to see. A static point seen over a span of the clip that reaches the first chunk's
 /// window (`first`) belongs to the first chunk (which makes the shared static scene);
 /// one seen only later, to the chunk that owns the middle of its span; a static point
-/// without times, to the first chunk.
+/// without times, to the first chunk. The first chunk's static points have their time
+/// clamped into its window `times` (their span kept): a wall seen over a minute would
+/// otherwise be centred half a minute away and fade across the window it trains on, and
+/// it becomes part of the static scene only if it holds over the whole window.
 pub fn points_of(
     points: &PointCloud,
     chunk: &Chunk,
@@ -363,12 +366,18 @@ pub fn points_of(
         })
         .collect();
     let pick = |v: &Option<Vec<f32>>| v.as_ref().map(|v| keep.iter().map(|&i| v[i]).collect());
-    PointCloud {
+    let mut cloud = PointCloud {
         xyz: keep.iter().map(|&i| points.xyz[i]).collect(),
         rgb: keep.iter().map(|&i| points.rgb[i]).collect(),
         time: pick(&points.time),
         time_span: pick(&points.time_span),
+    };
+    if let (0, Some(t), Some(span)) = (chunk.index, &mut cloud.time, &cloud.time_span) {
+        for (t, _) in t.iter_mut().zip(span).filter(|(_, s)| **s > 0.0) {
+            *t = t.clamp(times.0 as f32, times.1 as f32);
+        }
     }
+    cloud
 }
 
 /// The merged model, its record and log: the static scene, then each chunk's moving
@@ -502,6 +511,12 @@ mod tests {
                 .collect()
         };
         assert_eq!(xs(0), [0.0, 3.0, 4.0]);
+        // The first chunk's walls move into its window; its moving point keeps its time.
+        let first = points_of(&cloud, &plan.chunks[0], windows[0], windows[0]);
+        assert_eq!(first.time.unwrap(), [0.5, 0.9, 0.9]);
+        assert_eq!(first.time_span.unwrap(), [0.0, 3.0, 1.4]);
+        let later = points_of(&cloud, &plan.chunks[2], windows[2], windows[0]);
+        assert_eq!(later.time.unwrap(), [2.5, 2.0]);
         assert_eq!(xs(1), [1.0]);
         assert_eq!(xs(2), [2.0, 5.0]);
         let untimed = PointCloud {
