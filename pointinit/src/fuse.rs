@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use shared_types::Camera;
 use shared_types::PointCloud;
 
-use crate::grid::{Grid, cell_key};
+use crate::grid::{CellMap, Grid, cell_key};
 
 /// One point of the fused cloud (world frame).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -73,7 +73,7 @@ pub fn voxel_downsample(points: &[FusedPoint], voxel: f64) -> Vec<FusedPoint> {
         return points.to_vec();
     }
     type Cell = (DVec3, [f64; 3], f64, f64, usize);
-    let mut cells: rustc_hash::FxHashMap<[i64; 3], Cell> = Default::default();
+    let mut cells: CellMap<Cell> = CellMap::default();
     for p in points {
         let e = cells
             .entry(cell_key(p.xyz, voxel))

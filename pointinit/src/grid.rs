@@ -5,6 +5,9 @@
 use glam::DVec3;
 use rustc_hash::FxHashMap;
 
+/// A map keyed by grid cells (the one place the hasher is chosen).
+pub type CellMap<V> = FxHashMap<[i64; 3], V>;
+
 /// The cube of edge `cell` that holds `p`.
 pub fn cell_key(p: DVec3, cell: f64) -> [i64; 3] {
     (p / cell).floor().as_i64vec3().to_array()
@@ -13,12 +16,12 @@ pub fn cell_key(p: DVec3, cell: f64) -> [i64; 3] {
 /// Point indices bucketed in cubes of edge `cell`.
 pub struct Grid {
     cell: f64,
-    cells: FxHashMap<[i64; 3], Vec<usize>>,
+    cells: CellMap<Vec<usize>>,
 }
 
 impl Grid {
     pub fn new(points: impl Iterator<Item = (usize, DVec3)>, cell: f64) -> Self {
-        let mut cells: FxHashMap<[i64; 3], Vec<usize>> = FxHashMap::default();
+        let mut cells: CellMap<Vec<usize>> = CellMap::default();
         for (i, p) in points {
             cells.entry(cell_key(p, cell)).or_default().push(i);
         }
