@@ -148,6 +148,7 @@ pub const RANGES: &[(&str, Range)] = &[
     ("train.densify.max_gaussians", SOME),
     ("chunks.seconds", at_least(0.0)),
     ("chunks.overlap_seconds", at_least(0.0)),
+    ("chunks.static_steps", COUNT),
     ("decay.beta", positive_to(1.0)),
     ("decay.constant", positive_to(1.0)),
     ("decay.exp_kappa", POSITIVE),

@@ -10,9 +10,11 @@
 //! - `plan`: which aligned frames each chunk trains on and which part of the clip it owns.
 //! - `static_scene`: the first chunk's model split into what stands still and what moves;
 //!   the still part frozen into static Gaussians.
+//! - `plates`: the static scene refined on each camera's static plate of the whole clip.
 //! - `runner`: trains the chunks one after another (each resumable on its own), and merges.
 
 pub mod plan;
+pub mod plates;
 pub mod runner;
 pub mod static_scene;
 
@@ -29,6 +31,10 @@ pub struct ChunkSettings {
     /// Seconds of the neighbouring chunks each chunk also trains on, on both sides, so
     /// that what crosses a boundary is learnt by both.
     pub overlap_seconds: f64,
+    /// Steps that refine the first chunk's static scene on every camera's static plate of
+    /// the whole clip (`plates`), so that it also holds what the first chunk never saw. 0:
+    /// the first chunk's static scene as it is.
+    pub static_steps: u64,
 }
 
 impl Default for ChunkSettings {
@@ -36,6 +42,7 @@ impl Default for ChunkSettings {
         Self {
             seconds: 5.0,
             overlap_seconds: 0.5,
+            static_steps: 300,
         }
     }
 }

@@ -150,6 +150,7 @@ mod tests {
         ChunkSettings {
             seconds,
             overlap_seconds,
+            ..ChunkSettings::default()
         }
     }
 

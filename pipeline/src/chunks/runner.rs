@@ -5,7 +5,8 @@
 //!
 //! 1. The first chunk trains like a whole clip (the static points and its moving ones).
 //!    Its Gaussians that stand still over its frames become the static scene
-//!    (`chunks/static.bin`, `static_scene::freeze`); its learned backdrop, background
+//!    (`chunks/static.bin`, `static_scene::freeze`), refined on every camera's static
+//!    plate of the whole clip (`plates`); its learned backdrop, background
 //!    colour and exposure gains are the clip's (`chunks/shared.json`).
 //! 2. Every later chunk trains its moving points on top of the static scene, frozen.
 //! 3. `model.bin` = the static scene, then each chunk's moving Gaussians whose time centre
@@ -27,7 +28,7 @@ use splat4d::train::exposure::CameraGain;
 use splat4d::train::{Background, PointCloud, Start, train_from};
 
 use super::plan::{Chunk, ChunkPlan};
-use super::static_scene;
+use super::{ChunkSettings, plates, static_scene};
 use crate::engine_inputs::{EngineSettings, TrainRecord, load_dataset_window};
 use crate::interrupt::Graceful;
 use crate::stage_context::StageContext;
@@ -37,6 +38,8 @@ use crate::stages::train::{
 
 /// The static scene's file under `work/train/`.
 pub const STATIC_FILE: &str = "chunks/static.bin";
+/// Where the static scene is refined on the plates, under `work/train/`.
+const STATIC_DIR: &str = "chunks/static";
 /// What the first chunk settles for the clip, under `work/train/`.
 const SHARED_FILE: &str = "chunks/shared.json";
 /// What the stage records of the chunks under `work/train/`.
@@ -89,6 +92,7 @@ struct Shared {
 struct Trainer<'a> {
     ctx: &'a StageContext<'a>,
     settings: &'a TrainSettings,
+    chunks: &'a ChunkSettings,
     decay: &'a DecaySettings,
     frames_dir: PathBuf,
     cameras_file: PathBuf,
@@ -102,6 +106,7 @@ struct Trainer<'a> {
 pub fn run(
     ctx: &StageContext,
     settings: &TrainSettings,
+    chunks: &ChunkSettings,
     decay: &DecaySettings,
     engine: &EngineSettings,
     plan: &ChunkPlan,
@@ -111,6 +116,7 @@ pub fn run(
     let trainer = Trainer {
         ctx,
         settings,
+        chunks,
         decay,
         frames_dir: ctx.stage_dir("frames"),
         cameras_file: ctx.stage_dir("poses").join("cameras.json"),
@@ -256,14 +262,19 @@ impl Trainer<'_> {
                 copy(path, &ctx.output(splat4d::train::BACKDROP_FILE))?;
             }
             let model = splat4d::load_model(&summary.model_path)?;
-            let drift = static_scene::max_drift(dataset.scene_extent());
+            let seconds = (times.1 - times.0) / mapping.units_per_second;
+            let drift = static_scene::max_drift(dataset.scene_extent(), seconds);
             let (still, _) = static_scene::split(&model, times, drift);
-            let scene = static_scene::freeze(&model, &still, 0.5 * (times.0 + times.1));
+            let middle = 0.5 * (times.0 + times.1);
+            let scene = static_scene::freeze(&model, &still, middle);
             tracing::info!(
                 "static scene: {} of the first chunk's {} Gaussians stand still",
                 scene.len(),
                 model.len()
             );
+            drop(dataset);
+            let scene =
+                self.refine_static(scene, middle, summary.background, &exposure, &points)?;
             splat4d::save_model(&scene, &ctx.output(STATIC_FILE))?;
             let shared = Shared {
                 background: summary.background,
@@ -275,6 +286,60 @@ impl Trainer<'_> {
                 .context("cannot write chunks/shared.json")?;
         }
         write_json(&dir.join(CHUNK_DONE), &record).context("cannot write chunk.json")
+    }
+
+    /// The first chunk's frozen static `scene` (at model time `time`) refined for
+    /// `[chunks] static_steps` on every camera's static plate of the whole clip
+    /// (`plates`), in `work/train/chunks/static/` (resumable like a chunk).
+    fn refine_static(
+        &self,
+        scene: Gaussians<f32>,
+        time: f64,
+        background: [f32; 3],
+        exposure: &[CameraGain],
+        points: &PointCloud,
+    ) -> anyhow::Result<Gaussians<f32>> {
+        let steps = self.chunks.static_steps;
+        if steps == 0 || scene.is_empty() {
+            return Ok(scene);
+        }
+        let ctx = self.ctx;
+        let label = "static scene";
+        ctx.progress.message(&format!(
+            "{label}: the cameras' static plates of the whole clip ({} frames each)",
+            plates::PLATE_FRAMES
+        ));
+        let mut plates = plates::plate_views(
+            &self.frames_dir,
+            &self.cameras_file,
+            time as f32,
+            ctx.progress,
+        )?;
+        splat4d::train::exposure::equalise(&mut plates, exposure);
+        ctx.progress
+            .message(&format!("{label}: refining on the plates, {steps} steps"));
+        let config = plates::refine_config(self.settings, steps, background);
+        let start = Start::Model {
+            model: &scene,
+            frozen: 0,
+            points,
+        };
+        let summary = finished(train_from(
+            self.backend.as_ref(),
+            &config,
+            &plates,
+            start,
+            &ctx.output(STATIC_DIR),
+            ctx.resume,
+            &mut splat4d::train::NoHooks,
+            ctx.progress,
+        ))
+        .context("refining the static scene on the cameras' static plates")?;
+        tracing::info!(
+            "static scene refined on the plates: {:.2} dB on its last batch",
+            summary.final_psnr
+        );
+        Ok(splat4d::load_model(&summary.model_path)?)
     }
 
     /// Train one chunk's model into `dir`, resuming from its checkpoints when there are.
@@ -475,7 +540,6 @@ fn copy(from: &Path, to: &Path) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::chunks::ChunkSettings;
 
     #[test]
     fn each_chunk_takes_its_moments_and_the_static_points_it_sees_first() {
@@ -484,6 +548,7 @@ mod tests {
         let settings = ChunkSettings {
             seconds: 1.0,
             overlap_seconds: 0.0,
+            ..ChunkSettings::default()
         };
         let plan = ChunkPlan::new(&times, 10.0, &settings);
         let windows = [(0.0, 0.9), (1.0, 1.9), (2.0, 2.9)];

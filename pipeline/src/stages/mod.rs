@@ -64,7 +64,14 @@ fn run_train(ctx: &StageContext, config: &CaptureConfig) -> anyhow::Result<()> {
     let index = rig::frames::FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
     let plan = crate::chunks::plan::ChunkPlan::of_index(&index, &config.chunks);
     if plan.is_chunked() {
-        crate::chunks::runner::run(ctx, &config.train, &config.decay, &config.engine, &plan)
+        crate::chunks::runner::run(
+            ctx,
+            &config.train,
+            &config.chunks,
+            &config.decay,
+            &config.engine,
+            &plan,
+        )
     } else {
         train::run(ctx, &config.train, &config.decay, &config.engine)
     }

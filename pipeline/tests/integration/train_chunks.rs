@@ -2,7 +2,8 @@
 //! three chunks of five frames with one frame of overlap. The init places its moments per
 //! chunk; each chunk trains on its own frames (the later ones on the first chunk's static
 //! scene, frozen) into its own folder; a stop in the middle keeps its checkpoint, and the
-//! next run continues to exactly the model of an uninterrupted run; the merged model is
+//! next run continues to exactly the model of an uninterrupted run; the static scene's
+//! opacities train on the cameras' static plates of the clip; the merged model is
 //! the static scene plus each chunk's moving Gaussians of its own time, and render and
 //! eval draw the whole clip from it.
 
@@ -12,6 +13,7 @@ use std::fs;
 
 use pipeline::chunks::plan::ChunkPlan;
 use pipeline::chunks::runner::{ChunksRecord, STATIC_FILE};
+use pipeline::chunks::static_scene;
 use pipeline::interrupt;
 use pipeline::runner::Selection;
 
@@ -75,6 +77,37 @@ fn a_clip_in_three_chunks_trains_resumes_identically_and_renders_as_one() {
     let scene = splat4d::load_model(&train.join(STATIC_FILE)).unwrap();
     assert!(!scene.is_empty());
     assert_eq!(record.static_gaussians, scene.len());
+    // The first chunk's still Gaussians, frozen, then 300 steps on the plates that train
+    // only their opacities: every other parameter is the frozen one's.
+    let shared: serde_json::Value =
+        serde_json::from_str(&fs::read_to_string(train.join("chunks/shared.json")).unwrap())
+            .unwrap();
+    let drift = shared["max_drift"].as_f64().unwrap();
+    let first = splat4d::load_model(&train.join("chunks/000/model.bin")).unwrap();
+    let times = record.chunks[0].times;
+    let (still, _) = static_scene::split(&first, times, drift);
+    let frozen = static_scene::freeze(&first, &still, 0.5 * (times.0 + times.1));
+    assert_eq!(frozen.len(), scene.len());
+    assert_eq!(frozen.means, scene.means);
+    assert_eq!(frozen.log_scales, scene.log_scales);
+    assert_eq!(frozen.rot_left, scene.rot_left);
+    assert_eq!(frozen.colours, scene.colours);
+    let changed = frozen
+        .opacity_logits
+        .iter()
+        .zip(&scene.opacity_logits)
+        .filter(|(a, b)| a != b)
+        .count();
+    assert!(
+        changed > scene.len() / 2,
+        "{changed} of {} opacities trained",
+        scene.len()
+    );
+    let plate_log = fs::read_to_string(train.join("chunks/static/log.csv")).unwrap();
+    assert!(
+        plate_log.lines().last().unwrap().starts_with("300,"),
+        "{plate_log}"
+    );
     let model = splat4d::load_model(&train.join("model.bin")).unwrap();
     let kept: usize = record.chunks.iter().map(|c| c.kept).sum();
     assert_eq!(model.len(), scene.len() + kept);
