@@ -42,6 +42,9 @@ pub enum BackendChoice {
 #[serde(deny_unknown_fields, default)]
 pub struct EngineSettings {
     pub backend: BackendChoice,
+    /// Time chunks (`[chunks]`) that train at once after the first: 0 for one per GPU
+    /// (one at a time on the CPU). Each holds its own frames in memory.
+    pub chunks_at_once: usize,
 }
 
 /// The backend that renders for `render`, `eval` and `pipeline render`, as `choice` asks,
@@ -60,6 +63,41 @@ pub fn training_backend_for(choice: BackendChoice) -> anyhow::Result<Box<dyn Ren
     let backend = backend_for(choice, "training")?;
     tracing::info!("training backend: {}", backend.describe());
     Ok(backend)
+}
+
+/// The backends that train time chunks side by side, one a lane: `[engine]
+/// chunks_at_once` of them (0: one per GPU the backend choice allows, or one on the
+/// CPU). On GPUs lane `k` trains on the `k`th (wrapping around where there are more
+/// lanes than GPUs); on the CPU the lanes share its cores.
+pub fn training_lanes(engine: &EngineSettings) -> anyhow::Result<Vec<Box<dyn RenderBackend>>> {
+    let first = training_backend_for(engine.backend)?;
+    let policy = AdapterPolicy::from_env();
+    let gpus = match engine.backend {
+        BackendChoice::Cpu => 0,
+        _ => splat4d::gpu::Gpu::count(policy),
+    };
+    let on_gpu = gpus > 0 && first.as_gpu().is_some();
+    let lanes = match engine.chunks_at_once {
+        0 if on_gpu => gpus,
+        0 => 1,
+        n => n,
+    };
+    let mut backends = vec![first];
+    for lane in 1..lanes {
+        backends.push(if on_gpu {
+            Box::new(
+                GpuBackend::on_adapter(policy, lane)
+                    .with_context(|| format!("the GPU of time-chunk lane {lane}"))?,
+            )
+        } else {
+            Box::new(splat4d::CpuBackend)
+        });
+    }
+    if lanes > 1 {
+        let names: Vec<String> = backends.iter().map(|b| b.describe()).collect();
+        tracing::info!("{lanes} time chunks train at once: {}", names.join("; "));
+    }
+    Ok(backends)
 }
 
 /// The CPU backend, for the benches that train (their timings stay comparable across
@@ -288,5 +326,25 @@ pub fn trained_record(
                 path.display()
             ),
         },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn chunks_train_one_at_a_time_on_the_cpu_unless_asked_for_more() {
+        let lanes = |chunks_at_once| {
+            training_lanes(&EngineSettings {
+                backend: BackendChoice::Cpu,
+                chunks_at_once,
+            })
+            .unwrap()
+        };
+        assert_eq!(lanes(0).len(), 1);
+        let three = lanes(3);
+        assert_eq!(three.len(), 3);
+        assert!(three.iter().all(|b| b.as_gpu().is_none()));
     }
 }

@@ -149,6 +149,7 @@ pub const RANGES: &[(&str, Range)] = &[
     ("chunks.seconds", at_least(0.0)),
     ("chunks.overlap_seconds", at_least(0.0)),
     ("chunks.static_steps", COUNT),
+    ("engine.chunks_at_once", COUNT),
     ("decay.beta", positive_to(1.0)),
     ("decay.constant", positive_to(1.0)),
     ("decay.exp_kappa", POSITIVE),

@@ -63,31 +63,22 @@ impl Gpu {
     /// Open the best adapter the policy allows: discrete before integrated before virtual,
     /// software last (and only when allowed).
     pub fn open(policy: AdapterPolicy) -> Result<Arc<Self>, GpuError> {
-        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
-            backends: wgpu::Backends::PRIMARY,
-            ..wgpu::InstanceDescriptor::new_without_display_handle_from_env()
-        });
-        let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::PRIMARY));
-        if adapters.is_empty() {
-            return Err(GpuError::NoAdapter);
-        }
-        let rank = |t: wgpu::DeviceType| match t {
-            wgpu::DeviceType::DiscreteGpu => 0,
-            wgpu::DeviceType::IntegratedGpu => 1,
-            wgpu::DeviceType::VirtualGpu => 2,
-            wgpu::DeviceType::Other => 3,
-            wgpu::DeviceType::Cpu => 4,
-        };
-        let best = adapters
-            .into_iter()
-            .min_by_key(|a| rank(a.get_info().device_type))
-            .ok_or(GpuError::NoAdapter)?;
+        Self::open_nth(policy, 0)
+    }
+
+    /// How many adapters [`Gpu::open_nth`] can open under `policy` (0 when there is none):
+    /// the GPUs that can train side by side.
+    pub fn count(policy: AdapterPolicy) -> usize {
+        usable_adapters(policy).map_or(0, |a| a.len())
+    }
+
+    /// Open the `n`th adapter the policy allows, in [`Gpu::open`]'s order of preference
+    /// (adapters of one kind in the order the driver lists them); `n` wraps around, so
+    /// lane `n` of several always gets a device.
+    pub fn open_nth(policy: AdapterPolicy, n: usize) -> Result<Arc<Self>, GpuError> {
+        let mut adapters = usable_adapters(policy)?;
+        let best = adapters.swap_remove(n % adapters.len());
         let info = best.get_info();
-        if info.device_type == wgpu::DeviceType::Cpu && policy == AdapterPolicy::HardwareOnly {
-            return Err(GpuError::SoftwareOnly {
-                found: format!("{} ({:?})", info.name, info.backend),
-            });
-        }
         let limits = best.limits();
         let (device, queue) = pollster::block_on(best.request_device(&wgpu::DeviceDescriptor {
             label: Some("splat4d"),
@@ -225,4 +216,36 @@ impl Gpu {
             self.info.name, self.info.backend, self.info.device_type
         )
     }
+}
+
+/// The adapters `policy` allows, best first (discrete before integrated before virtual,
+/// stable within a kind): the hardware ones when there are, else the software ones where
+/// the policy allows them. An error when there is none, naming the software adapter found
+/// where only hardware is allowed.
+fn usable_adapters(policy: AdapterPolicy) -> Result<Vec<wgpu::Adapter>, GpuError> {
+    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
+        backends: wgpu::Backends::PRIMARY,
+        ..wgpu::InstanceDescriptor::new_without_display_handle_from_env()
+    });
+    let mut adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::PRIMARY));
+    let rank = |t: wgpu::DeviceType| match t {
+        wgpu::DeviceType::DiscreteGpu => 0,
+        wgpu::DeviceType::IntegratedGpu => 1,
+        wgpu::DeviceType::VirtualGpu => 2,
+        wgpu::DeviceType::Other => 3,
+        wgpu::DeviceType::Cpu => 4,
+    };
+    adapters.sort_by_key(|a| rank(a.get_info().device_type));
+    let Some(best) = adapters.first() else {
+        return Err(GpuError::NoAdapter);
+    };
+    let best = best.get_info();
+    if best.device_type != wgpu::DeviceType::Cpu {
+        adapters.retain(|a| a.get_info().device_type != wgpu::DeviceType::Cpu);
+    } else if policy == AdapterPolicy::HardwareOnly {
+        return Err(GpuError::SoftwareOnly {
+            found: format!("{} ({:?})", best.name, best.backend),
+        });
+    }
+    Ok(adapters)
 }

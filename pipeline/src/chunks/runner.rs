@@ -17,10 +17,12 @@
 //! trains just that one and leaves the stage unfinished for the run that merges.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
 use shared_types::atomic::write_json;
+use shared_types::{NoProgress, Progress};
 use splat4d::Gaussians;
 use splat4d::model::init::gaussians_from_points;
 use splat4d::train::densify::gather_gaussians;
@@ -97,7 +99,8 @@ struct Trainer<'a> {
     frames_dir: PathBuf,
     cameras_file: PathBuf,
     points: PointCloud,
-    backend: Box<dyn splat4d::RenderBackend>,
+    /// One backend a lane of chunks trained side by side (`[engine] chunks_at_once`).
+    backends: Vec<Box<dyn splat4d::RenderBackend>>,
     count: usize,
 }
 
@@ -111,8 +114,8 @@ pub fn run(
     engine: &EngineSettings,
     plan: &ChunkPlan,
 ) -> anyhow::Result<()> {
-    let backend = crate::engine_inputs::training_backend_for(engine.backend)?;
-    ctx.record_tool("training backend", &backend.describe());
+    let backends = crate::engine_inputs::training_lanes(engine)?;
+    ctx.record_tool("training backend", &backends[0].describe());
     let trainer = Trainer {
         ctx,
         settings,
@@ -121,7 +124,7 @@ pub fn run(
         frames_dir: ctx.stage_dir("frames"),
         cameras_file: ctx.stage_dir("poses").join("cameras.json"),
         points: initial_points(ctx)?,
-        backend,
+        backends,
         count: plan.chunks.len(),
     };
     let _graceful = Graceful::enter();
@@ -134,25 +137,102 @@ pub fn run(
                     plan.chunks.len() - 1
                 )
             })?;
-            trainer.train(chunk)
+            trainer.train(chunk, &trainer.lane(0))
         }
         None => {
+            let (first, rest) = plan
+                .chunks
+                .split_first()
+                .context("a chunked clip has no chunks")?;
+            let lanes = trainer.backends.len().min(rest.len()).max(1);
             tracing::info!(
-                "training {} time chunks ([chunks]) one after another, {} iterations each",
+                "training {} time chunks ([chunks]), {} iterations each: the first, then {}",
                 plan.chunks.len(),
-                settings.iterations
+                settings.iterations,
+                if lanes == 1 {
+                    "the others one after another".to_string()
+                } else {
+                    format!("{lanes} at once ([engine] chunks_at_once)")
+                }
             );
-            for chunk in &plan.chunks {
-                trainer.train(chunk)?;
+            trainer.train(first, &trainer.lane(0))?;
+            if lanes == 1 {
+                for chunk in rest {
+                    trainer.train(chunk, &trainer.lane(0))?;
+                }
+            } else {
+                trainer.train_side_by_side(rest, lanes)?;
             }
             merge(ctx, plan, settings.iterations)
         }
     }
 }
 
+/// What one chunk trains with: a backend, and where its progress goes.
+struct Lane<'a> {
+    backend: &'a dyn splat4d::RenderBackend,
+    progress: &'a dyn Progress,
+}
+
 impl Trainer<'_> {
-    /// Train `chunk` into its folder, unless it is done already.
-    fn train(&self, chunk: &Chunk) -> anyhow::Result<()> {
+    /// Lane `k`'s backend, reporting to the stage's progress.
+    fn lane(&self, k: usize) -> Lane<'_> {
+        Lane {
+            backend: self.backends[k].as_ref(),
+            progress: self.ctx.progress,
+        }
+    }
+
+    /// Train `chunks` (none of them the first) on `lanes` backends at once, each lane
+    /// taking the next chunk when it is done with one; the stage's progress counts
+    /// chunks. After a failure no lane starts another chunk (those running finish or
+    /// stop at their checkpoints), and the first error is returned.
+    fn train_side_by_side(&self, chunks: &[Chunk], lanes: usize) -> anyhow::Result<()> {
+        let progress = self.ctx.progress;
+        progress.start(chunks.len() as u64, "chunks");
+        progress.message(&format!("{lanes} chunks at once"));
+        let next = AtomicUsize::new(0);
+        let failed = AtomicBool::new(false);
+        let results: Vec<anyhow::Result<()>> = std::thread::scope(|scope| {
+            let handles: Vec<_> = self.backends[..lanes]
+                .iter()
+                .map(|backend| {
+                    let (next, failed) = (&next, &failed);
+                    scope.spawn(move || {
+                        let lane = Lane {
+                            backend: backend.as_ref(),
+                            progress: &NoProgress,
+                        };
+                        while !failed.load(Ordering::SeqCst) {
+                            let Some(chunk) = chunks.get(next.fetch_add(1, Ordering::SeqCst))
+                            else {
+                                break;
+                            };
+                            if let Err(e) = self.train(chunk, &lane) {
+                                failed.store(true, Ordering::SeqCst);
+                                return Err(e);
+                            }
+                            tracing::info!("chunk {}/{}: done", chunk.index + 1, self.count);
+                            progress.advance(1);
+                        }
+                        Ok(())
+                    })
+                })
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| {
+                    h.join()
+                        .unwrap_or_else(|_| Err(anyhow::anyhow!("a chunk's training panicked")))
+                })
+                .collect()
+        });
+        progress.finish();
+        results.into_iter().collect()
+    }
+
+    /// Train `chunk` into its folder on `lane`, unless it is done already.
+    fn train(&self, chunk: &Chunk, lane: &Lane) -> anyhow::Result<()> {
         let ctx = self.ctx;
         let dir = ctx.output(chunk.dir_name());
         if dir.join(CHUNK_DONE).exists() {
@@ -166,11 +246,11 @@ impl Trainer<'_> {
             chunk.window.start,
             chunk.window.end
         );
-        self.train_in(chunk, &dir, &label)
+        self.train_in(chunk, &dir, &label, lane)
             .with_context(|| label.clone())
     }
 
-    fn train_in(&self, chunk: &Chunk, dir: &Path, label: &str) -> anyhow::Result<()> {
+    fn train_in(&self, chunk: &Chunk, dir: &Path, label: &str, lane: &Lane) -> anyhow::Result<()> {
         let ctx = self.ctx;
         let first_chunk = chunk.index == 0;
         // A later chunk trains on what the first one settled.
@@ -179,12 +259,12 @@ impl Trainer<'_> {
         } else {
             Some(load_shared(ctx)?)
         };
-        ctx.progress.message(&format!("{label}: loading frames"));
+        lane.progress.message(&format!("{label}: loading frames"));
         let mut dataset = load_dataset_window(
             &self.frames_dir,
             &self.cameras_file,
             Some(chunk.window.clone()),
-            ctx.progress,
+            lane.progress,
         )?;
         let mapping = dataset.time_mapping;
         let times = window_times(&dataset);
@@ -226,7 +306,7 @@ impl Trainer<'_> {
             return write_json(&dir.join(CHUNK_DONE), &record).context("cannot write chunk.json");
         }
         tracing::info!("{label}: training from {} points", points.xyz.len());
-        ctx.progress.message(&format!("{label}: training"));
+        lane.progress.message(&format!("{label}: training"));
         let mut config = self.settings.clone();
         if let Some((s, _)) = &shared {
             config.background = Background::Colour(s.background);
@@ -251,7 +331,7 @@ impl Trainer<'_> {
             frozen: frozen_count,
             points: &points,
         };
-        let summary = self.train_model(&config, &dataset, start, dir)?;
+        let summary = self.train_model(&config, &dataset, start, dir, lane)?;
         record.iterations = summary.iterations;
         record.gaussians = summary.gaussians - frozen_count;
         record.seconds = summary.seconds;
@@ -274,7 +354,7 @@ impl Trainer<'_> {
             );
             drop(dataset);
             let scene =
-                self.refine_static(scene, middle, summary.background, &exposure, &points)?;
+                self.refine_static(scene, middle, summary.background, &exposure, &points, lane)?;
             splat4d::save_model(&scene, &ctx.output(STATIC_FILE))?;
             let shared = Shared {
                 background: summary.background,
@@ -298,6 +378,7 @@ impl Trainer<'_> {
         background: [f32; 3],
         exposure: &[CameraGain],
         points: &PointCloud,
+        lane: &Lane,
     ) -> anyhow::Result<Gaussians<f32>> {
         let steps = self.chunks.static_steps;
         if steps == 0 || scene.is_empty() {
@@ -305,7 +386,7 @@ impl Trainer<'_> {
         }
         let ctx = self.ctx;
         let label = "static scene";
-        ctx.progress.message(&format!(
+        lane.progress.message(&format!(
             "{label}: the cameras' static plates of the whole clip ({} frames each)",
             plates::PLATE_FRAMES
         ));
@@ -313,10 +394,10 @@ impl Trainer<'_> {
             &self.frames_dir,
             &self.cameras_file,
             time as f32,
-            ctx.progress,
+            lane.progress,
         )?;
         splat4d::train::exposure::equalise(&mut plates, exposure);
-        ctx.progress
+        lane.progress
             .message(&format!("{label}: refining on the plates, {steps} steps"));
         let config = plates::refine_config(self.settings, steps, background);
         let start = Start::Model {
@@ -325,14 +406,14 @@ impl Trainer<'_> {
             points,
         };
         let summary = finished(train_from(
-            self.backend.as_ref(),
+            lane.backend,
             &config,
             &plates,
             start,
             &ctx.output(STATIC_DIR),
             ctx.resume,
             &mut splat4d::train::NoHooks,
-            ctx.progress,
+            lane.progress,
         ))
         .context("refining the static scene on the cameras' static plates")?;
         tracing::info!(
@@ -349,19 +430,20 @@ impl Trainer<'_> {
         dataset: &splat4d::train::Dataset,
         start: Start<'_>,
         dir: &Path,
+        lane: &Lane,
     ) -> anyhow::Result<splat4d::train::TrainSummary> {
         let mut method = splat4d::decay::DecayHooks::new(self.decay)
             .map_err(|e| anyhow::anyhow!("capture.toml [decay]: {e}"))?;
         let mut hooks = StageHooks { inner: &mut method };
         let summary = finished(train_from(
-            self.backend.as_ref(),
+            lane.backend,
             config,
             dataset,
             start,
             dir,
             self.ctx.resume,
             &mut hooks,
-            self.ctx.progress,
+            lane.progress,
         ))?;
         let model = splat4d::load_model(&summary.model_path)?;
         let report = splat4d::decay::report::report(&method, &model);

@@ -2,7 +2,8 @@
 //! three chunks of five frames with one frame of overlap. The init places its moments per
 //! chunk; each chunk trains on its own frames (the later ones on the first chunk's static
 //! scene, frozen) into its own folder; a stop in the middle keeps its checkpoint, and the
-//! next run continues to exactly the model of an uninterrupted run; the static scene's
+//! next run continues to exactly the model of an uninterrupted run, and of one that trains
+//! the later chunks two at once; the static scene's
 //! opacities train on the cameras' static plates of the clip; the merged model is
 //! the static scene plus each chunk's moving Gaussians of its own time, and render and
 //! eval draw the whole clip from it.
@@ -133,6 +134,17 @@ fn a_clip_in_three_chunks_trains_resumes_identically_and_renders_as_one() {
     let fresh = common::run_stages(&root, common::only("train", true));
     assert_eq!(fresh.ran, ["train"]);
     assert_eq!(fs::read(train.join("model.bin")).unwrap(), resumed_model);
+
+    // The later chunks trained two at once (threads sharing the CPU, as lanes share GPUs)
+    // give that model byte for byte: the setting is not a stage parameter.
+    let toml = root.join("capture.toml");
+    let text = fs::read_to_string(&toml).unwrap();
+    fs::write(&toml, format!("{text}\n[engine]\nchunks_at_once = 2\n")).unwrap();
+    let side_by_side = common::run_stages(&root, common::only("train", true));
+    assert_eq!(side_by_side.ran, ["train"], "{side_by_side:?}");
+    assert_eq!(fs::read(train.join("model.bin")).unwrap(), resumed_model);
+    let up_to_date = common::run_stages(&root, common::only("train", false));
+    assert!(up_to_date.ran.is_empty(), "{up_to_date:?}");
 
     // Render and eval draw the whole clip from the merged model.
     let rest = common::run_stages(&root, Selection::default());

@@ -135,7 +135,12 @@ pub(crate) struct Prepared {
 impl GpuBackend {
     /// Open a device allowed by `policy` and compile the kernels.
     pub fn new(policy: AdapterPolicy) -> Result<Self, GpuError> {
-        let gpu = Gpu::open(policy)?;
+        Self::on_adapter(policy, 0)
+    }
+
+    /// As [`GpuBackend::new`], on the `n`th adapter the policy allows ([`Gpu::open_nth`]).
+    pub fn on_adapter(policy: AdapterPolicy, n: usize) -> Result<Self, GpuError> {
+        let gpu = Gpu::open_nth(policy, n)?;
         let kernels = Kernels::new(&gpu, true);
         Ok(Self { gpu, kernels })
     }
