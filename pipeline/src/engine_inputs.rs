@@ -67,9 +67,13 @@ pub fn training_backend_for(choice: BackendChoice) -> anyhow::Result<Box<dyn Ren
 
 /// The backends that train time chunks side by side, one a lane: `[engine]
 /// chunks_at_once` of them (0: one per GPU the backend choice allows, or one on the
-/// CPU). On GPUs lane `k` trains on the `k`th (wrapping around where there are more
-/// lanes than GPUs); on the CPU the lanes share its cores.
-pub fn training_lanes(engine: &EngineSettings) -> anyhow::Result<Vec<Box<dyn RenderBackend>>> {
+/// CPU), and no more than `most` (the chunks there are to train at once; a GPU beyond
+/// them is never opened). On GPUs lane `k` trains on the `k`th (wrapping around where
+/// there are more lanes than GPUs); on the CPU the lanes share its cores.
+pub fn training_lanes(
+    engine: &EngineSettings,
+    most: usize,
+) -> anyhow::Result<Vec<Box<dyn RenderBackend>>> {
     let first = training_backend_for(engine.backend)?;
     let policy = AdapterPolicy::from_env();
     let gpus = match engine.backend {
@@ -81,7 +85,9 @@ pub fn training_lanes(engine: &EngineSettings) -> anyhow::Result<Vec<Box<dyn Ren
         0 if on_gpu => gpus,
         0 => 1,
         n => n,
-    };
+    }
+    .min(most)
+    .max(1);
     let mut backends = vec![first];
     for lane in 1..lanes {
         backends.push(if on_gpu {
@@ -336,15 +342,20 @@ mod tests {
     #[test]
     fn chunks_train_one_at_a_time_on_the_cpu_unless_asked_for_more() {
         let lanes = |chunks_at_once| {
-            training_lanes(&EngineSettings {
-                backend: BackendChoice::Cpu,
-                chunks_at_once,
-            })
+            training_lanes(
+                &EngineSettings {
+                    backend: BackendChoice::Cpu,
+                    chunks_at_once,
+                },
+                4,
+            )
             .unwrap()
         };
         assert_eq!(lanes(0).len(), 1);
         let three = lanes(3);
         assert_eq!(three.len(), 3);
+        // No more lanes than chunks to train at once.
+        assert_eq!(lanes(6).len(), 4);
         assert!(three.iter().all(|b| b.as_gpu().is_none()));
     }
 }

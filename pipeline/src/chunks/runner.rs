@@ -114,7 +114,12 @@ pub fn run(
     engine: &EngineSettings,
     plan: &ChunkPlan,
 ) -> anyhow::Result<()> {
-    let backends = crate::engine_inputs::training_lanes(engine)?;
+    // One lane for a single chunk (a cluster job); at most one a chunk after the first.
+    let most = match ctx.chunk {
+        Some(_) => 1,
+        None => plan.chunks.len().saturating_sub(1),
+    };
+    let backends = crate::engine_inputs::training_lanes(engine, most)?;
     ctx.record_tool("training backend", &backends[0].describe());
     let trainer = Trainer {
         ctx,
@@ -144,7 +149,7 @@ pub fn run(
                 .chunks
                 .split_first()
                 .context("a chunked clip has no chunks")?;
-            let lanes = trainer.backends.len().min(rest.len()).max(1);
+            let lanes = trainer.backends.len();
             tracing::info!(
                 "training {} time chunks ([chunks]), {} iterations each: the first, then {}",
                 plan.chunks.len(),
