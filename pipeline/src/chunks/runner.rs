@@ -142,7 +142,7 @@ pub fn run(
                     plan.chunks.len() - 1
                 )
             })?;
-            trainer.train(chunk, &trainer.lane(0))
+            trainer.train(chunk, &trainer.stage_lane())
         }
         None => {
             let (first, rest) = plan
@@ -160,13 +160,13 @@ pub fn run(
                     format!("{lanes} at once ([engine] chunks_at_once)")
                 }
             );
-            trainer.train(first, &trainer.lane(0))?;
+            trainer.train(first, &trainer.stage_lane())?;
             if lanes == 1 {
                 for chunk in rest {
-                    trainer.train(chunk, &trainer.lane(0))?;
+                    trainer.train(chunk, &trainer.stage_lane())?;
                 }
             } else {
-                trainer.train_side_by_side(rest, lanes)?;
+                trainer.train_side_by_side(rest)?;
             }
             merge(ctx, plan, settings.iterations)
         }
@@ -180,26 +180,28 @@ struct Lane<'a> {
 }
 
 impl Trainer<'_> {
-    /// Lane `k`'s backend, reporting to the stage's progress.
-    fn lane(&self, k: usize) -> Lane<'_> {
+    /// The first backend, reporting to the stage's progress: the lane of the first chunk
+    /// and of chunks trained one at a time.
+    fn stage_lane(&self) -> Lane<'_> {
         Lane {
-            backend: self.backends[k].as_ref(),
+            backend: self.backends[0].as_ref(),
             progress: self.ctx.progress,
         }
     }
 
-    /// Train `chunks` (none of them the first) on `lanes` backends at once, each lane
+    /// Train `chunks` (none of them the first) on every backend at once, each lane
     /// taking the next chunk when it is done with one; the stage's progress counts
     /// chunks. After a failure no lane starts another chunk (those running finish or
     /// stop at their checkpoints), and the first error is returned.
-    fn train_side_by_side(&self, chunks: &[Chunk], lanes: usize) -> anyhow::Result<()> {
+    fn train_side_by_side(&self, chunks: &[Chunk]) -> anyhow::Result<()> {
         let progress = self.ctx.progress;
         progress.start(chunks.len() as u64, "chunks");
-        progress.message(&format!("{lanes} chunks at once"));
+        progress.message(&format!("{} chunks at once", self.backends.len()));
         let next = AtomicUsize::new(0);
         let failed = AtomicBool::new(false);
         let results: Vec<anyhow::Result<()>> = std::thread::scope(|scope| {
-            let handles: Vec<_> = self.backends[..lanes]
+            let handles: Vec<_> = self
+                .backends
                 .iter()
                 .map(|backend| {
                     let (next, failed) = (&next, &failed);
