@@ -380,19 +380,37 @@ fn parse_size(s: &str) -> Result<[u32; 2], String> {
 
 #[derive(Debug, Subcommand)]
 pub enum BenchCommand {
-    /// Train every 4C4D decay variant on a simulated scene with held-out cameras and write
-    /// a table of held-out PSNR, DSSIM1, DSSIM2 and LPIPS per variant to
-    /// work/bench/ablation.md + .csv.
+    /// The 4C4D decay ablation: train each decay variant (none, constant, pow, exp, neural)
+    /// from the same points, settings and seed, and write held-out PSNR, SSIM and LPIPS,
+    /// over the whole image and inside the moving-region masks, per variant to
+    /// work/bench/ablation/ablation.{md,csv}. An interrupted ablation resumes: variants
+    /// already in ablation.csv are not trained again.
     ///
-    /// Example: pipeline bench ablation fixtures/demo.toml /tmp/ablation --iterations 600
+    /// Examples: pipeline bench ablation my_capture/ --preset best
+    ///           pipeline bench ablation fixtures/demo.toml /tmp/ablation --iterations 600
     Ablation {
-        /// The scene file (needs held-out cameras).
-        scene: PathBuf,
-        /// Where the simulated capture and the results go (reused when it exists).
-        capture_dir: PathBuf,
-        /// Training iterations per variant (schedules are scaled to it).
-        #[arg(long, default_value_t = 600)]
-        iterations: u64,
+        /// A capture directory with held-out cameras (real or made by `pipeline demo`), or
+        /// a scene file with held-out cameras to simulate into CAPTURE_DIR.
+        source: PathBuf,
+        /// Where a scene file is simulated (reused when it exists); only with a scene file.
+        capture_dir: Option<PathBuf>,
+        /// Train with this preset's schedule instead of the capture's.
+        #[arg(long, value_enum)]
+        preset: Option<crate::presets::Preset>,
+        /// Train this many iterations instead of the capture's (its schedules scaled).
+        #[arg(long, conflicts_with = "preset")]
+        iterations: Option<u64>,
+        /// Decay variants to train (default: none, constant, pow, exp, neural); the rest of
+        /// the capture's [decay] table applies to each.
+        #[arg(long, value_delimiter = ',', value_parser = crate::bench::tradeoff::parse_decay)]
+        decay: Vec<splat4d::decay::DecayVariant>,
+        /// The training backend (gpu: a hardware GPU; SPLAT4D_GPU_SOFTWARE=1 allows lavapipe).
+        #[arg(long, value_enum, default_value_t = crate::bench::tradeoff::TrainOn::Cpu)]
+        backend: crate::bench::tradeoff::TrainOn,
+        /// Use the capture as its stages left it up to `init`, without bringing them up to
+        /// date (a capture prepared elsewhere).
+        #[arg(long)]
+        as_prepared: bool,
     },
     /// What accuracy costs in time: train a grid of settings (iterations × training
     /// resolution × Gaussian budget × decay × backend) and write held-out PSNR / SSIM /

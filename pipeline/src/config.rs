@@ -105,6 +105,14 @@ pub enum ConfigError {
 }
 
 impl CaptureConfig {
+    /// How eval estimates moving-region masks from static plates: the init's plates.
+    pub fn plate_masks(&self) -> crate::masks::PlateMasks {
+        crate::masks::PlateMasks {
+            frames: self.init.plates,
+            threshold: self.init.motion_threshold,
+        }
+    }
+
     /// Read `capture.toml` from a capture directory; defaults when the file is absent.
     pub fn load(capture_dir: &Path) -> Result<Self, ConfigError> {
         let path = capture_dir.join(CONFIG_FILE);

@@ -127,11 +127,26 @@ fn dispatch(command: Command, reporter: &Reporter) -> anyhow::Result<ExitCode> {
         Command::Render(args) => render(args, reporter),
         Command::Metrics(args) => metrics(args, reporter),
         Command::Bench(BenchCommand::Ablation {
-            scene,
+            source,
             capture_dir,
+            preset,
             iterations,
+            decay,
+            backend,
+            as_prepared,
         }) => {
-            let table = pipeline::bench::ablation::run(&scene, &capture_dir, iterations, reporter)?;
+            let mut source =
+                pipeline::bench::inputs::BenchSource::from_args(&source, capture_dir.as_deref())?;
+            if as_prepared {
+                source = source.as_prepared();
+            }
+            let ablation = pipeline::bench::ablation::Ablation {
+                preset,
+                iterations,
+                decay,
+                backend,
+            };
+            let table = pipeline::bench::ablation::run(&source, &ablation, reporter)?;
             reporter.say(&format!("ablation table written to {}", table.display()));
             if reporter.mode() == OutputMode::Human {
                 print!("{}", std::fs::read_to_string(&table).unwrap_or_default());

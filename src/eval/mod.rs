@@ -17,7 +17,7 @@ pub use frames::{FrameOutputs, FrameSink, RenderedPath, render_path};
 
 use crate::camera::Camera;
 use crate::metrics::lpips::{ImagePair, Lpips, LpipsDevice, LpipsError};
-use crate::metrics::{MetricsError, image_metrics, masked_metrics};
+use crate::metrics::{MetricsError, image_metrics, masked_metrics, region};
 use crate::model::Gaussians;
 use crate::progress::Progress;
 use crate::render::backdrop::{Backdrop, UvCache, composite};
@@ -29,6 +29,11 @@ pub const GRIDS_PER_SET: usize = 3;
 
 /// Views evaluated together at least: their LPIPS pairs go through the network at once.
 const LPIPS_VIEWS: usize = 4;
+
+/// Pixels around a moving-region mask's bounding box that its LPIPS crop keeps.
+pub const MOVING_BOX_MARGIN: usize = 8;
+/// Least side of that crop (AlexNet's deepest layer sees 16×16-pixel steps).
+pub const MOVING_BOX_MIN_SIDE: usize = 64;
 
 /// What `metrics.json` says about LPIPS when no network was given: why, and how to get one.
 pub const LPIPS_SKIPPED: &str = "skipped: no LPIPS weights installed (run scripts/setup.sh, or set LPIPS_WEIGHTS to the weights file)";
@@ -125,6 +130,12 @@ pub struct MovingMetrics {
     pub psnr: Option<f64>,
     /// Mean of the SSIM map over the masked pixels and RGB; `None` for an empty mask.
     pub ssim: Option<f64>,
+    /// LPIPS of the mask's box (render and truth cropped alike); `None` for an empty mask
+    /// or when LPIPS was skipped.
+    pub lpips: Option<f64>,
+    /// The render's mean brightness inside the mask over the truth's (below 1: darker than
+    /// the scene); `None` for an empty mask.
+    pub brightness: Option<f64>,
 }
 
 /// Means over the views of a set whose moving-region mask is not empty.
@@ -136,6 +147,10 @@ pub struct MovingSummary {
     pub empty_masks: usize,
     pub psnr: Option<f64>,
     pub ssim: Option<f64>,
+    pub lpips: Option<f64>,
+    /// Mean brightness ratio, and the darkest view's.
+    pub brightness: Option<f64>,
+    pub darkest: Option<f64>,
     /// Mean mask fraction of the views in the means.
     pub mask_fraction: Option<f64>,
 }
@@ -153,6 +168,12 @@ impl MovingSummary {
             empty_masks: masked.len() - measured.len(),
             psnr: mean(measured.iter().filter_map(|m| m.psnr)),
             ssim: mean(measured.iter().filter_map(|m| m.ssim)),
+            lpips: mean(measured.iter().filter_map(|m| m.lpips)),
+            brightness: mean(measured.iter().filter_map(|m| m.brightness)),
+            darkest: measured
+                .iter()
+                .filter_map(|m| m.brightness)
+                .reduce(f64::min),
             mask_fraction: mean(measured.iter().map(|m| m.mask_fraction)),
         })
     }
@@ -197,7 +218,7 @@ fn definitions() -> serde_json::Value {
 }
 
 /// The definition of the moving-region metrics, added when a view has a mask.
-const MOVING_DEFINITION: &str = "PSNR (MSE over the masked pixels, RGB) and SSIM (mean of the SSIM map over the masked pixels, RGB; windows also see the pixels around the mask) inside each view's moving-region mask, means over the views whose mask is not empty (empty_masks: views left out); mask_fraction = mean fraction of the image inside the mask";
+const MOVING_DEFINITION: &str = "PSNR (MSE over the masked pixels, RGB) and SSIM (mean of the SSIM map over the masked pixels, RGB; windows also see the pixels around the mask) inside each view's moving-region mask, and LPIPS of the render and the truth cropped to the mask's bounding box (8 pixels wider each side, at least 64×64, inside the image), and brightness (the render's mean over the masked pixels and RGB divided by the truth's, at least 1/255: below 1 where the render is darker than the scene), means over the views whose mask is not empty (empty_masks: views left out); darkest = the least brightness of a view; mask_fraction = mean fraction of the image inside the mask";
 
 fn finite(v: Option<f64>) -> serde_json::Value {
     match v {
@@ -243,30 +264,64 @@ fn load_mask(path: &Path, image: &Path, width: u32, height: u32) -> Result<Vec<b
     Ok(mask.into_raw().into_iter().map(|v| v >= 128).collect())
 }
 
-/// PSNR and SSIM of `rendered` inside the mask of `view`; `None` when it has none.
+/// PSNR and SSIM of `rendered` inside `mask`, with the moving region's LPIPS.
 fn moving_metrics(
-    view: &EvalView,
     rendered: &[f32],
     truth: &[f32],
+    mask: &[bool],
     width: u32,
     height: u32,
-    label: impl Fn() -> String,
-) -> Result<Option<MovingMetrics>, EvalError> {
-    let Some(path) = &view.mask else {
-        return Ok(None);
-    };
-    let mask = load_mask(path, &view.image_path, width, height)?;
-    let m = masked_metrics(rendered, truth, &mask, width as usize, height as usize).map_err(
-        |source| EvalError::Metrics {
-            view: label(),
-            source,
-        },
-    )?;
-    Ok(Some(MovingMetrics {
+    lpips: Option<f64>,
+) -> Result<MovingMetrics, MetricsError> {
+    let m = masked_metrics(rendered, truth, mask, width as usize, height as usize)?;
+    Ok(MovingMetrics {
         mask_fraction: m.map_or(0.0, |m| m.fraction),
         psnr: m.map(|m| m.psnr),
         ssim: m.map(|m| m.ssim),
-    }))
+        lpips: m.and(lpips),
+        brightness: m.map(|m| m.brightness),
+    })
+}
+
+/// LPIPS of each view's moving region: of the render and the truth cropped to the mask's
+/// box ([`MOVING_BOX_MARGIN`], [`MOVING_BOX_MIN_SIDE`]); `None` for a view without a mask
+/// or with an empty one. An error names the view's index in the batch.
+fn moving_lpips(
+    net: &Lpips,
+    device: LpipsDevice,
+    rendered: &[Vec<f32>],
+    truths: &[(Vec<f32>, u32, u32)],
+    masks: &[Option<Vec<bool>>],
+) -> Result<Vec<Option<f64>>, (usize, LpipsError)> {
+    let mut crops = Vec::new();
+    for (k, ((r, (t, w, h)), mask)) in rendered.iter().zip(truths).zip(masks).enumerate() {
+        let (w, h) = (*w as usize, *h as usize);
+        let rect = mask
+            .as_ref()
+            .and_then(|m| region::mask_box(m, w, h, MOVING_BOX_MARGIN, MOVING_BOX_MIN_SIDE));
+        if let Some(rect) = rect {
+            crops.push((
+                k,
+                rect,
+                region::crop_rgb(r, w, rect),
+                region::crop_rgb(t, w, rect),
+            ));
+        }
+    }
+    let pairs: Vec<ImagePair> = crops
+        .iter()
+        .map(|(_, rect, a, b)| ImagePair {
+            a,
+            b,
+            width: rect.width(),
+            height: rect.height(),
+        })
+        .collect();
+    let mut out = vec![None; rendered.len()];
+    for ((k, ..), d) in crops.iter().zip(net.distances_on(device, &pairs)) {
+        out[*k] = Some(d.map_err(|e| (*k, e))?);
+    }
+    Ok(out)
 }
 
 fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
@@ -435,11 +490,33 @@ pub fn evaluate(
                 }
                 None => vec![None; chunk.len()],
             };
-            for (k, (view, ((rendered, (truth, w, h)), lp))) in chunk
+            let masks: Vec<Option<Vec<bool>>> = chunk
                 .iter()
-                .zip(rendered.into_iter().zip(truths).zip(lpips_values))
+                .zip(&truths)
+                .map(|(view, (_, w, h))| {
+                    view.mask
+                        .as_ref()
+                        .map(|path| load_mask(path, &view.image_path, *w, *h))
+                        .transpose()
+                })
+                .collect::<Result<_, _>>()?;
+            let moving_lpips = match lpips {
+                Some(net) => moving_lpips(net, lpips_device, &rendered, &truths, &masks).map_err(
+                    |(k, source)| EvalError::Lpips {
+                        view: label(first + k),
+                        source,
+                    },
+                )?,
+                None => vec![None; chunk.len()],
+            };
+            for (k, (((rendered, (truth, w, h)), lp), (mask, moving_lp))) in rendered
+                .into_iter()
+                .zip(truths)
+                .zip(lpips_values)
+                .zip(masks.iter().zip(moving_lpips))
                 .enumerate()
             {
+                let view = &chunk[k];
                 let i = first + k;
                 let label = || label(i);
                 let m =
@@ -449,7 +526,14 @@ pub fn evaluate(
                             source,
                         }
                     })?;
-                let moving = moving_metrics(view, &rendered, &truth, w, h, label)?;
+                let moving = mask
+                    .as_ref()
+                    .map(|mask| moving_metrics(&rendered, &truth, mask, w, h, moving_lp))
+                    .transpose()
+                    .map_err(|source| EvalError::Metrics {
+                        view: label(),
+                        source,
+                    })?;
                 if wanted_grids.contains(&i) {
                     let grid = side_by_side(&[
                         &rgb8_from(&truth, w, h),
@@ -499,7 +583,7 @@ pub fn evaluate(
     let any_mask = report.heldout.moving.is_some() || report.train.moving.is_some();
     let mut csv = String::from("set,camera,time,image,psnr,ssim,dssim1,dssim2,lpips");
     csv.push_str(if any_mask {
-        ",moving_psnr,moving_ssim,mask_fraction\n"
+        ",moving_psnr,moving_ssim,moving_lpips,moving_brightness,mask_fraction\n"
     } else {
         "\n"
     });
@@ -589,11 +673,13 @@ fn moving_csv(m: Option<&MovingMetrics>) -> String {
     let value =
         |v: Option<f64>, digits: usize| v.map_or(String::new(), |v| format!("{v:.digits$}"));
     match m {
-        None => ",,,".into(),
+        None => ",,,,,".into(),
         Some(m) => format!(
-            ",{},{},{:.6}",
+            ",{},{},{},{},{:.6}",
             value(m.psnr, 4),
             value(m.ssim, 6),
+            value(m.lpips, 6),
+            value(m.brightness, 4),
             m.mask_fraction
         ),
     }
@@ -604,7 +690,8 @@ fn moving_json(m: &MovingSummary) -> serde_json::Value {
     serde_json::json!({
         "frames": m.frames,
         "empty_masks": m.empty_masks,
-        "mean": { "psnr": finite(m.psnr), "ssim": finite(m.ssim) },
+        "mean": { "psnr": finite(m.psnr), "ssim": finite(m.ssim), "lpips": finite(m.lpips), "brightness": finite(m.brightness) },
+        "darkest": finite(m.darkest),
         "mask_fraction": finite(m.mask_fraction),
     })
 }

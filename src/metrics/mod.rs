@@ -11,6 +11,7 @@
 //! No IO here (see `eval`).
 
 pub mod lpips;
+pub mod region;
 pub mod ssim;
 
 use crate::math::numerics::Real;
@@ -160,6 +161,9 @@ pub struct MaskedMetrics {
     pub psnr: f64,
     /// Mean of the SSIM map (data range 1) over the masked pixels and channels.
     pub ssim: f64,
+    /// The render's mean over the masked pixels and channels divided by the truth's (the
+    /// truth's at least 1/255): below 1 where the render is darker than the scene.
+    pub brightness: f64,
 }
 
 /// PSNR and SSIM of `rendered` against `truth` inside `mask` (one flag per pixel); `None`
@@ -184,25 +188,28 @@ pub fn masked_metrics<F: Real>(
         return Ok(None);
     };
     let (mut sum, mut inside) = (0.0f64, 0usize);
+    let (mut sum_r, mut sum_t) = (0.0f64, 0.0f64);
     for ((r, t), _) in rendered
         .chunks_exact(3)
         .zip(truth.chunks_exact(3))
         .zip(mask)
         .filter(|(_, m)| **m)
     {
-        sum += r
-            .iter()
-            .zip(t)
-            .map(|(&x, &y)| (x.f64() - y.f64()).powi(2))
-            .sum::<f64>();
+        for (&x, &y) in r.iter().zip(t) {
+            sum += (x.f64() - y.f64()).powi(2);
+            sum_r += x.f64();
+            sum_t += y.f64();
+        }
         inside += 1;
     }
-    let mse = sum / (3 * inside) as f64;
+    let values = (3 * inside) as f64;
+    let mse = sum / values;
     Ok(Some(MaskedMetrics {
         fraction: inside as f64 / (width * height) as f64,
         mse,
         psnr: psnr_from_mse(mse),
         ssim,
+        brightness: (sum_r / values) / (sum_t / values).max(1.0 / 255.0),
     }))
 }
 
@@ -235,6 +242,22 @@ mod tests {
         assert!((m.mse - mse).abs() < 1e-12, "{}", m.mse);
         assert!((m.psnr - (-10.0 * mse.log10())).abs() < 1e-9);
         assert!((m.fraction - 2.0 / 24.0).abs() < 1e-15);
+        // Brightness: the render's masked mean over the truth's (pixel 5 is 0.1 brighter).
+        let t_sum: f64 = truth[15..21].iter().sum();
+        assert!(
+            (m.brightness - (t_sum + 0.3) / t_sum).abs() < 1e-12,
+            "{}",
+            m.brightness
+        );
+        let dark: Vec<f64> = truth.iter().map(|v| v * 0.5).collect();
+        let d = masked_metrics(&dark, &truth, &mask, w, h).unwrap().unwrap();
+        assert!((d.brightness - 0.5).abs() < 1e-12);
+        // A black truth counts as 1/255: a black render is 0, not NaN.
+        let black = vec![0.0; 3 * w * h];
+        let b = masked_metrics(&black, &black, &mask, w, h)
+            .unwrap()
+            .unwrap();
+        assert_eq!(b.brightness, 0.0);
         // A full mask gives the whole-image values.
         let full = masked_metrics(&rendered, &truth, &vec![true; w * h], w, h)
             .unwrap()

@@ -801,7 +801,7 @@ pub fn train_from(
         }
         None => None,
     };
-    let model_path = out_dir.join("model.bin");
+    let model_path = out_dir.join(MODEL_FILE);
     save_model(&model, &model_path).map_err(CheckpointError::from)?;
     progress.finish();
     Ok(TrainSummary {
@@ -821,6 +821,9 @@ pub fn train_from(
 
 /// The learned backdrop's file beside `model.bin` (`[train] background = "learned"`).
 pub const BACKDROP_FILE: &str = "backdrop.bin";
+
+/// The trained model's file in the output folder.
+pub const MODEL_FILE: &str = "model.bin";
 
 /// PSNR (dB) of `model` rendered at every view of `dataset` against its image.
 pub fn evaluate_psnr(

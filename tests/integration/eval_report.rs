@@ -433,12 +433,12 @@ fn moving_region_metrics_are_reported_where_views_have_masks() {
     let lines: Vec<&str> = csv.lines().collect();
     assert_eq!(
         lines[0],
-        "set,camera,time,image,psnr,ssim,dssim1,dssim2,lpips,moving_psnr,moving_ssim,mask_fraction"
+        "set,camera,time,image,psnr,ssim,dssim1,dssim2,lpips,moving_psnr,moving_ssim,moving_lpips,moving_brightness,mask_fraction"
     );
-    assert!(lines[1].ends_with(",skipped,,,"), "no mask: {}", lines[1]);
+    assert!(lines[1].ends_with(",skipped,,,,,"), "no mask: {}", lines[1]);
     assert!(lines[2].ends_with(",0.500000"), "{}", lines[2]);
     assert!(
-        lines[3].ends_with(",skipped,,,0.000000"),
+        lines[3].ends_with(",skipped,,,,,0.000000"),
         "empty mask: {}",
         lines[3]
     );
@@ -467,6 +467,33 @@ fn moving_region_metrics_are_reported_where_views_have_masks() {
             && text.contains("64×48"),
         "{text}"
     );
+
+    // With a network, the moving region has its LPIPS too: over the whole image for a full
+    // mask, none for an empty one (the fixture's network is mean |a − b|).
+    s.heldout[1].mask = Some(dir.join("m_left.png"));
+    let net = Lpips::load(&lpips_fixture()).unwrap();
+    let report = evaluate(
+        &CpuBackend,
+        &model,
+        &s.heldout,
+        &s.train,
+        &dir.join("with-lpips"),
+        Some(&net),
+        [0.0; 3],
+        None,
+        &NoProgress,
+    )
+    .unwrap();
+    let full = &report.train.frames[1];
+    let (whole, moving) = (full.lpips.unwrap(), full.moving.unwrap().lpips.unwrap());
+    assert!(
+        whole > 0.0 && (moving - whole).abs() < 1e-6,
+        "{whole} {moving}"
+    );
+    assert_eq!(report.train.frames[0].moving.unwrap().lpips, None);
+    let held = report.heldout.moving.unwrap();
+    assert_eq!(held.lpips, report.heldout.frames[1].moving.unwrap().lpips);
+    assert!(held.lpips.is_some_and(|v| v > 0.0));
 }
 
 #[test]

@@ -14,7 +14,6 @@ use splat4d::train::PointCloud;
 
 use crate::config::CaptureConfig;
 use crate::layout::Capture;
-use crate::masks::MaskSource;
 use crate::report::Reporter;
 use crate::runner::Selection;
 use crate::{open_capture, simulate, stages};
@@ -146,16 +145,26 @@ pub fn prepare(source: &BenchSource, reporter: &Reporter) -> anyhow::Result<Benc
     }
     let cameras_file = work.join("poses/cameras.json");
     let progress = reporter.progress("load");
-    let dataset =
+    let mut dataset =
         crate::engine_inputs::load_dataset(&work.join("frames"), &cameras_file, &progress)?;
-    shared_types::Progress::finish(&progress);
     let points_file = work.join("init/points.ply");
     let points = shared_types::points::read_points_ply(&points_file)
         .with_context(|| format!("cannot read the initial points {}", points_file.display()))?;
+    // As the train stage does: every setting trains on the cameras' matched exposure.
+    if config.train.match_exposure {
+        stages::train::match_exposure(&mut dataset, &points, &progress);
+    }
+    shared_types::Progress::finish(&progress);
     let index = FramesIndex::read_json(&work.join("frames/frames.json"))?;
     let poses = PosesFile::read(&cameras_file)?;
     let bench_dir = work.join("bench");
-    let masks = MaskSource::find(&capture.root, &work.join("sync/sync.json"))?;
+    let masks = stages::eval::moving_masks(
+        &capture,
+        &config.eval,
+        &config.capture.heldout,
+        config.plate_masks(),
+        &bench_dir.join("plate_masks"),
+    )?;
     let heldout = stages::eval::any_heldout_views(
         &capture,
         &config.eval,

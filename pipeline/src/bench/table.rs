@@ -42,8 +42,9 @@ pub struct FillSummary {
 }
 
 impl Table {
-    /// The table kept in `path`: its rows when the file exists (its header must be exactly
-    /// these columns), none otherwise.
+    /// The table kept in `path`: its rows when the file exists (its header must be these
+    /// columns, or all the key columns and the first value columns: a table from before
+    /// value columns were added at the end, whose rows get them empty), none otherwise.
     pub fn open(path: &Path, key_columns: &[&str], value_columns: &[&str]) -> anyhow::Result<Self> {
         let mut table = Table {
             path: path.to_path_buf(),
@@ -66,7 +67,9 @@ impl Table {
             .chain(&table.value_columns)
             .cloned()
             .collect();
-        if header != expected {
+        let k = table.key_columns.len();
+        let older = header.len() > k && expected.starts_with(&header);
+        if header != expected && !older {
             bail!(
                 "{} has the columns [{}], not this benchmark's [{}]; move it away or delete it \
                  (its rows cannot be reused), or give another output folder",
@@ -75,15 +78,17 @@ impl Table {
                 expected.join(", ")
             );
         }
-        let k = table.key_columns.len();
-        for (line, record) in records.enumerate() {
+        for (line, mut record) in records.enumerate() {
+            if older && record.len() == header.len() {
+                record.resize(expected.len(), String::new());
+            }
             if record.len() != expected.len() {
                 bail!(
                     "{}: row {} has {} fields, the header {}; fix or delete that row",
                     path.display(),
                     line + 2,
                     record.len(),
-                    expected.len()
+                    header.len()
                 );
             }
             let (key, values) = record.split_at(k);
@@ -423,5 +428,29 @@ mod tests {
         std::fs::write(&path, "n,square\n\"1,2\n").unwrap();
         let e = format!("{:#}", Table::open(&path, &["n"], &["square"]).unwrap_err());
         assert!(e.contains("not closed"), "{e}");
+    }
+
+    #[test]
+    fn a_csv_from_before_new_value_columns_keeps_its_rows() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.csv");
+        std::fs::write(&path, "n,square\n3,9\n").unwrap();
+        let mut t = Table::open(&path, &["n"], &["square", "cube"]).unwrap();
+        assert_eq!(t.rows()[0].values, strings(&["9", ""]));
+        t.insert(Row {
+            key: strings(&["2"]),
+            values: strings(&["4", "8"]),
+        })
+        .unwrap();
+        t.write_csv().unwrap();
+        assert_eq!(
+            std::fs::read_to_string(&path).unwrap(),
+            "n,square,cube\n3,9,\n2,4,8\n"
+        );
+        // Only key columns, or columns of another order, are not an older table.
+        std::fs::write(&path, "n\n3\n").unwrap();
+        assert!(Table::open(&path, &["n"], &["square"]).is_err());
+        std::fs::write(&path, "n,cube\n3,27\n").unwrap();
+        assert!(Table::open(&path, &["n"], &["square", "cube"]).is_err());
     }
 }

@@ -36,7 +36,7 @@ pub enum TrainOn {
 }
 
 impl TrainOn {
-    fn name(self) -> &'static str {
+    pub fn name(self) -> &'static str {
         match self {
             Self::Cpu => "cpu",
             Self::Gpu => "gpu",
@@ -89,7 +89,8 @@ impl Setting {
     }
 }
 
-fn decay_name(v: DecayVariant) -> String {
+/// The `[decay] variant` name of `v`.
+pub fn decay_name(v: DecayVariant) -> String {
     serde_json::to_value(v)
         .ok()
         .and_then(|v| v.as_str().map(str::to_string))
@@ -169,8 +170,10 @@ pub struct Row {
     pub dssim1: Option<f64>,
     pub dssim2: Option<f64>,
     pub lpips: Option<f64>,
-    /// Held-out PSNR inside the moving-object masks.
+    /// Held-out PSNR, SSIM and LPIPS inside the moving-object masks.
     pub moving_psnr: Option<f64>,
+    pub moving_ssim: Option<f64>,
+    pub moving_lpips: Option<f64>,
 }
 
 /// The CSV's columns: the setting (the key), then what was measured.
@@ -181,7 +184,7 @@ const KEY_COLUMNS: [&str; 5] = [
     "decay",
     "backend",
 ];
-const VALUE_COLUMNS: [&str; 10] = [
+const VALUE_COLUMNS: [&str; 12] = [
     "seconds",
     "cpu_seconds",
     "peak_ram_mib",
@@ -192,6 +195,8 @@ const VALUE_COLUMNS: [&str; 10] = [
     "dssim2",
     "lpips",
     "moving_psnr",
+    "moving_ssim",
+    "moving_lpips",
 ];
 
 fn opt(v: Option<f64>) -> String {
@@ -225,6 +230,8 @@ impl Row {
                 opt(self.dssim2),
                 opt(self.lpips),
                 opt(self.moving_psnr),
+                opt(self.moving_ssim),
+                opt(self.moving_lpips),
             ],
         }
     }
@@ -274,6 +281,8 @@ impl Row {
             dssim2: maybe(12)?,
             lpips: maybe(13)?,
             moving_psnr: maybe(14)?,
+            moving_ssim: maybe(15)?,
+            moving_lpips: maybe(16)?,
         })
     }
 }
@@ -417,52 +426,11 @@ pub fn run(source: &BenchSource, grid: &Grid, reporter: &Reporter) -> anyhow::Re
         inputs.dataset = stretch.apply(&inputs.dataset);
     }
     let out = out_dir(&inputs.bench_dir, grid.stretch);
-    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
-    let csv_path = out.join("tradeoff.csv");
-    let mut table = open_table(&csv_path)?;
-    let mut rows = rows_of(&table)?;
     let settings = grid.settings(
         inputs.config.train.densify.max_gaussians,
         inputs.config.decay.variant,
     );
-    let todo: Vec<Setting> = settings
-        .iter()
-        .filter(|s| !rows.iter().any(|r| r.setting.key() == s.key()))
-        .copied()
-        .collect();
-    reporter.say(&format!(
-        "tradeoff: {} settings, {} already measured in {}, {} to train",
-        settings.len(),
-        settings.len() - todo.len(),
-        csv_path.display(),
-        todo.len()
-    ));
-    let grid_progress = reporter.progress("tradeoff");
-    shared_types::Progress::start(
-        &grid_progress,
-        todo.iter().map(Setting::work).sum(),
-        "full-size steps",
-    );
-    let evaluator = crate::engine_inputs::render_backend(inputs.config.engine.backend)?;
-    for (k, setting) in todo.iter().enumerate() {
-        shared_types::Progress::message(
-            &grid_progress,
-            &format!("{}/{}: {}", k + 1, todo.len(), setting.key()),
-        );
-        let row = measure(&inputs, setting, &out, evaluator.as_ref(), reporter)
-            .with_context(|| format!("setting {}", setting.key()))?;
-        reporter.say(&format!(
-            "tradeoff: {} trained in {}, held-out PSNR {}",
-            setting.key(),
-            crate::report::format_duration(row.seconds),
-            row.psnr.map_or("–".into(), |p| format!("{p:.2} dB"))
-        ));
-        table.insert(row.to_table_row())?;
-        table.write_csv()?;
-        rows.push(row);
-        shared_types::Progress::advance(&grid_progress, setting.work());
-    }
-    shared_types::Progress::finish(&grid_progress);
+    let rows = measure_missing(&inputs, &settings, &out.join("tradeoff.csv"), reporter)?;
     // The table and plot show every setting measured on this capture (this grid's and
     // earlier ones'); delete tradeoff.csv to start afresh.
     let shown = rows;
@@ -482,6 +450,83 @@ pub fn run(source: &BenchSource, grid: &Grid, reporter: &Reporter) -> anyhow::Re
     let md = out.join("tradeoff.md");
     shared_types::atomic::write_atomic(&md, markdown(&header, &shown).as_bytes())?;
     Ok(md)
+}
+
+/// Train and measure the `settings` not yet in the table `csv_path` (each row written as
+/// soon as it is measured, each run in `runs/KEY/` beside the table); returns every row of
+/// the table, those measured before included.
+pub fn measure_missing(
+    inputs: &BenchInputs,
+    settings: &[Setting],
+    csv_path: &Path,
+    reporter: &Reporter,
+) -> anyhow::Result<Vec<Row>> {
+    let out = csv_path.parent().unwrap_or(Path::new("."));
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let mut table = open_table(csv_path)?;
+    let mut rows = rows_of(&table)?;
+    let todo: Vec<Setting> = settings
+        .iter()
+        .filter(|s| !rows.iter().any(|r| r.setting.key() == s.key()))
+        .copied()
+        .collect();
+    reporter.say(&format!(
+        "{} settings, {} already measured in {}, {} to train",
+        settings.len(),
+        settings.len() - todo.len(),
+        csv_path.display(),
+        todo.len()
+    ));
+    let grid_progress = reporter.progress("settings");
+    shared_types::Progress::start(
+        &grid_progress,
+        todo.iter().map(Setting::work).sum(),
+        "full-size steps",
+    );
+    let evaluator = crate::engine_inputs::render_backend(inputs.config.engine.backend)?;
+    // A row measured before the held-out views had moving-region masks is scored again
+    // from its saved model, not trained again.
+    if inputs.heldout.iter().any(|v| v.mask.is_some()) {
+        let background = inputs.config.train.background.resolve(&inputs.dataset);
+        for row in rows.iter_mut().filter(|r| r.moving_psnr.is_none()) {
+            let dir = out.join("runs").join(row.setting.key());
+            if !dir.join(splat4d::train::MODEL_FILE).is_file() {
+                continue;
+            }
+            reporter.say(&format!("{}: scoring its moving region", row.setting.key()));
+            let progress = reporter.progress("eval");
+            row.set_scores(&score(
+                inputs,
+                &dir,
+                background,
+                evaluator.as_ref(),
+                &progress,
+            )?);
+            shared_types::Progress::finish(&progress);
+            table.insert(row.to_table_row())?;
+            table.write_csv()?;
+        }
+    }
+    for (k, setting) in todo.iter().enumerate() {
+        shared_types::Progress::message(
+            &grid_progress,
+            &format!("{}/{}: {}", k + 1, todo.len(), setting.key()),
+        );
+        let row = measure(inputs, setting, out, evaluator.as_ref(), reporter)
+            .with_context(|| format!("setting {}", setting.key()))?;
+        reporter.say(&format!(
+            "{} trained in {}, held-out PSNR {}",
+            setting.key(),
+            crate::report::format_duration(row.seconds),
+            row.psnr.map_or("–".into(), |p| format!("{p:.2} dB"))
+        ));
+        table.insert(row.to_table_row())?;
+        table.write_csv()?;
+        rows.push(row);
+        shared_types::Progress::advance(&grid_progress, setting.work());
+    }
+    shared_types::Progress::finish(&grid_progress);
+    Ok(rows)
 }
 
 impl Grid {
@@ -571,13 +616,42 @@ fn measure(
     let seconds = started.elapsed().as_secs_f64();
     let cpu_seconds = cpu0.zip(sysinfo::cpu_seconds()).map(|(a, b)| b - a);
     let peak_ram_mib = memory.peak_mib();
-    let model = splat4d::load_model(&summary.model_path)?;
-    let backdrop = summary
-        .backdrop
-        .as_deref()
-        .map(splat4d::render::backdrop::load_backdrop)
-        .transpose()?;
+    let report = score(inputs, &dir, summary.background, evaluator, &progress)?;
+    shared_types::Progress::finish(&progress);
+    let mut row = Row {
+        setting: *setting,
+        seconds,
+        cpu_seconds,
+        peak_ram_mib,
+        gaussians: 0,
+        psnr: None,
+        ssim: None,
+        dssim1: None,
+        dssim2: None,
+        lpips: None,
+        moving_psnr: None,
+        moving_ssim: None,
+        moving_lpips: None,
+    };
+    row.set_scores(&report);
+    Ok(row)
+}
 
+/// Measure the model trained into `dir` (`model.bin`, and `backdrop.bin` when it has one)
+/// on the held-out views, drawn on `background`; its files go to `dir/eval/`.
+fn score(
+    inputs: &BenchInputs,
+    dir: &Path,
+    background: [f32; 3],
+    evaluator: &dyn RenderBackend,
+    progress: &dyn shared_types::Progress,
+) -> anyhow::Result<(usize, splat4d::eval::EvalReport)> {
+    let model = splat4d::load_model(&dir.join(splat4d::train::MODEL_FILE))?;
+    let backdrop_path = dir.join(splat4d::train::BACKDROP_FILE);
+    let backdrop = backdrop_path
+        .is_file()
+        .then(|| splat4d::render::backdrop::load_backdrop(&backdrop_path))
+        .transpose()?;
     let report = splat4d::eval::evaluate(
         evaluator,
         &model,
@@ -585,25 +659,28 @@ fn measure(
         &[],
         &dir.join("eval"),
         inputs.lpips.as_ref(),
-        summary.background,
+        background,
         backdrop.as_ref(),
-        &progress,
+        progress,
     )?;
-    shared_types::Progress::finish(&progress);
-    let m = &report.heldout;
-    Ok(Row {
-        setting: *setting,
-        seconds,
-        cpu_seconds,
-        peak_ram_mib,
-        gaussians: model.len(),
-        psnr: m.psnr,
-        ssim: m.ssim,
-        dssim1: m.dssim1,
-        dssim2: m.dssim2,
-        lpips: m.lpips,
-        moving_psnr: m.moving.as_ref().and_then(|mv| mv.psnr),
-    })
+    Ok((model.len(), report))
+}
+
+impl Row {
+    /// Take the Gaussian count and held-out scores of a [`score`].
+    fn set_scores(&mut self, (gaussians, report): &(usize, splat4d::eval::EvalReport)) {
+        let m = &report.heldout;
+        let moving = m.moving.as_ref();
+        self.gaussians = *gaussians;
+        self.psnr = m.psnr;
+        self.ssim = m.ssim;
+        self.dssim1 = m.dssim1;
+        self.dssim2 = m.dssim2;
+        self.lpips = m.lpips;
+        self.moving_psnr = moving.and_then(|mv| mv.psnr);
+        self.moving_ssim = moving.and_then(|mv| mv.ssim);
+        self.moving_lpips = moving.and_then(|mv| mv.lpips);
+    }
 }
 
 #[cfg(test)]
@@ -629,6 +706,8 @@ mod tests {
             dssim2: Some(0.2),
             lpips: None,
             moving_psnr: Some(18.5),
+            moving_ssim: Some(0.4),
+            moving_lpips: None,
         }
     }
 

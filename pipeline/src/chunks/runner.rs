@@ -280,7 +280,9 @@ impl Trainer<'_> {
                 splat4d::train::exposure::equalise(&mut dataset, &s.exposure);
                 s.exposure.clone()
             }
-            None if self.settings.match_exposure => match_exposure(&mut dataset, &self.points, ctx),
+            None if self.settings.match_exposure => {
+                match_exposure(&mut dataset, &self.points, ctx.progress)
+            }
             None => Vec::new(),
         };
         let frozen = shared.as_ref().map(|(_, scene)| scene);

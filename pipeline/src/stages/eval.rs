@@ -423,6 +423,33 @@ pub fn any_heldout_views(
     }
 }
 
+/// The moving-region masks eval scores inside: the capture's `masks/` or the simulator's
+/// ground truth ([`MaskSource::find`]), else, with `[eval] plate_masks`, masks estimated
+/// from each camera's static plate (training and held-out cameras) into `plates_dir`.
+pub fn moving_masks(
+    capture: &Capture,
+    settings: &EvalSettings,
+    heldout_cameras: &[String],
+    plates: PlateMasks,
+    plates_dir: &Path,
+) -> anyhow::Result<Option<MaskSource>> {
+    let work = capture.work_dir();
+    match MaskSource::find(&capture.root, &work.join("sync").join("sync.json"))? {
+        None if settings.plate_masks => {
+            let frames_dir = work.join("frames");
+            let index = FramesIndex::read_json(&frames_dir.join("frames.json"))?;
+            let mut cameras = CameraFrames::of_index(&index);
+            if !heldout_cameras.is_empty() {
+                let (heldout, _) =
+                    read_heldout_file(&frames_dir, "frames", FramesIndex::read_json)?;
+                cameras.extend(CameraFrames::of_index(&heldout));
+            }
+            MaskSource::from_plates(&frames_dir, &cameras, plates, plates_dir)
+        }
+        found => Ok(found),
+    }
+}
+
 /// The `eval` stage; `heldout_cameras` are the held-out camera names of `[capture] heldout`,
 /// `trained` is what the model was trained on (views are rendered on its background, the
 /// training views as their cameras filmed them).
@@ -439,22 +466,14 @@ pub fn run(
     let index = FramesIndex::read_json(&ctx.stage_dir("frames").join("frames.json"))?;
     let mapping = time_mapping(&index);
     let gt_dir = ctx.output("groundtruth");
-    let masks = match MaskSource::find(&ctx.capture.root, &ctx.stage_dir("sync").join("sync.json"))?
-    {
-        None if settings.plate_masks => {
-            ctx.progress
-                .message("moving-region masks from the static plates");
-            let frames_dir = ctx.stage_dir("frames");
-            let mut cameras = CameraFrames::of_index(&index);
-            if !heldout_cameras.is_empty() {
-                let (heldout, _) =
-                    read_heldout_file(&frames_dir, "frames", FramesIndex::read_json)?;
-                cameras.extend(CameraFrames::of_index(&heldout));
-            }
-            MaskSource::from_plates(&frames_dir, &cameras, plates, &ctx.output(PLATE_MASKS_DIR))?
-        }
-        found => found,
-    };
+    ctx.progress.message("moving-region masks");
+    let masks = moving_masks(
+        ctx.capture,
+        settings,
+        heldout_cameras,
+        plates,
+        &ctx.output(PLATE_MASKS_DIR),
+    )?;
     let heldout = any_heldout_views(
         ctx.capture,
         settings,
@@ -556,13 +575,17 @@ fn log_masks(
 fn show_moving(set: &str, whole: &splat4d::eval::SetMetrics, m: &splat4d::eval::MovingSummary) {
     let f = |v: Option<f64>, d: usize| v.map_or("–".to_string(), |v| format!("{v:.d$}"));
     tracing::info!(
-        "{set} moving region: {} views ({} with an empty mask left out), PSNR {} dB (whole image {}), SSIM {} (whole image {}), mask fraction {}",
+        "{set} moving region: {} views ({} with an empty mask left out), PSNR {} dB (whole image {}), SSIM {} (whole image {}), LPIPS {} (whole image {}), brightness {} of the truth's (darkest view {}), mask fraction {}",
         m.frames,
         m.empty_masks,
         f(m.psnr, 2),
         f(whole.psnr, 2),
         f(m.ssim, 4),
         f(whole.ssim, 4),
+        f(m.lpips, 3),
+        f(whole.lpips, 3),
+        f(m.brightness, 3),
+        f(m.darkest, 3),
         f(m.mask_fraction, 3)
     );
 }

@@ -166,10 +166,7 @@ pub fn pipeline() -> Pipeline {
                     &config.capture.heldout,
                     &trained,
                     &config.engine,
-                    crate::masks::PlateMasks {
-                        frames: config.init.plates,
-                        threshold: config.init.motion_threshold,
-                    },
+                    config.plate_masks(),
                 )
             }),
             StageDef::new("export", "PLY / .splatv exports and a browser viewer")

@@ -83,9 +83,9 @@ pub(crate) fn initial_points(ctx: &StageContext) -> anyhow::Result<PointCloud> {
 pub(crate) fn match_exposure(
     dataset: &mut splat4d::train::Dataset,
     points: &PointCloud,
-    ctx: &StageContext,
+    progress: &dyn shared_types::Progress,
 ) -> Vec<splat4d::train::exposure::CameraGain> {
-    ctx.progress.message("matching exposure");
+    progress.message("matching exposure");
     let gains = splat4d::train::exposure::estimate(dataset, points);
     splat4d::train::exposure::equalise(dataset, &gains);
     let text: Vec<String> = gains
@@ -135,7 +135,7 @@ pub fn run(
     let mut dataset = load_dataset(&ctx.stage_dir("frames"), &cameras_file, ctx.progress)?;
     let points = initial_points(ctx)?;
     let exposure = if settings.match_exposure {
-        match_exposure(&mut dataset, &points, ctx)
+        match_exposure(&mut dataset, &points, ctx.progress)
     } else {
         Vec::new()
     };

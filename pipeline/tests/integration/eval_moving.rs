@@ -80,7 +80,11 @@ fn eval_reports_the_moving_region_where_masks_exist() {
         assert!((psnr - whole).abs() > 0.01, "{set}: {psnr} vs {whole}");
     }
     assert!(json["definitions"]["moving"].is_string());
-    assert!(csv_header(&root).ends_with(",lpips,moving_psnr,moving_ssim,mask_fraction"));
+    assert!(
+        csv_header(&root).ends_with(
+            ",lpips,moving_psnr,moving_ssim,moving_lpips,moving_brightness,mask_fraction"
+        )
+    );
 
     // A user's masks/ (numbered like work/frames) is an input: adding it reruns eval, which
     // then uses it. Full masks of cam0: the moving region is the whole image.
@@ -97,10 +101,15 @@ fn eval_reports_the_moving_region_where_masks_exist() {
         if has_mask {
             let (whole, moving) = (f[4].parse::<f64>().unwrap(), f[9].parse::<f64>().unwrap());
             assert!((whole - moving).abs() < 1e-3, "{line}");
-            assert_eq!(f[11], "1.000000", "{line}");
+            // A full mask: the LPIPS crop is the whole image, the fraction 1.
+            assert_eq!(f[11], f[8], "{line}");
+            assert_eq!(f[13], "1.000000", "{line}");
             masked += 1;
         } else {
-            assert!(line.ends_with(",,,"), "no user mask for this view: {line}");
+            assert!(
+                line.ends_with(",,,,,"),
+                "no user mask for this view: {line}"
+            );
         }
     }
     assert_eq!(masked, 1, "{csv}");

@@ -10,6 +10,7 @@ mod common;
 static ALLOC: shared_types::fuzz::PeakAlloc = shared_types::fuzz::PeakAlloc;
 
 mod bench;
+mod bench_ablation;
 mod bench_tradeoff;
 mod cli;
 mod decay_demo;
