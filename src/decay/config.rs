@@ -75,7 +75,7 @@ pub struct DecayConfig {
 impl Default for DecayConfig {
     fn default() -> Self {
         Self {
-            variant: DecayVariant::Neural,
+            variant: DecayVariant::Constant,
             visibility: VisibilityMode::Frustum,
             near: 0.2,
             beta: 0.999,
@@ -105,6 +105,14 @@ impl DecayConfig {
     pub fn none() -> Self {
         Self {
             variant: DecayVariant::None,
+            ..Default::default()
+        }
+    }
+
+    /// The Neural Decaying Function f_θ with the other settings at their defaults.
+    pub fn neural() -> Self {
+        Self {
+            variant: DecayVariant::Neural,
             ..Default::default()
         }
     }

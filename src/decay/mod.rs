@@ -16,7 +16,7 @@
 //! The other variants only multiply the stored opacity after each step (`constant`: c;
 //! `pow`/`exp`: hand-tuned functions of o, see [`variants`]); with visibility on,
 //! invisible Gaussians get β instead. Nothing here runs at evaluation/render time.
-//! On the GPU backend the neural variant runs on the device ([`gpu::GpuDecay`], lent
+//! On the GPU backend every variant but `none` runs on the device ([`gpu::GpuDecay`], lent
 //! through [`TrainHooks::device_decay`] as a [`DeviceDecay`]).
 //! Full description: docs/decay.md.
 
@@ -167,7 +167,8 @@ impl DecayHooks {
 
 impl TrainHooks for DecayHooks {
     /// `none` leaves the model alone, the per-step decays edit opacities every step, the
-    /// neural decay wants an opacity factor.
+    /// neural decay wants an opacity factor (on a device trainer, unless
+    /// [`TrainHooks::device_decay`] lends the decay to it).
     fn model_access(&self) -> ModelAccess {
         match self.config.variant {
             DecayVariant::None => ModelAccess::None,
@@ -294,9 +295,10 @@ impl TrainHooks for DecayHooks {
         }
     }
 
-    /// The neural variant lends f_θ to a device trainer (the others edit the host model).
+    /// Every variant but `none` lends itself to a device trainer (f_θ unused by the
+    /// hand-tuned ones).
     fn device_decay(&mut self) -> Option<DeviceDecay<'_>> {
-        if self.config.variant != DecayVariant::Neural {
+        if self.config.variant == DecayVariant::None {
             return None;
         }
         Some(DeviceDecay {

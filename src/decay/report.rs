@@ -228,7 +228,7 @@ mod tests {
                 [x; 3],
             );
         }
-        let hooks = DecayHooks::new(&DecayConfig::default()).unwrap();
+        let hooks = DecayHooks::new(&DecayConfig::neural()).unwrap();
         let r = report(&hooks, &model);
         assert_eq!(r.gaussians, 500);
         assert_eq!(r.faint, 500);

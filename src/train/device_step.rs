@@ -9,9 +9,9 @@
 //! and for densification, opacity resets, checkpoints, a stop and the end (model, moments
 //! and statistics; after a densification or reset the device state is rebuilt from the
 //! host's). Hooks that want an opacity factor are not run here (the trainer takes the
-//! host path, [`super::step::HostStep`], for them), except the 4C4D neural decay
+//! host path, [`super::step::HostStep`], for them), except the 4C4D decay
 //! ([`TrainHooks::device_decay`]): f_θ and its Adam moments are resident too
-//! ([`GpuDecay`]), each step after the warm-up runs the decay inside the device step
+//! ([`GpuDecay`]; the hand-tuned variants use visibility and write-back only), each step after the warm-up runs the decay inside the device step
 //! (32 more bytes read back: the step's statistics, reported to the hooks), and f_θ's
 //! state returns to the hooks at the host syncs.
 
@@ -36,7 +36,7 @@ pub(crate) struct DeviceStep<'a> {
     targets: Vec<GpuImage>,
     adam: GpuAdam,
     stats: GpuStats,
-    /// The neural decay on the device, and the step it starts after.
+    /// The decay on the device, and the step it starts after.
     decay: Option<(GpuDecay, u64)>,
     /// The host model holds the device's values.
     model_current: bool,
@@ -51,7 +51,7 @@ fn device_error(index: usize) -> impl Fn(RenderError) -> TrainError {
 
 impl<'a> DeviceStep<'a> {
     /// Upload the dataset's images and the training state (with f_θ's, when `hooks` lend
-    /// a neural decay the device kernels cover).
+    /// a decay the device kernels cover).
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         gpu: &'a GpuBackend,
@@ -153,7 +153,7 @@ impl Stepper for DeviceStep<'_> {
                 mean_factor: o.factor_sum as f64 / n.max(1) as f64,
                 max_factor: o.max_factor as f64,
             });
-            if !o.stepped {
+            if o.skipped {
                 *h.skipped_updates += 1;
             }
         }

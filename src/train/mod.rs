@@ -258,15 +258,15 @@ pub trait TrainHooks {
     /// [`ModelAccess::None`] the hooks see the host copy as of the last sync; with
     /// `EveryStep` the model comes to the host (and back) every step; with
     /// `OpacityFactor` (the default, safe for any hooks) the GPU backend takes the host
-    /// path (render and backward on the GPU, loss and Adam on the host), unless
-    /// [`TrainHooks::device_decay`] lends it the neural decay to run on the device.
+    /// path (render and backward on the GPU, loss and Adam on the host). Either is moot
+    /// when [`TrainHooks::device_decay`] lends the decay to run on the device.
     fn model_access(&self) -> ModelAccess {
         ModelAccess::OpacityFactor
     }
-    /// The 4C4D neural decay's settings and f_θ's state, when these hooks are that decay
+    /// The 4C4D decay's settings and f_θ's state, when these hooks are that decay
     /// and a trainer may run it on its device. The GPU trainer then runs the decay's
-    /// whole step on the device (τ, visibility, factor gradient, f_θ's Adam, the
-    /// write-back; see `decay::gpu::GpuDecay`) and calls neither `opacity_factor` nor
+    /// whole step on the device (visibility and the write-back; for the neural variant
+    /// also τ, the factor gradient and f_θ's Adam; see `decay::gpu::GpuDecay`) and calls neither `opacity_factor` nor
     /// `factor_gradient`; `after_step` still comes, with the host model as of the last sync
     /// (the decay then has nothing to do in it). f_θ's state comes back at host syncs, so
     /// `save_state` sees it current. Other trainers ignore this and use the methods above.
@@ -628,7 +628,7 @@ pub fn train_from(
     };
 
     let access = hooks.model_access();
-    // The neural decay runs on the device when the kernels cover its f_θ.
+    // The decay runs on the device when the kernels cover it (f_θ's shape).
     let decay_on_device = backend.as_gpu().is_some()
         && hooks
             .device_decay()
@@ -643,11 +643,7 @@ pub fn train_from(
     };
     // The cap and hooks that touch the model run on the host every step (a decay on the
     // device touches the device's model only).
-    let hooks_touch_model = match access {
-        ModelAccess::None => false,
-        ModelAccess::EveryStep => true,
-        ModelAccess::OpacityFactor => !decay_on_device,
-    };
+    let hooks_touch_model = access != ModelAccess::None && !decay_on_device;
     let model_every_step = config.max_anisotropy > 0.0 || hooks_touch_model;
     progress.message(&format!(
         "training on {} (step on the {})",

@@ -29,7 +29,7 @@ fn decay() -> DecayConfig {
     DecayConfig {
         warmup: 3,
         lr: 1e-3, // larger than the default so f_θ visibly moves in a short run
-        ..Default::default()
+        ..DecayConfig::neural()
     }
 }
 

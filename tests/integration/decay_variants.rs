@@ -184,7 +184,7 @@ fn opacities_stay_finite_and_in_the_open_unit_interval_under_extreme_inputs() {
             inputs,
             warmup: 0,
             lr: 1e-1, // far above the default, to push f_θ to its bounds
-            ..Default::default()
+            ..DecayConfig::neural()
         };
         let mut h = DecayHooks::new(&c).unwrap();
         let mut g = toy();

@@ -11,8 +11,8 @@ use splat4d::Gaussians;
 use splat4d::decay::gpu::GpuDecay;
 use splat4d::decay::inputs::input_rows;
 use splat4d::decay::mlp::{Mlp, MlpAdam};
-use splat4d::decay::variants::decayed_logit;
-use splat4d::decay::{DecayConfig, DecayInputs};
+use splat4d::decay::variants::{decayed_logit, exp_factor, pow_factor};
+use splat4d::decay::{DecayConfig, DecayInputs, DecayVariant};
 use splat4d::render::gpu::GpuBackend;
 
 fn gpu() -> Option<&'static GpuBackend> {
@@ -91,7 +91,7 @@ fn device_tau_and_weight_gradient_match_the_f64_reference() {
             hidden_width,
             f_min: 0.01,
             f_max: 1.0,
-            ..Default::default()
+            ..DecayConfig::neural()
         };
         let mlp = Mlp::<f32>::new(&config.mlp_dims(), seed);
         let m = model(seed + 10, count);
@@ -121,7 +121,7 @@ fn device_tau_and_weight_gradient_match_the_f64_reference() {
 #[test]
 fn device_decay_hard_cases() {
     let Some(gpu) = gpu() else { return };
-    let config = DecayConfig::default();
+    let config = DecayConfig::neural();
     let mlp = Mlp::<f32>::new(&config.mlp_dims(), 5);
     let mut dev = device(gpu, &config, &mlp);
     let (lo, hi) = (config.f_min as f32, config.f_max as f32);
@@ -169,7 +169,7 @@ fn device_decay_hard_cases() {
 #[test]
 fn device_decay_round_trips_f_theta_and_rejects_unsupported_shapes() {
     let Some(gpu) = gpu() else { return };
-    let config = DecayConfig::default();
+    let config = DecayConfig::neural();
     let mlp = Mlp::<f32>::new(&config.mlp_dims(), 9);
     let mut adam = MlpAdam::new(mlp.params.len(), 1e-5, 1e-4);
     adam.step = 17;
@@ -190,11 +190,18 @@ fn device_decay_round_trips_f_theta_and_rejects_unsupported_shapes() {
 
     let wide = DecayConfig {
         hidden_width: 64,
-        ..Default::default()
+        ..DecayConfig::neural()
     };
     assert!(!GpuDecay::supports(&wide));
     assert!(!GpuDecay::supports(&DecayConfig::none()));
     assert!(GpuDecay::supports(&config));
+    for variant in [DecayVariant::Constant, DecayVariant::Pow, DecayVariant::Exp] {
+        // The hand-tuned variants need no f_θ: any width will do.
+        assert!(GpuDecay::supports(&DecayConfig {
+            variant,
+            ..wide.clone()
+        }));
+    }
     let wide_mlp = Mlp::<f32>::new(&wide.mlp_dims(), 0);
     let wide_adam = MlpAdam::new(wide_mlp.params.len(), 1e-5, 1e-4);
     assert!(GpuDecay::new(gpu, &wide, &wide_mlp, &wide_adam).is_err());
@@ -207,7 +214,7 @@ fn device_decay_round_trips_f_theta_and_rejects_unsupported_shapes() {
 #[test]
 fn device_write_back_matches_the_host_decayed_logit() {
     let Some(gpu) = gpu() else { return };
-    let config = DecayConfig::default();
+    let config = DecayConfig::neural();
     let mlp = Mlp::<f32>::new(&config.mlp_dims(), 6);
     let mut dev = device(gpu, &config, &mlp);
     let mut m = model(41, 700);
@@ -304,4 +311,66 @@ fn device_write_back_matches_the_host_decayed_logit() {
         dev.decay_opacities(gpu, &mut empty, &[]).unwrap().visible,
         0
     );
+}
+
+/// The hand-tuned variants' write-back on the device against the host's factors in f64
+/// (`constant`, `pow_factor`, `exp_factor` of the current opacity) and `decayed_logit`:
+/// seen Gaussians get the variant's factor, the others β; opacities from 1e-13 to
+/// 1 − 1e-13 and the −30 floor; the statistics match.
+#[test]
+fn device_hand_tuned_write_back_matches_the_host_factors() {
+    let Some(gpu) = gpu() else { return };
+    for variant in [DecayVariant::Constant, DecayVariant::Pow, DecayVariant::Exp] {
+        let config = DecayConfig {
+            variant,
+            constant: 0.98,
+            f_min: 0.9,
+            f_max: 0.99,
+            ..Default::default()
+        };
+        let mlp = Mlp::<f32>::new(&config.mlp_dims(), 3);
+        let mut dev = device(gpu, &config, &mlp);
+        let mut m = model(43, 600);
+        for (k, &x) in [-30.0, -29.0, -12.0, -3.0, 0.0, 1e-6, 3.0, 12.0, 29.0]
+            .iter()
+            .enumerate()
+        {
+            m.opacity_logits[2 * k] = x;
+        }
+        let seen: Vec<bool> = (0..600).map(|i| i % 5 != 2).collect();
+        let before = m.opacity_logits.clone();
+        let factor = |x: f32| {
+            let o = 1.0 / (1.0 + (-(x as f64)).exp());
+            match variant {
+                DecayVariant::Constant => config.constant,
+                DecayVariant::Pow => pow_factor(o, &config),
+                _ => exp_factor(o, &config),
+            }
+        };
+        let out = dev.decay_opacities(gpu, &mut m, &seen).unwrap();
+        let (mut lo, mut hi, mut sum) = (f64::INFINITY, 0.0f64, 0.0);
+        for i in 0..600 {
+            let x = before[i];
+            let d = if seen[i] { factor(x) } else { config.beta };
+            (lo, hi, sum) = (lo.min(d), hi.max(d), sum + d);
+            let want = decayed_logit(x, d);
+            let y = m.opacity_logits[i];
+            assert!(y <= x, "{variant:?} {i}: logit {x} rose to {y}");
+            let err = (y as f64 - want as f64).abs() / (x.abs() as f64).max(1.0);
+            assert!(
+                err < 1e-5,
+                "{variant:?} {i}: logit {x}, factor {d}: device {y}, host {want}"
+            );
+        }
+        assert_eq!(out.visible, seen.iter().filter(|&&s| s).count());
+        assert!(!out.skipped, "no f_θ, nothing to skip");
+        for (got, want) in [(out.min_factor, lo), (out.max_factor, hi)] {
+            assert!(
+                (got as f64 - want).abs() < 1e-6,
+                "{variant:?}: factor range {got} against {want}"
+            );
+        }
+        assert!((out.factor_sum as f64 - sum).abs() < 1e-4 * sum);
+        assert_eq!(dev.steps(), 0, "{variant:?}: f_θ does not step");
+    }
 }

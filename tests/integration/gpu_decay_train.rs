@@ -1,14 +1,14 @@
-//! Training with the 4C4D neural decay on the GPU backend runs the whole step on the
-//! device (f_θ, its Adam moments, τ, visibility and the write-back resident there): it
-//! matches the CPU host path's PSNR, Gaussian counts and decay statistics, and a resumed
-//! run is bit-identical to an uninterrupted GPU run (f_θ's state comes back to the hooks
-//! at checkpoints). Runs on lavapipe; without an adapter the tests skip, except under
+//! Training with the 4C4D decay on the GPU backend runs the whole step on the device
+//! (f_θ, its Adam moments, τ, visibility and the write-back resident there; the
+//! hand-tuned variants use the last two only): it matches the CPU host path's PSNR,
+//! Gaussian counts and decay statistics, and a resumed run is bit-identical to an
+//! uninterrupted GPU run (f_θ's state comes back to the hooks at checkpoints). Runs on lavapipe; without an adapter the tests skip, except under
 //! `CI=true`.
 
 use crate::common;
 use crate::train_scene;
 
-use splat4d::decay::{DecayConfig, DecayHooks};
+use splat4d::decay::{DecayConfig, DecayHooks, DecayVariant};
 use splat4d::render::RenderBackend;
 use splat4d::render::gpu::GpuBackend;
 use splat4d::train::{
@@ -51,7 +51,7 @@ fn decay() -> DecayConfig {
         f_min: 0.97,
         f_max: 0.995,
         lr: 1e-3,
-        ..Default::default()
+        ..DecayConfig::neural()
     }
 }
 
@@ -69,13 +69,15 @@ fn mean(v: Vec<f64>) -> f64 {
     v.iter().sum::<f64>() / v.len() as f64
 }
 
-/// 150 iterations (batch 2, densification at 50 and 100) of the analytic scene with the
-/// neural decay from step 51 on, on the GPU (device path) and on the CPU (host path):
-/// training and held-out PSNR within 0.1 dB, final counts within 10 %, the last step's
-/// visible count and mean factor close, f_θ trained alike (bounded by its learning rate).
-#[test]
-fn gpu_neural_decay_training_matches_the_cpu_host_path() {
-    let Some(gpu) = gpu() else { return };
+/// One run's outcome: where it stepped, training and held-out PSNR, Gaussian counts per
+/// iteration, the last decayed step, the hooks.
+type Outcome = (&'static str, f64, f64, Vec<usize>, StepStats, DecayHooks);
+
+/// 150 iterations (batch 2, densification at 50 and 100) of the analytic scene with
+/// `decay` from step 51 on, on the GPU (device path) and on the CPU (host path). Asserts
+/// what both must share: training and held-out PSNR within 0.1 dB, final counts within
+/// 10 %, the last step's visible count and mean factor close.
+fn train_on_both(decay: &DecayConfig) -> (Outcome, Outcome) {
     let (w, h) = (32, 24);
     let data = train_scene::dataset(w, h);
     let held_times: Vec<f64> = (0..4).map(|i| (i as f64 + 0.5) / 4.0).collect();
@@ -94,11 +96,11 @@ fn gpu_neural_decay_training_matches_the_cpu_host_path() {
     config.densify.every = 50;
     config.densify.opacity_reset_every = 0;
 
+    let gpu = gpu().expect("checked by the caller");
     let mut out = Vec::new();
     for backend in [gpu as &dyn RenderBackend, &CpuBackend] {
         let dir = tempfile::tempdir().unwrap();
-        let mut hooks = DecayHooks::new(&decay()).unwrap();
-        let initial = hooks.mlp().clone();
+        let mut hooks = DecayHooks::new(decay).unwrap();
         let s = run(backend, &config, &data, dir.path(), false, &mut hooks).unwrap();
         let model = load_model(&s.model_path).unwrap();
         let train_psnr = mean(
@@ -110,7 +112,8 @@ fn gpu_neural_decay_training_matches_the_cpu_host_path() {
         let n = counts(dir.path());
         let stats = hooks.last_stats().expect("the decay ran");
         eprintln!(
-            "{} (step on the {}): {iterations} iterations in {:.1} s ({:.2} it/s), Gaussians {} → {}, PSNR train {train_psnr:.3} held-out {held_psnr:.3} dB, last step {stats:?}",
+            "{:?} on {} (step on the {}): {iterations} iterations in {:.1} s ({:.2} it/s), Gaussians {} → {}, PSNR train {train_psnr:.3} held-out {held_psnr:.3} dB, last step {stats:?}",
+            decay.variant,
             backend.describe(),
             s.placement,
             s.seconds,
@@ -120,11 +123,10 @@ fn gpu_neural_decay_training_matches_the_cpu_host_path() {
         );
         assert_eq!(stats.iteration, iterations);
         assert_eq!(hooks.skipped_updates(), 0);
-        assert_eq!(hooks.optimiser().step, iterations - 50, "f_θ steps");
-        assert_ne!(hooks.mlp(), &initial, "f_θ did not train");
         out.push((s.placement, train_psnr, held_psnr, n, stats, hooks));
     }
-    let (g, c) = (&out[0], &out[1]);
+    let c = out.pop().unwrap();
+    let g = out.pop().unwrap();
     assert_eq!((g.0, c.0), ("gpu", "host"));
     assert!(
         (g.1 - c.1).abs() <= 0.1,
@@ -153,7 +155,22 @@ fn gpu_neural_decay_training_matches_the_cpu_host_path() {
         gs.mean_factor,
         cs.mean_factor
     );
+    (g, c)
+}
+
+/// The neural decay on both paths ([`train_on_both`]), f_θ trained alike (bounded by its
+/// learning rate).
+#[test]
+fn gpu_neural_decay_training_matches_the_cpu_host_path() {
+    let Some(_) = gpu() else { return };
+    let initial = DecayHooks::new(&decay()).unwrap().mlp().clone();
+    let (g, c) = train_on_both(&decay());
+    let gs = &g.4;
     assert!(gs.min_factor >= 0.97 - 1e-6 && gs.max_factor <= 0.999 + 1e-6);
+    for hooks in [&g.5, &c.5] {
+        assert_eq!(hooks.optimiser().step, 150 - 50, "f_θ steps");
+        assert_ne!(hooks.mlp(), &initial, "f_θ did not train");
+    }
     // f_θ: each weight moved by at most lr per step; the two runs' moves agree in the bulk.
     let (gm, cm) = (&g.5.mlp().params, &c.5.mlp().params);
     let diff = gm
@@ -162,6 +179,33 @@ fn gpu_neural_decay_training_matches_the_cpu_host_path() {
         .map(|(a, b)| (a - b).abs())
         .fold(0.0f32, f32::max);
     assert!(diff < 0.05, "f_θ weights differ by up to {diff}");
+}
+
+/// The hand-tuned variants run on the device too and train as on the host
+/// ([`train_on_both`]): `constant` applies exactly its factor to the seen Gaussians,
+/// `pow` stays in its range; f_θ is never stepped.
+#[test]
+fn gpu_hand_tuned_decay_training_matches_the_cpu_host_path() {
+    let Some(_) = gpu() else { return };
+    for variant in [DecayVariant::Constant, DecayVariant::Pow] {
+        let config = DecayConfig {
+            variant,
+            constant: 0.98,
+            ..decay()
+        };
+        let (g, c) = train_on_both(&config);
+        let gs = &g.4;
+        match variant {
+            DecayVariant::Constant => assert!(
+                (gs.min_factor - 0.98).abs() < 1e-6 && (gs.max_factor - config.beta).abs() < 1e-6,
+                "{gs:?}"
+            ),
+            _ => assert!(gs.min_factor >= 0.97 - 1e-6 && gs.max_factor <= 0.999 + 1e-6),
+        }
+        for hooks in [&g.5, &c.5] {
+            assert_eq!(hooks.optimiser().step, 0, "{variant:?}: f_θ stepped");
+        }
+    }
 }
 
 /// The decay hooks plus a stop request after `stop_at`; forwards everything, including

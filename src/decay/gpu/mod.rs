@@ -1,4 +1,4 @@
-//! The 4C4D neural decay on the device (`shaders/decay_mlp.wgsl`, `decay_view.wgsl`,
+//! The 4C4D decay on the device (`shaders/decay_mlp.wgsl`, `decay_view.wgsl`,
 //! `decay_apply.wgsl`, pipelines in [`kernels`]), for the trainer's GPU step: f_θ's
 //! weights and Adam moments stay resident, and a step adds to
 //! [`GpuAdam::train_step_decayed`](crate::train::gpu::GpuAdam::train_step_decayed)'s
@@ -14,6 +14,10 @@
 //!    no float atomics) and f_θ's Adam, skipped when a gradient is not finite;
 //! 4. after the Gaussians' Adam: `o ← o·τ` (seen) or `o ← o·β` in logit space, and the
 //!    step's statistics.
+//!
+//! The hand-tuned variants (`constant`, `pow`, `exp`) run the visibility and the
+//! write-back only (their factor comes from the opacity, not from f_θ, and does not enter
+//! the render).
 //!
 //! Per step 32 bytes come back (statistics and the skipped flag). The host's f_θ and its
 //! Adam state are brought up to date by [`GpuDecay::download`] at host syncs.
@@ -99,11 +103,16 @@ struct ViewDecayUniform {
 struct ApplyUniform {
     count: u32,
     groups: u32,
-    pad0: [u32; 2],
+    variant: u32,
+    pad0: u32,
     beta: f32,
     one_minus_beta: f32,
     ln_beta: f32,
-    pad1: f32,
+    constant: f32,
+    f_min: f32,
+    f_max: f32,
+    pow_gamma: f32,
+    exp_kappa: f32,
 }
 
 /// What one decayed step did, from its 32 bytes.
@@ -115,8 +124,8 @@ pub struct DecayOutcome {
     pub min_factor: f32,
     pub max_factor: f32,
     pub factor_sum: f32,
-    /// f_θ took its Adam step (false: a non-finite gradient skipped it).
-    pub stepped: bool,
+    /// f_θ's Adam step was skipped (a non-finite gradient); false without f_θ.
+    pub skipped: bool,
 }
 
 /// Per-Gaussian and per-view buffers of one model size.
@@ -156,14 +165,24 @@ pub struct GpuDecay {
 }
 
 impl GpuDecay {
-    /// Whether the device kernels cover `config`: the neural variant with layers at most
-    /// 32 wide, at most 3 hidden layers and 3072 parameters (the defaults: 9 → 32 → 32 → 1).
+    /// Whether the device kernels cover `config`: `constant`, `pow` and `exp`, and the
+    /// neural variant with layers at most 32 wide, at most 3 hidden layers and 3072
+    /// parameters (the defaults: 9 → 32 → 32 → 1).
     pub fn supports(config: &DecayConfig) -> bool {
         let dims = config.mlp_dims();
-        config.variant == DecayVariant::Neural
-            && dims.len() - 1 <= MAX_LINEAR
-            && dims.iter().all(|&d| d <= MAX_WIDTH)
-            && Mlp::<f32>::param_count(&dims) <= MAX_PARAMS
+        match config.variant {
+            DecayVariant::None => false,
+            DecayVariant::Constant | DecayVariant::Pow | DecayVariant::Exp => true,
+            DecayVariant::Neural => {
+                dims.len() - 1 <= MAX_LINEAR
+                    && dims.iter().all(|&d| d <= MAX_WIDTH)
+                    && Mlp::<f32>::param_count(&dims) <= MAX_PARAMS
+            }
+        }
+    }
+
+    fn neural(&self) -> bool {
+        self.config.variant == DecayVariant::Neural
     }
 
     /// Upload f_θ (`mlp`) and its optimiser state (`adam`) for `config`.
@@ -175,7 +194,7 @@ impl GpuDecay {
     ) -> Result<Self, RenderError> {
         if !Self::supports(config) {
             return Err(RenderError::Gpu(format!(
-                "the device decay runs the neural variant with f_θ layers at most {MAX_WIDTH} wide, at most {} hidden layers and {MAX_PARAMS} parameters; this config asks for {:?}",
+                "the device decay runs constant, pow, exp and the neural variant with f_θ layers at most {MAX_WIDTH} wide, at most {} hidden layers and {MAX_PARAMS} parameters; this config asks for {:?}",
                 MAX_LINEAR - 1,
                 config.mlp_dims()
             )));
@@ -303,10 +322,11 @@ impl GpuDecay {
         })
     }
 
-    /// One write-back on `model` as a decayed step ends: τ of the current f_θ for the
-    /// Gaussians `seen` in the batch, β for the others, multiplied into the stored
-    /// opacities in logit space (as `variants::decayed_logit`). Returns the step's
-    /// statistics (`stepped` is meaningless here: f_θ does not step).
+    /// One write-back on `model` as a decayed step ends: the variant's factor (τ of the
+    /// current f_θ, the constant, `pow` or `exp`) for the Gaussians `seen` in the batch, β
+    /// for the others, multiplied into the stored opacities in logit space (as
+    /// `variants::decayed_logit`). Returns the step's statistics (`skipped` is meaningless
+    /// here: f_θ does not step).
     pub fn decay_opacities(
         &mut self,
         backend: &GpuBackend,
@@ -334,7 +354,9 @@ impl GpuDecay {
             let param_bytes = 80 * n as u64;
             let staging = read_buffer(device, RESULT_BYTES + param_bytes);
             let mut enc = device.create_command_encoder(&Default::default());
-            self.encode_forward(backend, &mut enc, &params);
+            if self.neural() {
+                self.encode_forward(backend, &mut enc, &params);
+            }
             self.encode_apply(backend, &mut enc, &params, &staging, 0);
             if n > 0 {
                 enc.copy_buffer_to_buffer(&params, 0, &staging, RESULT_BYTES, param_bytes);
@@ -552,14 +574,15 @@ impl GpuDecay {
 
     /// Before a decayed step's render: the inputs' statistics, τ, and per view (`views`,
     /// the renderer's view constants) visibility, factor and "seen". Submitted at once;
-    /// returns the views' factor buffers to render with.
+    /// returns the views' factor buffers to render with (neural only: the hand-tuned
+    /// variants render without a factor).
     pub(crate) fn begin_step(
         &mut self,
         backend: &GpuBackend,
         params: &wgpu::Buffer,
         count: usize,
         views: &[ViewUniform],
-    ) -> Result<Vec<wgpu::Buffer>, RenderError> {
+    ) -> Result<Option<Vec<wgpu::Buffer>>, RenderError> {
         self.same_device(backend)?;
         let device = &backend.gpu.device;
         let k = self.kernels.clone();
@@ -572,7 +595,9 @@ impl GpuDecay {
         backend.checked(|| {
             self.scratch(device, count, views.len());
             let mut enc = device.create_command_encoder(&Default::default());
-            self.encode_forward(backend, &mut enc, params);
+            if self.neural() {
+                self.encode_forward(backend, &mut enc, params);
+            }
             let s = self.scratch_ref()?;
             enc.clear_buffer(&s.seen, 0, None);
             enc.clear_buffer(&s.d_tau, 0, None);
@@ -609,10 +634,12 @@ impl GpuDecay {
                 }
             }
             self.gpu.queue.submit([enc.finish()]);
-            Ok(s.views[..views.len()]
-                .iter()
-                .map(|(f, _)| f.clone())
-                .collect())
+            Ok(self.neural().then(|| {
+                s.views[..views.len()]
+                    .iter()
+                    .map(|(f, _)| f.clone())
+                    .collect()
+            }))
         })
     }
 
@@ -625,7 +652,7 @@ impl GpuDecay {
         params: &wgpu::Buffer,
         view_grads: &wgpu::Buffer,
     ) {
-        let Some(s) = self.scratch.as_ref() else {
+        let Some(s) = self.scratch.as_ref().filter(|_| self.neural()) else {
             return;
         };
         let Some((factor, vis)) = s.views.get(v) else {
@@ -666,7 +693,9 @@ impl GpuDecay {
         enc: &mut wgpu::CommandEncoder,
         params: &wgpu::Buffer,
     ) {
-        self.encode_weight_step(backend, enc, params, true);
+        if self.neural() {
+            self.encode_weight_step(backend, enc, params, true);
+        }
     }
 
     /// After the Gaussians' Adam: the write-back into `params` and the step's statistics,
@@ -684,17 +713,27 @@ impl GpuDecay {
         };
         let device = &backend.gpu.device;
         let k = &self.kernels;
-        let beta = self.config.beta;
+        let c = &self.config;
         let u = uniform(
             device,
             &ApplyUniform {
                 count: s.count as u32,
                 groups: s.groups,
-                pad0: [0; 2],
-                beta: beta as f32,
-                one_minus_beta: (1.0 - beta) as f32,
-                ln_beta: beta.ln() as f32,
-                pad1: 0.0,
+                variant: match c.variant {
+                    DecayVariant::Constant => 1,
+                    DecayVariant::Pow => 2,
+                    DecayVariant::Exp => 3,
+                    DecayVariant::Neural | DecayVariant::None => 0,
+                },
+                pad0: 0,
+                beta: c.beta as f32,
+                one_minus_beta: (1.0 - c.beta) as f32,
+                ln_beta: c.beta.ln() as f32,
+                constant: c.constant as f32,
+                f_min: c.f_min as f32,
+                f_max: c.f_max as f32,
+                pow_gamma: c.pow_gamma as f32,
+                exp_kappa: c.exp_kappa as f32,
             },
         );
         let b = k.decay_apply.bind(
@@ -707,14 +746,16 @@ impl GpuDecay {
             k.decay_summary.dispatch_groups(&mut pass, &b, 1);
         }
         enc.copy_buffer_to_buffer(&s.summary, 0, staging, offset, 16);
-        let flag = 4 * (16 + self.n_params) as u64;
-        enc.copy_buffer_to_buffer(&s.stats, flag, staging, offset + 16, 4);
+        if self.neural() {
+            let flag = 4 * (16 + self.n_params) as u64;
+            enc.copy_buffer_to_buffer(&s.stats, flag, staging, offset + 16, 4);
+        }
     }
 
     /// Read a step's [`RESULT_BYTES`] and count f_θ's step.
     pub(crate) fn finish_step(&mut self, words: &[u32]) -> DecayOutcome {
         let o = outcome(words);
-        if o.stepped {
+        if self.neural() && !o.skipped {
             self.step += 1;
         }
         o
@@ -729,7 +770,7 @@ fn outcome(words: &[u32]) -> DecayOutcome {
         min_factor: f32::from_bits(word(1)),
         max_factor: f32::from_bits(word(2)),
         factor_sum: f32::from_bits(word(3)),
-        stepped: words.get(4).is_some_and(|&flag| flag == 0),
+        skipped: words.get(4).is_some_and(|&flag| flag != 0),
     }
 }
 

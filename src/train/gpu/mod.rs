@@ -4,8 +4,8 @@
 //! moments resident, [`adam`]), chained with the renderer's forward and backward into one
 //! iteration by [`GpuAdam::train_step`] ([`step`]), which can also gather the
 //! densification statistics on the device ([`GpuStats`], [`stats`]) and run the 4C4D
-//! neural decay there (`decay::gpu::GpuDecay`: f_θ forward, visibility, factor gradient,
-//! f_θ's Adam and the opacity write-back; [`GpuAdam::train_step_decayed`]).
+//! decay there (`decay::gpu::GpuDecay`: visibility and the opacity write-back, and for the
+//! neural variant f_θ's forward, factor gradient and Adam; [`GpuAdam::train_step_decayed`]).
 //! `train::train` runs its iterations this way when given a GPU backend (see
 //! `super::device_step`).
 //!

@@ -43,7 +43,7 @@ pub struct TrainView<'a> {
 pub struct StepResult {
     /// The loss of each view (unweighted by the batch).
     pub losses: Vec<LossValue>,
-    /// What the neural decay did, when the step ran it.
+    /// What the decay did, when the step ran it.
     pub decay: Option<DecayOutcome>,
 }
 
@@ -95,11 +95,11 @@ impl GpuAdam {
 
     /// [`GpuAdam::train_step`], adding every view's densification statistics into
     /// `stats` on the device (as `DensifyStats::record` does with the view's own
-    /// gradient: the 1/batch weight undone), and, with `decay`, the 4C4D neural decay
-    /// (f_θ resident on the device): every view renders its visible Gaussians with opacity
-    /// factor τ, f_θ is trained on the summed dL/dτ, and after the Adam step the stored
-    /// opacities are decayed (τ where seen in the batch, β elsewhere); see
-    /// [`GpuDecay`]. 32 more bytes come back.
+    /// gradient: the 1/batch weight undone), and, with `decay`, the 4C4D decay: for the
+    /// neural variant (f_θ resident on the device) every view renders its visible
+    /// Gaussians with opacity factor τ and f_θ is trained on the summed dL/dτ; after the
+    /// Adam step the stored opacities are decayed (the variant's factor where seen in the
+    /// batch, β elsewhere); see [`GpuDecay`]. 32 more bytes come back.
     #[allow(clippy::too_many_arguments)]
     pub fn train_step_decayed(
         &mut self,
@@ -164,9 +164,10 @@ impl GpuAdam {
         let n = self.count;
         if let Some(d) = decay.as_deref_mut() {
             let uniforms: Vec<_> = prepared.iter().map(|p| p.uniform).collect();
-            let factors = d.begin_step(backend, &self.params.params, n, &uniforms)?;
-            for (p, f) in prepared.iter_mut().zip(factors) {
-                p.factor = Some(f);
+            if let Some(factors) = d.begin_step(backend, &self.params.params, n, &uniforms)? {
+                for (p, f) in prepared.iter_mut().zip(factors) {
+                    p.factor = Some(f);
+                }
             }
         }
         let frames = backend.checked(|| {

@@ -1,17 +1,23 @@
-// The neural decay's write-back after the Gaussians' Adam step (`DecayHooks::after_step`,
-// `variants::decayed_logit`): o ← o·τ for Gaussians visible in some view of the batch,
+// The decay's write-back after the Gaussians' Adam step (`DecayHooks::after_step`,
+// `variants::decayed_logit`): o ← o·d for Gaussians visible in some view of the batch, with
+// d the variant's factor (τ of f_θ, the constant, or `pow`/`exp` of the current opacity),
 // o ← o·β for the rest, in logit space; and the step's statistics (visible count, smallest,
 // largest and summed factor), reduced per workgroup and then in a fixed order.
 
 struct Apply {
     count: u32,
     groups: u32,
+    // 0: neural (τ), 1: constant, 2: pow, 3: exp.
+    variant: u32,
     pad0: u32,
-    pad1: u32,
     beta: f32,
     one_minus_beta: f32,
     ln_beta: f32,
-    pad2: f32,
+    constant: f32,
+    f_min: f32,
+    f_max: f32,
+    pow_gamma: f32,
+    exp_kappa: f32,
 }
 
 const LOGIT_FLOOR: f32 = -30.0;
@@ -56,6 +62,36 @@ fn decayed_logit(x: f32, d: f32, one_minus_d: f32, ln_d: f32) -> f32 {
     return min(y, x);
 }
 
+// The opacity of logit x in [0, 1] (0 for NaN, as the sign says for ±∞).
+fn opacity(x: f32) -> f32 {
+    if !is_finite(x) {
+        return select(0.0, 1.0, x > 0.0);
+    }
+    if x >= 0.0 {
+        return 1.0 / (1.0 + exp(-x));
+    }
+    let e = exp(x);
+    return e / (1.0 + e);
+}
+
+// The factor of a Gaussian seen in the batch (`DecayHooks::variant_factor`).
+fn seen_factor(i: u32, x: f32) -> f32 {
+    switch A.variant {
+        case 1u: {
+            return A.constant;
+        }
+        case 2u: {
+            return A.f_min + (A.f_max - A.f_min) * pow(max(opacity(x), 1e-30), A.pow_gamma);
+        }
+        case 3u: {
+            return A.f_max - (A.f_max - A.f_min) * exp(-opacity(x) / A.exp_kappa);
+        }
+        default: {
+            return tau[i];
+        }
+    }
+}
+
 fn reduce(lid: u32) {
     workgroupBarrier();
     for (var s = 128u; s > 0u; s = s >> 1u) {
@@ -85,8 +121,9 @@ fn decay_apply(
         var d = A.beta;
         var omd = A.one_minus_beta;
         var ln_d = A.ln_beta;
+        let at = 20u * i + 16u;
         if seen[i] != 0u {
-            d = tau[i];
+            d = seen_factor(i, params[at]);
             omd = 1.0 - d;
             ln_d = log1p_(-omd);
             count = 1u;
@@ -94,7 +131,6 @@ fn decay_apply(
         lo = d;
         hi = d;
         sum = d;
-        let at = 20u * i + 16u;
         params[at] = decayed_logit(params[at], d, omd, ln_d);
     }
     r_count[lid] = count;
