@@ -10,6 +10,7 @@
 mod frames;
 pub mod images;
 
+use image::RgbImage;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -406,6 +407,8 @@ pub fn evaluate(
     for set in &sets {
         let wanted_grids = grid_indices(set.views.len());
         let mut frames = Vec::with_capacity(set.views.len());
+        // The view whose moving region came out darkest so far, and its grid.
+        let mut darkest: Option<(f64, RgbImage)> = None;
         // At least a few views at a time, so that LPIPS takes their pairs through its
         // layers together even where the renderer draws one view at a time.
         let batch = backend.preferred_batch().max(LPIPS_VIEWS);
@@ -534,15 +537,22 @@ pub fn evaluate(
                         view: label(),
                         source,
                     })?;
-                if wanted_grids.contains(&i) {
-                    let grid = side_by_side(&[
+                let grid = || {
+                    side_by_side(&[
                         &rgb8_from(&truth, w, h),
                         &rgb8_from(&rendered, w, h),
                         &error_heat_map(&rendered, &truth, w, h),
-                    ]);
+                    ])
+                };
+                if wanted_grids.contains(&i) {
                     let path = out_dir.join(format!("grid_{}_{i:04}.png", set.name));
-                    write_png(&path, &grid)?;
+                    write_png(&path, &grid())?;
                     grids.push(path);
+                }
+                if let Some(b) = moving.as_ref().and_then(|m| m.brightness)
+                    && darkest.as_ref().is_none_or(|(least, _)| b < *least)
+                {
+                    darkest = Some((b, grid()));
                 }
                 progress.message(&format!("{} PSNR {:.2} dB", label(), m.psnr));
                 progress.advance(1);
@@ -558,6 +568,11 @@ pub fn evaluate(
                     moving,
                 });
             }
+        }
+        if let Some((_, grid)) = &darkest {
+            let path = out_dir.join(format!("grid_{}_darkest.png", set.name));
+            write_png(&path, grid)?;
+            grids.push(path);
         }
         let summary = SetMetrics {
             psnr: mean(frames.iter().map(|f| f.psnr)),

@@ -429,6 +429,32 @@ fn moving_region_metrics_are_reported_where_views_have_masks() {
     assert_eq!(json["train"]["moving"]["empty_masks"], 1);
     assert!((json["heldout"]["moving"]["mean"]["psnr"].as_f64().unwrap() - want.psnr).abs() < 1e-9);
     assert_eq!(json["heldout"]["moving"]["mask_fraction"], 0.5);
+    // Each set's view with the darkest moving region gets its grid too: the one masked
+    // held-out view, the full-masked training view (the empty mask has no brightness).
+    let grids: Vec<&str> = json["grids"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|g| g.as_str().unwrap())
+        .collect();
+    assert_eq!(
+        grids,
+        [
+            "grid_heldout_0000.png",
+            "grid_heldout_0001.png",
+            "grid_heldout_darkest.png",
+            "grid_train_0000.png",
+            "grid_train_0001.png",
+            "grid_train_darkest.png"
+        ]
+    );
+    for set in ["heldout", "train"] {
+        let read = |name: String| std::fs::read(out.join(name)).unwrap();
+        assert!(
+            read(format!("grid_{set}_darkest.png")) == read(format!("grid_{set}_0001.png")),
+            "{set}: the darkest grid is not view 1's"
+        );
+    }
     let csv = std::fs::read_to_string(out.join("per_frame.csv")).unwrap();
     let lines: Vec<&str> = csv.lines().collect();
     assert_eq!(
