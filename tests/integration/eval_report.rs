@@ -148,12 +148,7 @@ fn report_files_hold_per_frame_and_mean_metrics_with_definitions() {
     assert!(lines[3].starts_with("train,cam0,"));
 
     // Grids: ground truth | render | error for first and last frame of each set.
-    let grids: Vec<&str> = json["grids"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|g| g.as_str().unwrap())
-        .collect();
+    let grids = grid_names(&json);
     assert_eq!(
         grids,
         [
@@ -336,6 +331,16 @@ fn lpips_alex_is_computed_natively_from_the_installed_weights() {
     assert!(json["train"]["mean"]["lpips"].as_f64().is_some());
 }
 
+/// The grid files `metrics.json` lists.
+fn grid_names(json: &serde_json::Value) -> Vec<&str> {
+    json["grids"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|g| g.as_str().unwrap())
+        .collect()
+}
+
 /// A grey mask of `width × height` with `inside(x, y)` set to 255.
 fn write_mask(path: &std::path::Path, width: u32, height: u32, inside: impl Fn(u32, u32) -> bool) {
     image::GrayImage::from_fn(width, height, |x, y| {
@@ -431,12 +436,7 @@ fn moving_region_metrics_are_reported_where_views_have_masks() {
     assert_eq!(json["heldout"]["moving"]["mask_fraction"], 0.5);
     // Each set's view with the darkest moving region gets its grid too: the one masked
     // held-out view, the full-masked training view (the empty mask has no brightness).
-    let grids: Vec<&str> = json["grids"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|g| g.as_str().unwrap())
-        .collect();
+    let grids = grid_names(&json);
     assert_eq!(
         grids,
         [
