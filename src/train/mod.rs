@@ -284,7 +284,7 @@ impl TrainHooks for NoHooks {
     }
 }
 
-/// The neural decay's settings and f_θ's state, lent to a trainer that runs the decay on
+/// The decay's settings and f_θ's state, lent to a trainer that runs the decay on
 /// its device ([`TrainHooks::device_decay`]) instead of calling `opacity_factor`,
 /// `factor_gradient` and `after_step` for it. The trainer keeps f_θ and its moments on the
 /// device and writes them back here at its host syncs (checkpoints, a stop, the end), and
