@@ -80,12 +80,8 @@ pub fn run(
         .collect();
     let d = &inputs.config.decay;
     let header = format!(
-        "{}, {} training views of {}×{}, {} held-out views, {iterations} iterations at resolution {}, at most {} Gaussians, seed {}, {} backend. `[decay]`: warm-up {} steps, visibility {:?}, invisible β {}, constant {}, range [{}, {}] (pow γ {}, exp κ {}), f_θ inputs {:?}, lr {}. Moving region: inside the held-out views' masks. {} Machine: {}.",
-        source.describe(),
-        inputs.dataset.views.len(),
-        inputs.dataset.views[0].image.width,
-        inputs.dataset.views[0].image.height,
-        inputs.heldout.len(),
+        "{}, {iterations} iterations at resolution {}, at most {} Gaussians, seed {}, {} backend. `[decay]`: warm-up {} steps, visibility {:?}, invisible β {}, constant {}, range [{}, {}] (pow γ {}, exp κ {}), f_θ inputs {:?}, lr {}. Moving region: inside the held-out views' masks. {} Machine: {}.",
+        inputs.describe(source),
         train.resolution,
         train.densify.max_gaussians,
         train.seed,

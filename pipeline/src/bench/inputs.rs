@@ -32,6 +32,21 @@ pub struct BenchInputs {
     pub bench_dir: PathBuf,
 }
 
+impl BenchInputs {
+    /// The start of a bench table's header: the source and its training and held-out views.
+    pub fn describe(&self, source: &BenchSource) -> String {
+        let first = &self.dataset.views[0].image;
+        format!(
+            "{}, {} training views of {}×{}, {} held-out views",
+            source.describe(),
+            self.dataset.views.len(),
+            first.width,
+            first.height,
+            self.heldout.len()
+        )
+    }
+}
+
 /// Where a bench's inputs come from.
 #[derive(Clone, Debug)]
 pub enum BenchSource {

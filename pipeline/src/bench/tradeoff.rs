@@ -435,12 +435,8 @@ pub fn run(source: &BenchSource, grid: &Grid, reporter: &Reporter) -> anyhow::Re
     // earlier ones'); delete tradeoff.csv to start afresh.
     let shown = rows;
     let header = format!(
-        "{}, {} training views of {}×{}, {} held-out views, seed {}. {} Machine: {}. Last command: `pipeline bench tradeoff {}`.",
-        source.describe(),
-        inputs.dataset.views.len(),
-        inputs.dataset.views[0].image.width,
-        inputs.dataset.views[0].image.height,
-        inputs.heldout.len(),
+        "{}, seed {}. {} Machine: {}. Last command: `pipeline bench tradeoff {}`.",
+        inputs.describe(source),
         inputs.config.train.seed,
         crate::bench::inputs::lpips_note(inputs.lpips.as_ref()),
         sysinfo::describe_machine(),

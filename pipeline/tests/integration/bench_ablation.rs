@@ -14,7 +14,6 @@ use pipeline::bench::inputs::BenchSource;
 use pipeline::bench::tradeoff::{TrainOn, read_csv};
 use pipeline::presets::Preset;
 use pipeline::report::{OutputMode, Reporter};
-use pipeline::simulate;
 use splat4d::decay::DecayVariant;
 
 #[test]
@@ -22,18 +21,14 @@ fn each_variant_is_measured_whole_and_moving_and_resumed() {
     let tmp = tempfile::tempdir().unwrap();
     let root = tmp.path().join("capture");
     let reporter = Reporter::new(OutputMode::Quiet);
-    let scene = rig::sim::Scene::from_file(&fixture("tiny.toml")).unwrap();
-    simulate::simulate_into(&scene, &root, &reporter).unwrap();
-    simulate::write_truth_calibration(&root).unwrap();
     // The capture's own schedule is 30 000 steps; the preset's 300 run instead. A decay
     // warm-up of 3000 of 30 000 steps is 30 of the preset's 300.
-    fs::write(
-        root.join("capture.toml"),
+    common::tiny_capture(
+        &root,
         "[sync]\nmethod = \"timestamps\"\n[train]\nbatch_size = 1\ncheckpoint_every = 0\n\
          [train.densify]\nenabled = false\n[decay]\nwarmup = 3000\nconstant = 0.99\n\
          [eval]\nlpips = \"lpips.onnx\"\n",
-    )
-    .unwrap();
+    );
     let net = fixture("onnx/lpips_tiny/mean_abs_diff.onnx");
     fs::copy(net, root.join("lpips.onnx")).unwrap();
 

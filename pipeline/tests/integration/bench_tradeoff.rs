@@ -12,7 +12,6 @@ use common::fixture;
 use pipeline::bench::inputs::BenchSource;
 use pipeline::bench::tradeoff::{Grid, TrainOn, read_csv};
 use pipeline::report::{OutputMode, Reporter};
-use pipeline::simulate;
 use splat4d::decay::DecayVariant;
 
 const SETTINGS: &str = "[sync]\nmethod = \"timestamps\"\n\
@@ -25,10 +24,7 @@ fn a_grid_is_measured_plotted_and_resumed() {
     let tmp = tempfile::tempdir().unwrap();
     let root = tmp.path().join("capture");
     let reporter = Reporter::new(OutputMode::Quiet);
-    let scene = rig::sim::Scene::from_file(&fixture("tiny.toml")).unwrap();
-    simulate::simulate_into(&scene, &root, &reporter).unwrap();
-    simulate::write_truth_calibration(&root).unwrap();
-    fs::write(root.join("capture.toml"), SETTINGS).unwrap();
+    common::tiny_capture(&root, SETTINGS);
     // `[eval] lpips` weights: a stand-in network (mean absolute difference) in ONNX.
     let net = fixture("onnx/lpips_tiny/mean_abs_diff.onnx");
     fs::copy(net, root.join("lpips.onnx")).unwrap();
@@ -135,8 +131,7 @@ fn a_grid_is_measured_plotted_and_resumed() {
     assert_eq!(fs::read_to_string(&csv_path).unwrap(), after);
     // A capture not prepared up to `init` is not used as prepared.
     let fresh = tmp.path().join("fresh");
-    simulate::simulate_into(&scene, &fresh, &reporter).unwrap();
-    fs::write(fresh.join("capture.toml"), SETTINGS).unwrap();
+    common::tiny_capture(&fresh, SETTINGS);
     let unprepared = BenchSource::from_args(&fresh, None).unwrap().as_prepared();
     let e = pipeline::bench::tradeoff::run(&unprepared, &stretched, &reporter)
         .unwrap_err()
