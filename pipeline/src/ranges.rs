@@ -146,6 +146,7 @@ pub const RANGES: &[(&str, Range)] = &[
     ("train.densify.max_world_size", POSITIVE),
     ("train.densify.opacity_reset_every", COUNT),
     ("train.densify.max_gaussians", SOME),
+    ("train.densify.min_cameras", COUNT),
     ("chunks.seconds", at_least(0.0)),
     ("chunks.overlap_seconds", at_least(0.0)),
     ("chunks.static_steps", COUNT),

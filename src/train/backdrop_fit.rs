@@ -60,12 +60,7 @@ pub(crate) fn sphere(
     colour: [f32; 3],
     size: usize,
 ) -> Option<Backdrop> {
-    let mut cameras: Vec<crate::Camera> = Vec::new();
-    for v in &dataset.views {
-        if !cameras.iter().any(|c| c.name == v.camera.name) {
-            cameras.push(v.camera.clone());
-        }
-    }
+    let cameras = dataset.cameras();
     let static_points: Vec<[f32; 3]> = match &init.time_span {
         Some(span) => init
             .xyz

@@ -133,6 +133,17 @@ impl Dataset {
         }
     }
 
+    /// One camera per camera name, in the order the views first show them.
+    pub fn cameras(&self) -> Vec<Camera> {
+        let mut cameras: Vec<Camera> = Vec::new();
+        for v in &self.views {
+            if !cameras.iter().any(|c| c.name == v.camera.name) {
+                cameras.push(v.camera.clone());
+            }
+        }
+        cameras
+    }
+
     /// Radius of the camera centres around their mean × 1.1 (3DGS "scene extent"), at
     /// least 1e-3; 1 for a single camera.
     pub fn scene_extent(&self) -> f64 {

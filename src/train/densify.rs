@@ -1,9 +1,10 @@
 //! Adaptive density control: clone small and split large Gaussians whose mean view-space
 //! gradient is high (splits sample along space AND time from the 4D Gaussian), prune
-//! transparent or oversized ones, reset opacities. Every edit is expressed as a list of
+//! transparent or oversized ones and those too few training cameras see, reset opacities. Every edit is expressed as a list of
 //! sources (`Some(old index)` or `None` for fresh moments) that is applied to the model's
 //! companions (Adam moments, statistics) the same way, so they never drift apart.
 
+use crate::Camera;
 use crate::math::numerics::{logit, sigmoid};
 use crate::math::rotation4d::rotation;
 use crate::model::Gaussians;
@@ -38,6 +39,13 @@ pub struct DensifyConfig {
     pub opacity_reset_every: u64,
     /// Never grow beyond this many Gaussians.
     pub max_gaussians: usize,
+    /// Prune Gaussians whose centre lies inside fewer than this many training cameras'
+    /// images (0: never; not applied when the capture has fewer cameras than this). At
+    /// 1, the default, what no training camera sees goes: no loss constrains it, and
+    /// another viewpoint looks through it. At 2 also what one camera alone sees, whose
+    /// depth nothing fixes: it lifts the dark haze over a held-out camera beside the rig,
+    /// but empties the walls of a closed room (docs/experiments/jumping-object.md).
+    pub min_cameras: usize,
 }
 
 impl DensifyConfig {
@@ -110,6 +118,7 @@ impl Default for DensifyConfig {
             max_world_size: 0.1,
             opacity_reset_every: 3000,
             max_gaussians: 2_000_000,
+            min_cameras: 1,
         }
     }
 }
@@ -173,6 +182,32 @@ pub struct DensifyReport {
     pub cloned: usize,
     pub split: usize,
     pub pruned: usize,
+    /// Of `pruned`, those inside too few training cameras' images
+    /// ([`DensifyConfig::min_cameras`]).
+    pub unseen: usize,
+}
+
+/// What densification measures Gaussians against.
+#[derive(Clone, Copy, Debug)]
+pub struct Scene<'a> {
+    /// The scene extent (sizes are fractions of it).
+    pub extent: f32,
+    /// The training cameras, one per camera.
+    pub cameras: &'a [Camera],
+}
+
+/// How many of `cameras` have `p` in front of them and inside their image.
+pub fn cameras_seeing(cameras: &[Camera], p: [f32; 3]) -> usize {
+    let p = glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+    cameras
+        .iter()
+        .filter(|c| {
+            c.project(p).is_some_and(|(px, _)| {
+                let i = &c.intrinsics;
+                (0.0..i.width as f64).contains(&px.x) && (0.0..i.height as f64).contains(&px.y)
+            })
+        })
+        .count()
 }
 
 /// Copy rows of `model` into a new model: `sources[j]` is the old index of Gaussian `j`.
@@ -211,11 +246,12 @@ pub fn densify_and_prune(
     adam: &mut Adam,
     stats: &mut DensifyStats,
     config: &DensifyConfig,
-    extent: f32,
+    scene: Scene,
     prune_large: bool,
     rng: &mut ChaCha8Rng,
 ) -> DensifyReport {
     let n = model.len();
+    let extent = scene.extent;
     let threshold = config.grad_threshold as f32;
     let size_limit = config.percent_dense as f32 * extent;
     let mut report = DensifyReport::default();
@@ -281,6 +317,8 @@ pub fn densify_and_prune(
     // Prune.
     let min_logit = logit(config.min_opacity) as f32;
     let world_limit = config.max_world_size as f32 * extent;
+    let min_cameras = config.min_cameras;
+    let test_cameras = min_cameras > 0 && scene.cameras.len() >= min_cameras;
     let keep: Vec<usize> = (0..grown.len())
         .filter(|&j| {
             if j < frozen {
@@ -291,7 +329,12 @@ pub fn densify_and_prune(
             let large = prune_large
                 && (stats.max_radius[j] as f64 > config.max_screen_radius
                     || max_spatial_scale(&grown.log_scales[j]) > world_limit);
-            !(transparent || large)
+            let m = grown.means[j];
+            let unseen = test_cameras
+                && !(transparent || large)
+                && cameras_seeing(scene.cameras, [m[0], m[1], m[2]]) < min_cameras;
+            report.unseen += unseen as usize;
+            !(transparent || large || unseen)
         })
         .collect();
     report.pruned = grown.len() - keep.len();
@@ -405,14 +448,19 @@ mod tests {
         stats.count = vec![1, 1, 1, 1];
         let cfg = DensifyConfig::default();
         let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let r = densify_and_prune(&mut g, &mut adam, &mut stats, &cfg, 1.0, false, &mut rng);
+        let scene = Scene {
+            extent: 1.0,
+            cameras: &[],
+        };
+        let r = densify_and_prune(&mut g, &mut adam, &mut stats, &cfg, scene, false, &mut rng);
         // #2 is transparent and hot: it gets cloned, then both copies are pruned.
         assert_eq!(
             r,
             DensifyReport {
                 cloned: 2,
                 split: 1,
-                pruned: 2
+                pruned: 2,
+                unseen: 0,
             }
         );
         g.check_consistent().unwrap();
@@ -430,5 +478,85 @@ mod tests {
             );
         }
         assert_eq!(stats, DensifyStats::new(5));
+    }
+
+    /// A 64×48 camera at `eye` looking at the origin, 60° wide.
+    fn camera(name: &str, eye: [f64; 3]) -> Camera {
+        Camera {
+            name: name.into(),
+            intrinsics: shared_types::Intrinsics::from_hfov(64, 48, 60.0),
+            distortion: Default::default(),
+            world_to_camera: shared_types::WorldToCamera::look_at(
+                glam::DVec3::from(eye),
+                glam::DVec3::ZERO,
+                glam::DVec3::Z,
+            )
+            .unwrap(),
+        }
+    }
+
+    #[test]
+    fn gaussians_too_few_cameras_see_are_pruned() {
+        let cameras = [camera("a", [5.0, 0.0, 0.0]), camera("b", [0.0, 5.0, 0.0])];
+        // The origin is in both images; (3, 0, 0) straight ahead of a but 31° off b's axis
+        // (outside its 30° half-width); (6, 6, 0) 80° off both axes; (0, 0, −9) far below
+        // both images.
+        let points = [
+            [0.0, 0.0, 0.0],
+            [3.0, 0.0, 0.0],
+            [6.0, 6.0, 0.0],
+            [0.0, 0.0, -9.0],
+        ];
+        let seen: Vec<usize> = points
+            .iter()
+            .map(|&p| cameras_seeing(&cameras, p))
+            .collect();
+        assert_eq!(seen, vec![2, 1, 0, 0]);
+
+        let pruned = |min_cameras: usize, cameras: &[Camera]| {
+            let mut g = Gaussians::new(
+                ColourDegrees {
+                    spatial: 0,
+                    temporal: 0,
+                },
+                TimeMapping::default(),
+            );
+            for (k, p) in points.iter().enumerate() {
+                g.push([p[0], p[1], p[2], 0.5], [-5.0; 4], 2.0, [k as f32 * 0.1; 3]);
+            }
+            let mut adam = Adam::new(&g);
+            adam.m.opacity_logits = vec![10.0, 11.0, 12.0, 13.0];
+            let mut stats = DensifyStats::new(g.len());
+            let cfg = DensifyConfig {
+                min_cameras,
+                ..DensifyConfig::default()
+            };
+            let scene = Scene {
+                extent: 1.0,
+                cameras,
+            };
+            let mut rng = ChaCha8Rng::seed_from_u64(1);
+            let r = densify_and_prune(&mut g, &mut adam, &mut stats, &cfg, scene, false, &mut rng);
+            assert_eq!(r.pruned, r.unseen);
+            g.check_consistent().unwrap();
+            // The Adam moments follow their Gaussians.
+            let kept: Vec<f32> = adam.m.opacity_logits.clone();
+            assert_eq!(kept.len(), g.len());
+            for (j, m) in kept.iter().enumerate() {
+                let k = (*m - 10.0) as usize;
+                assert_eq!(
+                    g.means[j][..3],
+                    points[k][..],
+                    "moment {j} left its Gaussian"
+                );
+            }
+            r.unseen
+        };
+        assert_eq!(pruned(2, &cameras), 3);
+        assert_eq!(pruned(1, &cameras), 2);
+        assert_eq!(pruned(0, &cameras), 0);
+        // A capture with fewer cameras than `min_cameras` is not pruned for it.
+        assert_eq!(pruned(2, &cameras[..1]), 0);
+        assert_eq!(pruned(1, &cameras[..1]), 2);
     }
 }

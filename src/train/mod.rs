@@ -336,6 +336,9 @@ pub struct TrainSummary {
     pub background: [f32; 3],
     /// The learned backdrop's file, when the model was trained on one.
     pub backdrop: Option<PathBuf>,
+    /// Gaussians this run pruned for lying inside too few training cameras' images
+    /// (`[train.densify] min_cameras`).
+    pub pruned_unseen: usize,
 }
 
 fn validate(config: &TrainConfig, dataset: &Dataset) -> Result<(), TrainError> {
@@ -537,6 +540,8 @@ pub fn train_from(
     std::fs::create_dir_all(out_dir).map_err(io(out_dir))?;
     let ckpt_dir = out_dir.join("ckpt");
     let extent = dataset.scene_extent() as f32;
+    let cameras = dataset.cameras();
+    let mut pruned_unseen = 0;
 
     let fingerprint = checkpoint::fingerprint(dataset);
     let (resumed, skipped_checkpoints) = if resume {
@@ -710,15 +715,20 @@ pub fn train_from(
         // Density control.
         if densify_now {
             let prune_large = d.opacity_reset_every > 0 && done > d.opacity_reset_every;
-            densify_and_prune(
+            let scene = densify::Scene {
+                extent,
+                cameras: &cameras,
+            };
+            let report = densify_and_prune(
                 &mut model,
                 &mut adam,
                 &mut stats,
                 d,
-                extent,
+                scene,
                 prune_large,
                 &mut rng,
             );
+            pruned_unseen += report.unseen;
             if model.is_empty() {
                 log.flush().map_err(io(&log_path))?;
                 progress.finish();
@@ -811,6 +821,7 @@ pub fn train_from(
         placement: stepper.placement(),
         background,
         backdrop: backdrop_path,
+        pruned_unseen,
         skipped_checkpoints,
     })
 }

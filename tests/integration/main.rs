@@ -40,4 +40,5 @@ mod train_fit;
 mod train_frozen;
 mod train_hooks;
 mod train_resume;
+mod train_unseen;
 mod viewer_browser;

@@ -12,7 +12,6 @@ use splat4d::{NoProgress, load_model};
 fn fit(width: u32, height: u32, resolution: f64) -> (f64, f64) {
     let data = train_scene::dataset(width, height);
     let init = train_scene::points(20, 15, &[0.0, 0.5, 1.0]);
-    let dir = tempfile::tempdir().unwrap();
     let mut config = TrainConfig {
         background: splat4d::train::Background::Colour([0.0; 3]),
         iterations: 300,
@@ -25,17 +24,7 @@ fn fit(width: u32, height: u32, resolution: f64) -> (f64, f64) {
     config.densify.until_iteration = 250;
     config.densify.every = 100;
     config.densify.opacity_reset_every = 0;
-    let summary = train(
-        &CpuBackend,
-        &config,
-        &data,
-        &init,
-        dir.path(),
-        false,
-        &mut NoHooks,
-        &NoProgress,
-    )
-    .unwrap();
+    let (dir, summary) = train_scene::train_cpu(&config, &data, &init);
     assert!(dir.path().join("log.csv").exists());
     let model = load_model(&summary.model_path).unwrap();
     let psnr = evaluate_psnr(&CpuBackend, &model, &data, config.background.resolve(&data)).unwrap();
@@ -111,7 +100,6 @@ fn no_opacity_reset_in_the_last_half_period() {
     let data = train_scene::dataset(32, 24);
     let init = train_scene::points(12, 9, &[0.0, 1.0]);
     let run = |iterations: u64, reset_every: u64| {
-        let dir = tempfile::tempdir().unwrap();
         let mut config = TrainConfig {
             background: splat4d::train::Background::Colour([0.0; 3]),
             iterations,
@@ -123,17 +111,7 @@ fn no_opacity_reset_in_the_last_half_period() {
         config.densify.until_iteration = 100;
         config.densify.every = 1000;
         config.densify.opacity_reset_every = reset_every;
-        let summary = train(
-            &CpuBackend,
-            &config,
-            &data,
-            &init,
-            dir.path(),
-            false,
-            &mut NoHooks,
-            &NoProgress,
-        )
-        .unwrap();
+        let (_dir, summary) = train_scene::train_cpu(&config, &data, &init);
         let model = load_model(&summary.model_path).unwrap();
         let max_opacity = model
             .opacity_logits

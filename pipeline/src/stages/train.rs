@@ -178,6 +178,18 @@ pub fn run(
         summary.background,
         settings.background
     );
+    if summary.pruned_unseen > 0 {
+        let min = settings.densify.min_cameras;
+        let where_ = if min == 1 {
+            "in no training camera's image".to_string()
+        } else {
+            format!("inside fewer than {min} training cameras' images")
+        };
+        tracing::info!(
+            "pruned {} Gaussians {where_} ([train.densify] min_cameras)",
+            summary.pruned_unseen
+        );
+    }
     let record = crate::engine_inputs::TrainRecord {
         background: summary.background,
         exposure,

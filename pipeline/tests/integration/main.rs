@@ -23,6 +23,7 @@ mod fuzz_config;
 mod heldout_real;
 mod import;
 mod init_accuracy;
+mod jumping_object;
 mod known_lenses;
 mod layout_errors;
 mod long_capture;

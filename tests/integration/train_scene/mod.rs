@@ -5,7 +5,9 @@
 #![allow(dead_code)]
 
 use glam::{DVec2, DVec3};
-use splat4d::train::{Dataset, ImageU8, PointCloud, View};
+use splat4d::train::{
+    Dataset, ImageU8, NoHooks, PointCloud, TrainConfig, TrainSummary, View, train,
+};
 use splat4d::{Camera, Distortion, Intrinsics, TimeMapping, WorldToCamera};
 
 /// Texture colour at plane point (x, y) and model time t ∈ [0, 1].
@@ -143,4 +145,26 @@ pub fn left_half(cloud: &PointCloud) -> PointCloud {
             .as_ref()
             .map(|t| keep.iter().map(|&i| t[i]).collect()),
     }
+}
+
+/// Train `config` on the CPU without hooks or progress into a new temporary folder (kept
+/// alive by the returned guard).
+pub fn train_cpu(
+    config: &TrainConfig,
+    data: &Dataset,
+    init: &PointCloud,
+) -> (tempfile::TempDir, TrainSummary) {
+    let dir = tempfile::tempdir().unwrap();
+    let summary = train(
+        &splat4d::CpuBackend,
+        config,
+        data,
+        init,
+        dir.path(),
+        false,
+        &mut NoHooks,
+        &splat4d::NoProgress,
+    )
+    .unwrap();
+    (dir, summary)
 }
