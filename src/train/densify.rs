@@ -1,8 +1,9 @@
 //! Adaptive density control: clone small and split large Gaussians whose mean view-space
 //! gradient is high (splits sample along space AND time from the 4D Gaussian), prune
-//! transparent or oversized ones and those too few training cameras see, reset opacities. Every edit is expressed as a list of
-//! sources (`Some(old index)` or `None` for fresh moments) that is applied to the model's
-//! companions (Adam moments, statistics) the same way, so they never drift apart.
+//! transparent or oversized ones and those too few training cameras see, reset
+//! opacities. Every edit is expressed as a list of sources (`Some(old index)` or `None`
+//! for fresh moments) that is applied to the model's companions (Adam moments,
+//! statistics) the same way, so they never drift apart.
 
 use crate::Camera;
 use crate::math::numerics::{logit, sigmoid};
