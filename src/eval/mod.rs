@@ -109,7 +109,8 @@ pub struct EvalView {
 #[derive(Clone, Debug, PartialEq)]
 pub struct FrameMetrics {
     pub camera: String,
-    pub time: f64,
+    /// The view's capture time in seconds (`model.time.seconds` of its model time).
+    pub time_s: f64,
     pub image_path: PathBuf,
     /// dB; `+∞` for a pixel-exact render.
     pub psnr: f64,
@@ -558,7 +559,7 @@ pub fn evaluate(
                 progress.advance(1);
                 frames.push(FrameMetrics {
                     camera: view.camera.name.clone(),
-                    time: view.time,
+                    time_s: model.time.seconds(view.time),
                     image_path: view.image_path.clone(),
                     psnr: m.psnr,
                     ssim: m.ssim,
@@ -596,7 +597,7 @@ pub fn evaluate(
 
     // per_frame.csv
     let any_mask = report.heldout.moving.is_some() || report.train.moving.is_some();
-    let mut csv = String::from("set,camera,time,image,psnr,ssim,dssim1,dssim2,lpips");
+    let mut csv = String::from("set,camera,time_s,image,psnr,ssim,dssim1,dssim2,lpips");
     csv.push_str(if any_mask {
         ",moving_psnr,moving_ssim,moving_lpips,moving_brightness,mask_fraction\n"
     } else {
@@ -612,7 +613,7 @@ pub fn evaluate(
                 csv,
                 "{name},{},{:.6},{},{:.4},{:.6},{:.6},{:.6},{lp}",
                 csv_field(&f.camera),
-                f.time,
+                f.time_s,
                 csv_field(&relative_path(out_dir, &f.image_path).display().to_string()),
                 f.psnr,
                 f.ssim,

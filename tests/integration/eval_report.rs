@@ -57,6 +57,32 @@ fn setup() -> Setup {
     }
 }
 
+/// `per_frame.csv` gives each view's capture time in seconds, not in model units: at 15 fps
+/// from 2 s, model time 0.5 is 3 s.
+#[test]
+fn per_frame_times_are_seconds() {
+    let s = setup();
+    let out = s.dir.path().join("eval");
+    let mut model = scene();
+    model.time = splat4d::model::TimeMapping::frames_over_30(2.0, 15.0, 2.0);
+    let report = evaluate(
+        &CpuBackend,
+        &model,
+        &s.heldout,
+        &s.train,
+        &out,
+        None,
+        [0.0; 3],
+        None,
+        &NoProgress,
+    )
+    .unwrap();
+    assert_eq!(report.heldout.frames[0].time_s, 3.0);
+    let csv = std::fs::read_to_string(out.join("per_frame.csv")).unwrap();
+    let row = csv.lines().nth(1).unwrap();
+    assert!(row.starts_with("heldout,cam1,3.000000,"), "{row}");
+}
+
 #[test]
 fn report_files_hold_per_frame_and_mean_metrics_with_definitions() {
     let s = setup();
@@ -137,7 +163,7 @@ fn report_files_hold_per_frame_and_mean_metrics_with_definitions() {
     let lines: Vec<&str> = csv.lines().collect();
     assert_eq!(
         lines[0],
-        "set,camera,time,image,psnr,ssim,dssim1,dssim2,lpips"
+        "set,camera,time_s,image,psnr,ssim,dssim1,dssim2,lpips"
     );
     assert_eq!(lines.len(), 5);
     assert!(
@@ -459,7 +485,7 @@ fn moving_region_metrics_are_reported_where_views_have_masks() {
     let lines: Vec<&str> = csv.lines().collect();
     assert_eq!(
         lines[0],
-        "set,camera,time,image,psnr,ssim,dssim1,dssim2,lpips,moving_psnr,moving_ssim,moving_lpips,moving_brightness,mask_fraction"
+        "set,camera,time_s,image,psnr,ssim,dssim1,dssim2,lpips,moving_psnr,moving_ssim,moving_lpips,moving_brightness,mask_fraction"
     );
     assert!(lines[1].ends_with(",skipped,,,,,"), "no mask: {}", lines[1]);
     assert!(lines[2].ends_with(",0.500000"), "{}", lines[2]);

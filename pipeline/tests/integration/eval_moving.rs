@@ -164,6 +164,6 @@ fn eval_reports_the_moving_region_where_masks_exist() {
     assert!(json["definitions"].get("moving").is_none());
     assert_eq!(
         csv_header(&root),
-        "set,camera,time,image,psnr,ssim,dssim1,dssim2,lpips"
+        "set,camera,time_s,image,psnr,ssim,dssim1,dssim2,lpips"
     );
 }
