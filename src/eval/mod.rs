@@ -153,6 +153,9 @@ pub struct MovingSummary {
     /// Mean brightness ratio, and the darkest view's.
     pub brightness: Option<f64>,
     pub darkest: Option<f64>,
+    /// Index of the darkest view in the set's frames (its grid is
+    /// `grid_<set>_darkest.png`).
+    pub darkest_frame: Option<usize>,
     /// Mean mask fraction of the views in the means.
     pub mask_fraction: Option<f64>,
 }
@@ -164,6 +167,12 @@ impl MovingSummary {
         if masked.is_empty() {
             return None;
         }
+        let darkest_frame = frames
+            .iter()
+            .enumerate()
+            .filter_map(|(i, f)| Some((i, f.moving.as_ref()?.brightness?)))
+            .reduce(|a, b| if b.1 < a.1 { b } else { a })
+            .map(|(i, _)| i);
         let measured: Vec<&&MovingMetrics> = masked.iter().filter(|m| m.psnr.is_some()).collect();
         Some(Self {
             frames: measured.len(),
@@ -172,10 +181,8 @@ impl MovingSummary {
             ssim: mean(measured.iter().filter_map(|m| m.ssim)),
             lpips: mean(measured.iter().filter_map(|m| m.lpips)),
             brightness: mean(measured.iter().filter_map(|m| m.brightness)),
-            darkest: measured
-                .iter()
-                .filter_map(|m| m.brightness)
-                .reduce(f64::min),
+            darkest: darkest_frame.and_then(|i| frames[i].moving.as_ref()?.brightness),
+            darkest_frame,
             mask_fraction: mean(measured.iter().map(|m| m.mask_fraction)),
         })
     }
@@ -645,7 +652,7 @@ pub fn evaluate(
             },
         });
         if let Some(moving) = &s.moving {
-            value["moving"] = moving_json(moving);
+            value["moving"] = moving_json(moving, &s.frames);
         }
         value
     };
@@ -701,13 +708,17 @@ fn moving_csv(m: Option<&MovingMetrics>) -> String {
     }
 }
 
-/// `metrics.json`'s `moving` object of a set.
-fn moving_json(m: &MovingSummary) -> serde_json::Value {
+/// `metrics.json`'s `moving` object of a set whose views are `frames`.
+fn moving_json(m: &MovingSummary, frames: &[FrameMetrics]) -> serde_json::Value {
+    let darkest_view = m
+        .darkest_frame
+        .map(|i| serde_json::json!({ "camera": frames[i].camera, "time_s": frames[i].time_s }));
     serde_json::json!({
         "frames": m.frames,
         "empty_masks": m.empty_masks,
         "mean": { "psnr": finite(m.psnr), "ssim": finite(m.ssim), "lpips": finite(m.lpips), "brightness": finite(m.brightness) },
         "darkest": finite(m.darkest),
+        "darkest_view": darkest_view,
         "mask_fraction": finite(m.mask_fraction),
     })
 }

@@ -474,12 +474,17 @@ fn moving_region_metrics_are_reported_where_views_have_masks() {
             "grid_train_darkest.png"
         ]
     );
-    for set in ["heldout", "train"] {
+    for (set, metrics) in [("heldout", &report.heldout), ("train", &report.train)] {
         let read = |name: String| std::fs::read(out.join(name)).unwrap();
         assert!(
             read(format!("grid_{set}_darkest.png")) == read(format!("grid_{set}_0001.png")),
             "{set}: the darkest grid is not view 1's"
         );
+        // metrics.json names that view.
+        assert_eq!(metrics.moving.unwrap().darkest_frame, Some(1));
+        let view = &json[set]["moving"]["darkest_view"];
+        assert_eq!(view["camera"], metrics.frames[1].camera.as_str());
+        assert_eq!(view["time_s"].as_f64(), Some(metrics.frames[1].time_s));
     }
     let csv = std::fs::read_to_string(out.join("per_frame.csv")).unwrap();
     let lines: Vec<&str> = csv.lines().collect();

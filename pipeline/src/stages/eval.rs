@@ -574,8 +574,12 @@ fn log_masks(
 /// Logs a set's moving-region means beside its whole-image ones.
 fn show_moving(set: &str, whole: &splat4d::eval::SetMetrics, m: &splat4d::eval::MovingSummary) {
     let f = |v: Option<f64>, d: usize| v.map_or("–".to_string(), |v| format!("{v:.d$}"));
+    let darkest_view = m.darkest_frame.map_or(String::new(), |i| {
+        let v = &whole.frames[i];
+        format!(": {} at {:.3} s", v.camera, v.time_s)
+    });
     tracing::info!(
-        "{set} moving region: {} views ({} with an empty mask left out), PSNR {} dB (whole image {}), SSIM {} (whole image {}), LPIPS {} (whole image {}), brightness {} of the truth's (darkest view {}), mask fraction {}",
+        "{set} moving region: {} views ({} with an empty mask left out), PSNR {} dB (whole image {}), SSIM {} (whole image {}), LPIPS {} (whole image {}), brightness {} of the truth's (darkest view {}{darkest_view}), mask fraction {}",
         m.frames,
         m.empty_masks,
         f(m.psnr, 2),
