@@ -9,7 +9,7 @@ use eval_support::*;
 use glam::DVec3;
 use splat4d::CpuBackend;
 use splat4d::NoProgress;
-use splat4d::eval::{EvalError, EvalView, LPIPS_SKIPPED, evaluate};
+use splat4d::eval::{EvalError, EvalReport, EvalView, LPIPS_SKIPPED, evaluate};
 use splat4d::metrics::image_metrics;
 use splat4d::metrics::lpips::Lpips;
 
@@ -57,6 +57,22 @@ fn setup() -> Setup {
     }
 }
 
+/// `evaluate` of the setup's views on black, without LPIPS, into `out`.
+fn evaluate_on_black(s: &Setup, model: &splat4d::Gaussians, out: &std::path::Path) -> EvalReport {
+    evaluate(
+        &CpuBackend,
+        model,
+        &s.heldout,
+        &s.train,
+        out,
+        None,
+        [0.0; 3],
+        None,
+        &NoProgress,
+    )
+    .unwrap()
+}
+
 /// `per_frame.csv` gives each view's capture time in seconds, not in model units: at 15 fps
 /// from 2 s, model time 0.5 is 3 s.
 #[test]
@@ -65,18 +81,7 @@ fn per_frame_times_are_seconds() {
     let out = s.dir.path().join("eval");
     let mut model = scene();
     model.time = splat4d::model::TimeMapping::frames_over_30(2.0, 15.0, 2.0);
-    let report = evaluate(
-        &CpuBackend,
-        &model,
-        &s.heldout,
-        &s.train,
-        &out,
-        None,
-        [0.0; 3],
-        None,
-        &NoProgress,
-    )
-    .unwrap();
+    let report = evaluate_on_black(&s, &model, &out);
     assert_eq!(report.heldout.frames[0].time_s, 3.0);
     let csv = std::fs::read_to_string(out.join("per_frame.csv")).unwrap();
     let row = csv.lines().nth(1).unwrap();
@@ -88,18 +93,7 @@ fn report_files_hold_per_frame_and_mean_metrics_with_definitions() {
     let s = setup();
     let out = s.dir.path().join("eval");
     let model = scene();
-    let report = evaluate(
-        &CpuBackend,
-        &model,
-        &s.heldout,
-        &s.train,
-        &out,
-        None,
-        [0.0; 3],
-        None,
-        &NoProgress,
-    )
-    .unwrap();
+    let report = evaluate_on_black(&s, &model, &out);
 
     assert_eq!(report.heldout.frames.len(), 2);
     assert_eq!(report.train.frames.len(), 2);
