@@ -44,8 +44,8 @@ pub struct DensifyConfig {
     /// images (0: never; not applied when the capture has fewer cameras than this). At
     /// 1, the default, what no training camera sees goes: no loss constrains it, and
     /// another viewpoint looks through it. At 2 also what one camera alone sees, whose
-    /// depth nothing fixes: it lifts the dark haze over a held-out camera beside the rig,
-    /// but empties the walls of a closed room (docs/experiments/jumping-object.md).
+    /// depth nothing fixes; but that empties the walls of a closed room, and it helps no
+    /// rig measured over two seeds (docs/experiments/jumping-object.md).
     pub min_cameras: usize,
 }
 
