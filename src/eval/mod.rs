@@ -119,6 +119,9 @@ pub struct FrameMetrics {
     pub dssim2: f64,
     /// `None` when LPIPS was skipped (no weights).
     pub lpips: Option<f64>,
+    /// The render's mean brightness over the truth's, whole image (below 1: darker than
+    /// the scene; a dark cloud over the view).
+    pub brightness: f64,
     /// Inside the view's moving-region mask; `None` when the view has no mask.
     pub moving: Option<MovingMetrics>,
 }
@@ -198,6 +201,10 @@ pub struct SetMetrics {
     pub dssim1: Option<f64>,
     pub dssim2: Option<f64>,
     pub lpips: Option<f64>,
+    /// Mean whole-image brightness ratio.
+    pub brightness: Option<f64>,
+    /// Index in `frames` of the view whose whole image is darkest against its truth.
+    pub darkest_frame: Option<usize>,
     /// Inside the moving-region masks; `None` when no view of the set has a mask.
     pub moving: Option<MovingSummary>,
 }
@@ -221,6 +228,7 @@ fn definitions() -> serde_json::Value {
         "dssim1": "(1 − SSIM)/2 with SSIM at data range 1.0 (C1=(0.01·1)², C2=(0.03·1)²)",
         "dssim2": "(1 − SSIM)/2 with SSIM at data range 2.0 (C1=(0.01·2)², C2=(0.03·2)²; the older scikit-image default for float images); smaller than dssim1 for the same images",
         "lpips": "LPIPS v0.1 (learned perceptual image patch similarity) with AlexNet, computed natively from the weights scripts/setup.sh installs, or with the ONNX model of [eval] lpips (lpips.network says which); images scaled to [-1,1]; lower is better; a 'skipped: …' text saying how to get the weights when there are none",
+        "brightness": "the render's mean over pixels and RGB divided by the truth's (at least 1/255), whole image: below 1 where the render is darker than the scene; darkest_view = the view where it is least",
         "heldout": "views not used for training (novel-view quality)",
         "train": "training views (reported separately so overfitting is visible)",
     })
@@ -573,6 +581,7 @@ pub fn evaluate(
                     dssim1: m.dssim1,
                     dssim2: m.dssim2,
                     lpips: lp,
+                    brightness: m.brightness,
                     moving,
                 });
             }
@@ -592,6 +601,12 @@ pub fn evaluate(
             } else {
                 None
             },
+            brightness: mean(frames.iter().map(|f| f.brightness)),
+            darkest_frame: frames
+                .iter()
+                .enumerate()
+                .min_by(|a, b| a.1.brightness.total_cmp(&b.1.brightness))
+                .map(|(i, _)| i),
             moving: MovingSummary::of(&frames),
             frames,
         };
@@ -604,7 +619,7 @@ pub fn evaluate(
 
     // per_frame.csv
     let any_mask = report.heldout.moving.is_some() || report.train.moving.is_some();
-    let mut csv = String::from("set,camera,time_s,image,psnr,ssim,dssim1,dssim2,lpips");
+    let mut csv = String::from("set,camera,time_s,image,psnr,ssim,dssim1,dssim2,lpips,brightness");
     csv.push_str(if any_mask {
         ",moving_psnr,moving_ssim,moving_lpips,moving_brightness,mask_fraction\n"
     } else {
@@ -618,7 +633,7 @@ pub fn evaluate(
                 .unwrap_or_else(|| "skipped".into());
             let _ = write!(
                 csv,
-                "{name},{},{:.6},{},{:.4},{:.6},{:.6},{:.6},{lp}",
+                "{name},{},{:.6},{},{:.4},{:.6},{:.6},{:.6},{lp},{:.4}",
                 csv_field(&f.camera),
                 f.time_s,
                 csv_field(&relative_path(out_dir, &f.image_path).display().to_string()),
@@ -626,6 +641,7 @@ pub fn evaluate(
                 f.ssim,
                 f.dssim1,
                 f.dssim2,
+                f.brightness,
             );
             if any_mask {
                 csv.push_str(&moving_csv(f.moving.as_ref()));
@@ -649,7 +665,13 @@ pub fn evaluate(
                     (true, v) => finite(v),
                     (false, _) => serde_json::json!(LPIPS_SKIPPED),
                 },
+                "brightness": finite(s.brightness),
             },
+            "darkest_view": s.darkest_frame.map(|i| serde_json::json!({
+                "camera": s.frames[i].camera,
+                "time_s": s.frames[i].time_s,
+                "brightness": finite(Some(s.frames[i].brightness)),
+            })),
         });
         if let Some(moving) = &s.moving {
             value["moving"] = moving_json(moving, &s.frames);

@@ -52,6 +52,17 @@ pub struct ImageMetrics {
     pub dssim1: f64,
     /// `(1 − SSIM) / 2` with data range 2 (the older scikit-image default for floats).
     pub dssim2: f64,
+    /// The render's mean over pixels and channels divided by the truth's
+    /// ([`brightness_ratio`]): below 1 where the render is darker than the scene.
+    pub brightness: f64,
+}
+
+/// A render's summed values over the truth's, the truth's mean at least 1/255 (`values`
+/// summed in each): below 1 where the render is darker than the scene, 0 for a black
+/// render of a black truth.
+pub fn brightness_ratio(sum_rendered: f64, sum_truth: f64, values: usize) -> f64 {
+    let n = values.max(1) as f64;
+    (sum_rendered / n) / (sum_truth / n).max(1.0 / 255.0)
 }
 
 fn check<F>(a: &[F], b: &[F], width: usize, height: usize) -> Result<(), MetricsError> {
@@ -141,12 +152,14 @@ pub fn image_metrics<F: Real>(
     let mse = mse(rendered, truth);
     let ssim1 = ssim_with_range(rendered, truth, width, height, 1.0)?;
     let ssim2 = ssim_with_range(rendered, truth, width, height, 2.0)?;
+    let sum = |v: &[F]| v.iter().map(|x| x.f64()).sum::<f64>();
     Ok(ImageMetrics {
         mse,
         psnr: psnr_from_mse(mse),
         ssim: ssim1,
         dssim1: (1.0 - ssim1) / 2.0,
         dssim2: (1.0 - ssim2) / 2.0,
+        brightness: brightness_ratio(sum(rendered), sum(truth), rendered.len()),
     })
 }
 
@@ -209,7 +222,7 @@ pub fn masked_metrics<F: Real>(
         mse,
         psnr: psnr_from_mse(mse),
         ssim,
-        brightness: (sum_r / values) / (sum_t / values).max(1.0 / 255.0),
+        brightness: brightness_ratio(sum_r, sum_t, 3 * inside),
     }))
 }
 
@@ -265,6 +278,9 @@ mod tests {
         let whole = image_metrics(&rendered, &truth, w, h).unwrap();
         assert!((full.psnr - whole.psnr).abs() < 1e-9);
         assert!((full.ssim - whole.ssim).abs() < 1e-12);
+        assert!((full.brightness - whole.brightness).abs() < 1e-12);
+        let half = image_metrics(&dark, &truth, w, h).unwrap();
+        assert!((half.brightness - 0.5).abs() < 1e-12, "{}", half.brightness);
         assert_eq!(full.fraction, 1.0);
         // An empty mask gives nothing; a mask of the wrong size is an error.
         assert_eq!(

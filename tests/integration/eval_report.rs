@@ -157,11 +157,11 @@ fn report_files_hold_per_frame_and_mean_metrics_with_definitions() {
     let lines: Vec<&str> = csv.lines().collect();
     assert_eq!(
         lines[0],
-        "set,camera,time_s,image,psnr,ssim,dssim1,dssim2,lpips"
+        "set,camera,time_s,image,psnr,ssim,dssim1,dssim2,lpips,brightness"
     );
     assert_eq!(lines.len(), 5);
     assert!(
-        lines[2].starts_with("heldout,cam3,0.000000,") && lines[2].ends_with(",skipped"),
+        lines[2].starts_with("heldout,cam3,0.000000,") && lines[2].contains(",skipped,"),
         "{}",
         lines[2]
     );
@@ -442,6 +442,10 @@ fn moving_region_metrics_are_reported_where_views_have_masks() {
         "{full:?}"
     );
     assert!((full.moving.unwrap().ssim.unwrap() - full.ssim).abs() < 1e-5);
+    // Whole-image brightness: the render's mean over the truth's (a full mask's too).
+    assert!((full.moving.unwrap().brightness.unwrap() - full.brightness).abs() < 1e-9);
+    let whole = splat4d::metrics::image_metrics(&rendered, &truth, 64, 48).unwrap();
+    assert!((report.heldout.frames[1].brightness - whole.brightness).abs() < 1e-12);
 
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("metrics.json")).unwrap()).unwrap();
@@ -454,6 +458,23 @@ fn moving_region_metrics_are_reported_where_views_have_masks() {
     assert_eq!(json["train"]["moving"]["empty_masks"], 1);
     assert!((json["heldout"]["moving"]["mean"]["psnr"].as_f64().unwrap() - want.psnr).abs() < 1e-9);
     assert_eq!(json["heldout"]["moving"]["mask_fraction"], 0.5);
+    // Each set names its darkest whole view.
+    for (set, metrics) in [("heldout", &report.heldout), ("train", &report.train)] {
+        let least = (0..metrics.frames.len())
+            .min_by(|&a, &b| {
+                metrics.frames[a]
+                    .brightness
+                    .total_cmp(&metrics.frames[b].brightness)
+            })
+            .unwrap();
+        assert_eq!(metrics.darkest_frame, Some(least));
+        let view = &json[set]["darkest_view"];
+        assert_eq!(view["camera"], metrics.frames[least].camera.as_str());
+        assert_eq!(
+            view["brightness"].as_f64(),
+            Some(metrics.frames[least].brightness)
+        );
+    }
     // Each set's view with the darkest moving region gets its grid too: the one masked
     // held-out view, the full-masked training view (the empty mask has no brightness).
     let grids = grid_names(&json);
@@ -484,12 +505,16 @@ fn moving_region_metrics_are_reported_where_views_have_masks() {
     let lines: Vec<&str> = csv.lines().collect();
     assert_eq!(
         lines[0],
-        "set,camera,time_s,image,psnr,ssim,dssim1,dssim2,lpips,moving_psnr,moving_ssim,moving_lpips,moving_brightness,mask_fraction"
+        "set,camera,time_s,image,psnr,ssim,dssim1,dssim2,lpips,brightness,moving_psnr,moving_ssim,moving_lpips,moving_brightness,mask_fraction"
     );
-    assert!(lines[1].ends_with(",skipped,,,,,"), "no mask: {}", lines[1]);
+    assert!(
+        lines[1].contains(",skipped,") && lines[1].ends_with(",,,,,"),
+        "no mask: {}",
+        lines[1]
+    );
     assert!(lines[2].ends_with(",0.500000"), "{}", lines[2]);
     assert!(
-        lines[3].ends_with(",skipped,,,,,0.000000"),
+        lines[3].contains(",skipped,") && lines[3].ends_with(",,,,,0.000000"),
         "empty mask: {}",
         lines[3]
     );

@@ -522,8 +522,15 @@ pub fn run(
             (None, _) => "skipped (no weights: run scripts/setup.sh)".to_string(),
             (Some(_), v) => f(v),
         };
+        let darkest = m.darkest_frame.map_or(String::new(), |i| {
+            let v = &m.frames[i];
+            format!(
+                "; darkest view {} at {:.3} s, {:.3} of the truth's brightness",
+                v.camera, v.time_s, v.brightness
+            )
+        });
         tracing::info!(
-            "{set}: {} views, PSNR {} dB, SSIM {}, DSSIM1 {}, DSSIM2 {}, LPIPS {lpips_text}",
+            "{set}: {} views, PSNR {} dB, SSIM {}, DSSIM1 {}, DSSIM2 {}, LPIPS {lpips_text}{darkest}",
             m.frames.len(),
             f(m.psnr),
             f(m.ssim),

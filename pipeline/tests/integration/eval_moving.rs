@@ -80,11 +80,9 @@ fn eval_reports_the_moving_region_where_masks_exist() {
         assert!((psnr - whole).abs() > 0.01, "{set}: {psnr} vs {whole}");
     }
     assert!(json["definitions"]["moving"].is_string());
-    assert!(
-        csv_header(&root).ends_with(
-            ",lpips,moving_psnr,moving_ssim,moving_lpips,moving_brightness,mask_fraction"
-        )
-    );
+    assert!(csv_header(&root).ends_with(
+        ",lpips,brightness,moving_psnr,moving_ssim,moving_lpips,moving_brightness,mask_fraction"
+    ));
 
     // A user's masks/ (numbered like work/frames) is an input: adding it reruns eval, which
     // then uses it. Full masks of cam0: the moving region is the whole image.
@@ -99,11 +97,13 @@ fn eval_reports_the_moving_region_where_masks_exist() {
         let f: Vec<&str> = line.split(',').collect();
         let has_mask = f[0] == "train" && f[1] == "cam0" && f[3].ends_with("cam0/000000.png");
         if has_mask {
-            let (whole, moving) = (f[4].parse::<f64>().unwrap(), f[9].parse::<f64>().unwrap());
+            let (whole, moving) = (f[4].parse::<f64>().unwrap(), f[10].parse::<f64>().unwrap());
             assert!((whole - moving).abs() < 1e-3, "{line}");
-            // A full mask: the LPIPS crop is the whole image, the fraction 1.
-            assert_eq!(f[11], f[8], "{line}");
-            assert_eq!(f[13], "1.000000", "{line}");
+            // A full mask: the LPIPS crop and the brightness are the whole image's, the
+            // fraction 1.
+            assert_eq!(f[12], f[8], "{line}");
+            assert_eq!(f[13], f[9], "{line}");
+            assert_eq!(f[14], "1.000000", "{line}");
             masked += 1;
         } else {
             assert!(
@@ -164,6 +164,6 @@ fn eval_reports_the_moving_region_where_masks_exist() {
     assert!(json["definitions"].get("moving").is_none());
     assert_eq!(
         csv_header(&root),
-        "set,camera,time_s,image,psnr,ssim,dssim1,dssim2,lpips"
+        "set,camera,time_s,image,psnr,ssim,dssim1,dssim2,lpips,brightness"
     );
 }
