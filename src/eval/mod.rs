@@ -170,12 +170,12 @@ impl MovingSummary {
         if masked.is_empty() {
             return None;
         }
-        let darkest_frame = frames
-            .iter()
-            .enumerate()
-            .filter_map(|(i, f)| Some((i, f.moving.as_ref()?.brightness?)))
-            .reduce(|a, b| if b.1 < a.1 { b } else { a })
-            .map(|(i, _)| i);
+        let darkest_frame = least_bright(
+            frames
+                .iter()
+                .enumerate()
+                .filter_map(|(i, f)| Some((i, f.moving.as_ref()?.brightness?))),
+        );
         let measured: Vec<&&MovingMetrics> = masked.iter().filter(|m| m.psnr.is_some()).collect();
         Some(Self {
             frames: measured.len(),
@@ -189,6 +189,14 @@ impl MovingSummary {
             mask_fraction: mean(measured.iter().map(|m| m.mask_fraction)),
         })
     }
+}
+
+/// The index of the least brightness among `(index, brightness)` pairs (the first of
+/// equals); `None` when there are none.
+fn least_bright(brightness: impl Iterator<Item = (usize, f64)>) -> Option<usize> {
+    brightness
+        .reduce(|a, b| if b.1 < a.1 { b } else { a })
+        .map(|(i, _)| i)
 }
 
 /// Means over the views of one set (`None` for an empty set). PSNR is the mean of the
@@ -602,11 +610,7 @@ pub fn evaluate(
                 None
             },
             brightness: mean(frames.iter().map(|f| f.brightness)),
-            darkest_frame: frames
-                .iter()
-                .enumerate()
-                .min_by(|a, b| a.1.brightness.total_cmp(&b.1.brightness))
-                .map(|(i, _)| i),
+            darkest_frame: least_bright(frames.iter().map(|f| f.brightness).enumerate()),
             moving: MovingSummary::of(&frames),
             frames,
         };
