@@ -242,6 +242,27 @@ impl<F: Real> Gradients<F> {
         self.colours.resize(model.colours.len(), F::zero());
     }
 
+    /// Add `other` (same layout) into these gradients, parameter by parameter (the
+    /// densification statistic and the opacity-factor gradient are left as they are).
+    pub(crate) fn add(&mut self, other: &Self) {
+        let add4 = |a: &mut Vec<[F; 4]>, b: &Vec<[F; 4]>| {
+            a.as_flattened_mut()
+                .iter_mut()
+                .zip(b.as_flattened())
+                .for_each(|(x, y)| *x += *y)
+        };
+        add4(&mut self.means, &other.means);
+        add4(&mut self.log_scales, &other.log_scales);
+        add4(&mut self.rot_left, &other.rot_left);
+        add4(&mut self.rot_right, &other.rot_right);
+        for (a, b) in [
+            (&mut self.opacity_logits, &other.opacity_logits),
+            (&mut self.colours, &other.colours),
+        ] {
+            a.iter_mut().zip(b).for_each(|(x, y)| *x += *y);
+        }
+    }
+
     /// All-zero gradients for `model`.
     pub fn zeros_like(model: &Gaussians<F>, with_factor: bool) -> Self {
         let n = model.len();

@@ -18,6 +18,7 @@ pub mod gpu;
 pub mod log;
 pub mod loss;
 pub mod optim;
+pub mod pseudo_view;
 pub mod regularise;
 mod step;
 
@@ -37,6 +38,7 @@ use crate::render::{RenderBackend, RenderError, RenderOptions};
 use crate::train::densify::{DensifyConfig, DensifyStats, densify_and_prune, reset_opacity};
 use crate::train::device_step::DeviceStep;
 use crate::train::optim::{Adam, LearningRates, colour_degrees_at};
+use crate::train::pseudo_view::PseudoViewConfig;
 use crate::train::step::{HostStep, Stepper};
 use crate::{Progress, save_model};
 use checkpoint::{Checkpoint, CheckpointError};
@@ -92,6 +94,8 @@ pub struct TrainConfig {
     pub match_exposure: bool,
     pub lr: LearningRates,
     pub densify: DensifyConfig,
+    /// Pseudo views beside the training cameras ([`pseudo_view`]; host step only).
+    pub pseudo_views: PseudoViewConfig,
     /// Write a checkpoint every this many iterations (0: only at the end).
     pub checkpoint_every: u64,
     /// Checkpoints kept on disk (older ones are deleted).
@@ -120,6 +124,7 @@ impl Default for TrainConfig {
             match_exposure: true,
             lr: LearningRates::default(),
             densify: DensifyConfig::default(),
+            pseudo_views: PseudoViewConfig::default(),
             checkpoint_every: 1000,
             keep_checkpoints: 3,
             report_every: 10,
@@ -369,6 +374,9 @@ fn validate(config: &TrainConfig, dataset: &Dataset) -> Result<(), TrainError> {
     }
     if !(0.0..=1.0).contains(&config.init_flatness) {
         return bad("init_flatness must be in [0, 1] (0: round Gaussians)");
+    }
+    if let Some(problem) = config.pseudo_views.problem() {
+        return bad(problem);
     }
     if dataset.views.is_empty() {
         return Err(TrainError::NoViews);
@@ -638,8 +646,10 @@ pub fn train_from(
         && hooks
             .device_decay()
             .is_some_and(|d| GpuDecay::supports(d.config));
+    // Pseudo views render and compare on the host (render and backward stay on the GPU).
+    let pseudo_views = config.pseudo_views.weight > 0.0;
     let mut stepper: Box<dyn Stepper + '_> = match backend.as_gpu() {
-        Some(gpu) if access != ModelAccess::OpacityFactor || decay_on_device => {
+        Some(gpu) if (access != ModelAccess::OpacityFactor || decay_on_device) && !pseudo_views => {
             Box::new(DeviceStep::new(
                 gpu, config, background, dataset, &model, &adam, &stats, hooks,
             )?)

@@ -15,6 +15,7 @@ use crate::render::{Gradients, ImageGradients, RenderBackend, RenderOptions};
 use crate::train::densify::DensifyStats;
 use crate::train::loss::{LossValue, image_loss};
 use crate::train::optim::{Adam, GroupRates};
+use crate::train::pseudo_view::PseudoViews;
 use crate::train::{Dataset, TrainConfig, TrainError, TrainHooks};
 
 /// What the hooks do with the model during a step ([`TrainHooks::model_access`]), so a
@@ -111,6 +112,7 @@ pub(crate) struct HostStep<'a> {
     /// One view's gradients, reused across views and iterations: the backward resizes
     /// and overwrites it, so the large colour array is not faulted in afresh every view.
     g: Gradients<f32>,
+    pseudo: PseudoViews,
 }
 
 impl<'a> HostStep<'a> {
@@ -129,6 +131,13 @@ impl<'a> HostStep<'a> {
             target: Vec::new(),
             d_image: Vec::new(),
             g: Gradients::zeros_like(model, false),
+            pseudo: PseudoViews::new(
+                config.pseudo_views,
+                config.iterations,
+                config.seed,
+                &dataset.views,
+                model,
+            ),
         }
     }
 }
@@ -155,7 +164,7 @@ impl Stepper for HostStep<'_> {
         let mut grads = Gradients::zeros_like(model, false);
         let mut losses = Vec::with_capacity(batch.len());
         let scale = 1.0 / batch.len() as f32;
-        for &vi in batch {
+        for (position, &vi) in batch.iter().enumerate() {
             let view = &self.dataset.views[vi];
             let factor = hooks.opacity_factor(it, model, view);
             let options = RenderOptions {
@@ -172,10 +181,22 @@ impl Stepper for HostStep<'_> {
             let (w, h) = (r.width as usize, r.height as usize);
             let lv = image_loss(&r.rgb, target, w, h, config.lambda_ssim, Some(d_image));
             d_image.iter_mut().for_each(|g| *g *= scale);
+            let pseudo = self.pseudo.apply(
+                backend,
+                model,
+                it,
+                (vi, position),
+                view,
+                &options,
+                &r,
+                target,
+                scale,
+                &mut grads,
+            )?;
             let up = ImageGradients {
                 rgb: d_image,
-                alpha: None,
-                depth: None,
+                alpha: pseudo.as_ref().map(|p| p.alpha.as_slice()),
+                depth: pseudo.as_ref().map(|p| p.depth.as_slice()),
             };
             backend
                 .backward(model, &r, &up, g)
@@ -191,7 +212,7 @@ impl Stepper for HostStep<'_> {
                 r.height,
                 batch.len() as f32,
             );
-            add_into(&mut grads, g);
+            grads.add(g);
             losses.push(lv);
         }
         adam.step(model, &grads, rates);
@@ -228,25 +249,4 @@ impl Stepper for HostStep<'_> {
     ) -> Result<(), TrainError> {
         Ok(())
     }
-}
-
-fn add_into(sum: &mut Gradients<f32>, g: &Gradients<f32>) {
-    let add4 = |a: &mut Vec<[f32; 4]>, b: &Vec<[f32; 4]>| {
-        a.as_flattened_mut()
-            .iter_mut()
-            .zip(b.as_flattened())
-            .for_each(|(x, y)| *x += y)
-    };
-    add4(&mut sum.means, &g.means);
-    add4(&mut sum.log_scales, &g.log_scales);
-    add4(&mut sum.rot_left, &g.rot_left);
-    add4(&mut sum.rot_right, &g.rot_right);
-    sum.opacity_logits
-        .iter_mut()
-        .zip(&g.opacity_logits)
-        .for_each(|(x, y)| *x += y);
-    sum.colours
-        .iter_mut()
-        .zip(&g.colours)
-        .for_each(|(x, y)| *x += y);
 }

@@ -128,6 +128,54 @@ fn resumed_run_is_bit_identical_to_a_straight_run() {
     assert_eq!(a, std::fs::read(killed.path().join("model.bin")).unwrap());
 }
 
+/// Pseudo views change the trained model, and a run with them resumes bit-identically (the
+/// virtual camera's direction comes from the seed, the iteration and the view).
+#[test]
+fn pseudo_views_train_and_resume_bit_identically() {
+    let data = train_scene::dataset(32, 24);
+    let init = train_scene::points(12, 9, &[0.0, 1.0]);
+    let mut with = config(30);
+    with.pseudo_views.weight = 0.3;
+    with.pseudo_views.start = 0.2;
+    let run = |c: &TrainConfig, hooks: &mut dyn TrainHooks, dir: &std::path::Path, resume| {
+        train(
+            &CpuBackend,
+            c,
+            &data,
+            &init,
+            dir,
+            resume,
+            hooks,
+            &NoProgress,
+        )
+    };
+    let (off, straight, resumed) = (
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+    );
+    run(&config(30), &mut NoHooks, off.path(), false).unwrap();
+    run(&with, &mut NoHooks, straight.path(), false).unwrap();
+    let e = run(&with, &mut StopAt(17), resumed.path(), false).unwrap_err();
+    assert!(
+        matches!(e, TrainError::Interrupted { iteration: 17, .. }),
+        "{e}"
+    );
+    assert_eq!(
+        run(&with, &mut NoHooks, resumed.path(), true)
+            .unwrap()
+            .started_at,
+        17
+    );
+    let model = |d: &tempfile::TempDir| std::fs::read(d.path().join("model.bin")).unwrap();
+    assert_ne!(
+        model(&off),
+        model(&straight),
+        "pseudo views changed nothing"
+    );
+    assert_eq!(model(&straight), model(&resumed), "resumed model differs");
+}
+
 /// Damaged checkpoints (a truncated model, a zeroed state, a bit flip, another format
 /// version, another capture's) are each named, set aside as `*.damaged`, and the run resumes
 /// from the newest good one, or starts over when none is left: the same model either way.

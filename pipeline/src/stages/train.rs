@@ -173,6 +173,14 @@ pub fn run(
         summary.gaussians,
         summary.final_psnr
     );
+    if summary.placement == "host"
+        && backend.as_gpu().is_some()
+        && settings.pseudo_views.weight > 0.0
+    {
+        tracing::info!(
+            "pseudo views compare on the host, so the GPU renders while the host computes the loss (set [train.pseudo_views] weight = 0 to keep the whole step on the GPU)"
+        );
+    }
     tracing::info!(
         "background: {:?} ({:?})",
         summary.background,
