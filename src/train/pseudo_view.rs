@@ -80,7 +80,8 @@ pub(crate) struct PseudoViews {
     seed: u64,
     /// Per dataset view, the virtual camera's distance from it.
     baselines: Vec<f64>,
-    g: Gradients<f32>,
+    /// The virtual view's gradients, made on first use and reused.
+    g: Option<Gradients<f32>>,
 }
 
 /// The upstream gradients of a training render that the pseudo view adds.
@@ -90,13 +91,7 @@ pub(crate) struct DepthGradients {
 }
 
 impl PseudoViews {
-    pub fn new(
-        config: PseudoViewConfig,
-        iterations: u64,
-        seed: u64,
-        views: &[View],
-        model: &Gaussians<f32>,
-    ) -> Self {
+    pub fn new(config: PseudoViewConfig, iterations: u64, seed: u64, views: &[View]) -> Self {
         let cameras: Vec<&Camera> = views.iter().map(|v| &v.camera).collect();
         let baselines = nearest_other_centre(&cameras)
             .into_iter()
@@ -107,7 +102,7 @@ impl PseudoViews {
             iterations,
             seed,
             baselines,
-            g: Gradients::zeros_like(model, false),
+            g: None,
         }
     }
 
@@ -152,10 +147,11 @@ impl PseudoViews {
             alpha: None,
             depth: None,
         };
-        backend
-            .backward(model, &rv, &up, &mut self.g)
-            .map_err(render_error)?;
-        grads.add(&self.g);
+        let g = self
+            .g
+            .get_or_insert_with(|| Gradients::zeros_like(model, false));
+        backend.backward(model, &rv, &up, g).map_err(render_error)?;
+        grads.add(g);
         Ok(Some(DepthGradients {
             alpha: c.d_alpha,
             depth: c.d_depth,

@@ -136,7 +136,6 @@ impl<'a> HostStep<'a> {
                 config.iterations,
                 config.seed,
                 &dataset.views,
-                model,
             ),
         }
     }
