@@ -646,8 +646,9 @@ pub fn train_from(
         && hooks
             .device_decay()
             .is_some_and(|d| GpuDecay::supports(d.config));
-    // Pseudo views render and compare on the host (render and backward stay on the GPU).
-    let pseudo_views = config.pseudo_views.weight > 0.0;
+    // Pseudo views render and compare on the host (render and backward stay on the GPU):
+    // a GPU run takes the host path for them only when a weight is set.
+    let pseudo_views = config.pseudo_views.required();
     let mut stepper: Box<dyn Stepper + '_> = match backend.as_gpu() {
         Some(gpu) if (access != ModelAccess::OpacityFactor || decay_on_device) && !pseudo_views => {
             Box::new(DeviceStep::new(
