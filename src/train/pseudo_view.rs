@@ -31,7 +31,8 @@ pub struct PseudoViewConfig {
     pub baseline: f64,
     /// Fraction of the run trained before the term starts (the geometry forms first).
     pub start: f64,
-    /// Views of each batch that get a pseudo view.
+    /// Views of each batch that get a pseudo view (the first ones drawn; the default is
+    /// every view of a default batch of 4).
     pub per_step: usize,
 }
 
@@ -44,7 +45,7 @@ impl Default for PseudoViewConfig {
             weight: None,
             baseline: 0.3,
             start: 0.25,
-            per_step: 1,
+            per_step: 4,
         }
     }
 }
@@ -409,6 +410,8 @@ mod tests {
             (DEFAULT_WEIGHT, false)
         );
         assert!(unset.applies(10, 10, 0) && !unset.applies(2, 10, 0));
+        // Every view of a default batch of 4.
+        assert!(unset.applies(10, 10, 3) && !unset.applies(10, 10, 4));
         let off = PseudoViewConfig {
             weight: Some(0.0),
             ..unset
