@@ -49,6 +49,9 @@ use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+/// Views per optimiser step where `batch_size` is not set.
+pub const DEFAULT_BATCH_SIZE: usize = 4;
+
 /// Training parameters: the `[train]` section of `capture.toml`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -58,7 +61,8 @@ pub struct TrainConfig {
     /// images of half the width and height (about a quarter of the time per step); the
     /// model still renders at any size.
     pub resolution: f64,
-    /// Views rendered per optimiser step (their gradients are averaged).
+    /// Views rendered per optimiser step (their gradients are averaged;
+    /// [`DEFAULT_BATCH_SIZE`] by default).
     pub batch_size: usize,
     pub seed: u64,
     /// Weight λ of `(1 − SSIM)` in the loss.
@@ -109,7 +113,7 @@ impl Default for TrainConfig {
         Self {
             iterations: 30_000,
             resolution: 1.0,
-            batch_size: 4,
+            batch_size: DEFAULT_BATCH_SIZE,
             seed: 0,
             lambda_ssim: 0.2,
             background: Background::Learned,

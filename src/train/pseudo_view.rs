@@ -31,8 +31,8 @@ pub struct PseudoViewConfig {
     pub baseline: f64,
     /// Fraction of the run trained before the term starts (the geometry forms first).
     pub start: f64,
-    /// Views of each batch that get a pseudo view (the first ones drawn; the default is
-    /// every view of a default batch of 4).
+    /// Views of each batch that get a pseudo view (the first ones drawn; by default every
+    /// view of a default batch).
     pub per_step: usize,
 }
 
@@ -45,7 +45,7 @@ impl Default for PseudoViewConfig {
             weight: None,
             baseline: 0.3,
             start: 0.25,
-            per_step: 4,
+            per_step: crate::train::DEFAULT_BATCH_SIZE,
         }
     }
 }
