@@ -10,7 +10,9 @@
 //!
 //! `gpu_resident_step`: one whole training iteration as training runs it on the GPU
 //! (`GpuAdam::train_step`: render → L1 + D-SSIM loss → backward → Adam on the resident
-//! model, one view, only the loss read back). 2k Gaussians at 128×96 for software
+//! model, one view, only the loss read back), and the same with the view's pseudo view
+//! (`…_pseudo_view`: a second render beside it, the comparison and its backward, as
+//! training runs it from a quarter of the run on). 2k Gaussians at 128×96 for software
 //! adapters; 100k and 1M at 1352×1014 for real GPUs.
 //!
 //! `SPLAT4D_GPU_PROFILE=1` first prints where one such iteration's device time goes,
@@ -34,6 +36,7 @@ use splat4d::train::dataset::ImageU8;
 use splat4d::train::gpu::{GpuAdam, GpuImage, GpuTraining, StepResult, TrainView};
 use splat4d::train::loss::image_loss;
 use splat4d::train::optim::{Adam, GroupRates, LearningRates};
+use splat4d::train::pseudo_view::{VirtualView, shifted_camera};
 use splat4d::{Camera, Gaussians, Gradients, ImageGradients, RenderOptions};
 use std::hint::black_box;
 
@@ -184,17 +187,20 @@ const RESIDENT_SIZES: [(usize, u32, u32); 3] = [
 ];
 
 /// One whole training iteration on the device, set up for `n` Gaussians and a `w×h` view
-/// against a mid-grey target (which the model does not match anywhere).
+/// against a mid-grey target (which the model does not match anywhere), with or without
+/// a pseudo view (a virtual camera beside the view: a second render, the comparison and
+/// its backward).
 struct ResidentStep {
     model: Gaussians<f32>,
     camera: Camera,
     target: GpuImage,
     adam: GpuAdam,
     rates: GroupRates,
+    pseudo: Option<VirtualView>,
 }
 
 impl ResidentStep {
-    fn new(gpu: &GpuBackend, n: usize, w: u32, h: u32) -> Self {
+    fn new(gpu: &GpuBackend, n: usize, (w, h): (u32, u32), pseudo: bool) -> Self {
         let mut camera: Camera = camera();
         camera.intrinsics = camera.intrinsics.scaled_to(w, h);
         let model = scene(n);
@@ -207,12 +213,21 @@ impl ResidentStep {
             .unwrap();
         let adam = GpuAdam::new(gpu, &model).unwrap();
         let rates = LearningRates::default().at(10, 100, 2.0);
+        let pseudo = pseudo.then(|| {
+            let shift = [0.15, 0.05];
+            VirtualView {
+                camera: shifted_camera(&camera, shift),
+                shift,
+                weight: 0.3,
+            }
+        });
         Self {
             model,
             camera,
             target,
             adam,
             rates,
+            pseudo,
         }
     }
 
@@ -222,6 +237,7 @@ impl ResidentStep {
             camera: &self.camera,
             t: 0.5,
             target: &self.target,
+            pseudo: self.pseudo.clone(),
         }];
         self.adam
             .train_step(gpu, &self.model, &views, [0.0; 3], 0.2, &self.rates)
@@ -235,15 +251,20 @@ fn resident_step(c: &mut Criterion, gpu: &GpuBackend) {
     for (n, w, h) in RESIDENT_SIZES {
         // Set up once, on first use: criterion calls the routine once per sample, and a
         // fresh model's upload would land in the first timed iteration of each.
-        let mut step = None;
-        group.bench_function(BenchmarkId::new(format!("{w}x{h}"), n), |b| {
-            let step = step.get_or_insert_with(|| {
-                let step = ResidentStep::new(gpu, n, w, h);
-                settle(gpu);
-                step
+        for (pseudo, name) in [
+            (false, format!("{w}x{h}")),
+            (true, format!("{w}x{h}_pseudo_view")),
+        ] {
+            let mut step = None;
+            group.bench_function(BenchmarkId::new(name, n), |b| {
+                let step = step.get_or_insert_with(|| {
+                    let step = ResidentStep::new(gpu, n, (w, h), pseudo);
+                    settle(gpu);
+                    step
+                });
+                b.iter(|| black_box(step.run(gpu)))
             });
-            b.iter(|| black_box(step.run(gpu)))
-        });
+        }
     }
     group.finish();
 }
@@ -267,7 +288,7 @@ fn profile_resident_steps(gpu: &GpuBackend) {
     for (n, w, h) in sizes {
         for (what, backend) in backends {
             let Some(backend) = backend else { continue };
-            let mut step = ResidentStep::new(backend, n, w, h);
+            let mut step = ResidentStep::new(backend, n, (w, h), false);
             // Warm up (the pool of scratch buffers fills), then the mean of a few.
             for _ in 0..3 {
                 step.run(backend);

@@ -1,7 +1,8 @@
 //! The GPU path of the trainer: the training images uploaded once (as bytes), the model,
 //! its Adam moments and the densification statistics resident on the device, and each
 //! iteration one [`GpuAdam::train_step_decayed`] (render, loss, backward, batch sum,
-//! statistics, Adam) that reads back only the views' loss totals.
+//! statistics, Adam, and the pseudo views the run's [`PseudoPlan`] draws) that reads back
+//! only the views' loss totals.
 //!
 //! The host copy of the state is brought up to date only when the loop needs it: every
 //! step when the anisotropy cap is on or the hooks touch the model
@@ -22,6 +23,7 @@ use crate::render::gpu::GpuBackend;
 use crate::train::densify::DensifyStats;
 use crate::train::gpu::{GpuAdam, GpuImage, GpuStats, GpuTraining, TrainView};
 use crate::train::optim::{Adam, GroupRates};
+use crate::train::pseudo_view::PseudoPlan;
 use crate::train::step::{BatchLoss, Stepper};
 use crate::train::{Dataset, StepStats, TrainConfig, TrainError, TrainHooks};
 
@@ -36,6 +38,7 @@ pub(crate) struct DeviceStep<'a> {
     targets: Vec<GpuImage>,
     adam: GpuAdam,
     stats: GpuStats,
+    pseudo: PseudoPlan,
     /// The decay on the device, and the step it starts after.
     decay: Option<(GpuDecay, u64)>,
     /// The host model holds the device's values.
@@ -84,6 +87,12 @@ impl<'a> DeviceStep<'a> {
             targets,
             adam: GpuAdam::from_state(gpu, model, adam).map_err(TrainError::Device)?,
             stats: GpuStats::upload(gpu, stats).map_err(TrainError::Device)?,
+            pseudo: PseudoPlan::new(
+                config.pseudo_views,
+                config.iterations,
+                config.seed,
+                &dataset.views,
+            ),
             decay,
             model_current: true,
             state_current: true,
@@ -107,8 +116,9 @@ impl Stepper for DeviceStep<'_> {
         hooks: &mut dyn TrainHooks,
     ) -> Result<BatchLoss, TrainError> {
         let first = batch.first().copied().unwrap_or(0);
+        let scale = 1.0 / batch.len() as f32;
         let mut views = Vec::with_capacity(batch.len());
-        for &vi in batch {
+        for (position, &vi) in batch.iter().enumerate() {
             let view = &self.dataset.views[vi];
             if self.decay.is_none() && hooks.opacity_factor(iteration, model, view).is_some() {
                 return Err(TrainError::Config(
@@ -119,6 +129,9 @@ impl Stepper for DeviceStep<'_> {
                 camera: &view.camera,
                 t: view.time,
                 target: &self.targets[vi],
+                pseudo: self
+                    .pseudo
+                    .virtual_view(iteration, (vi, position), &view.camera, scale),
             });
         }
         // The decay is active from 0-based iteration `warmup` on (`DecayHooks::active`).

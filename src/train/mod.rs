@@ -98,7 +98,7 @@ pub struct TrainConfig {
     pub match_exposure: bool,
     pub lr: LearningRates,
     pub densify: DensifyConfig,
-    /// Pseudo views beside the training cameras ([`pseudo_view`]; host step only).
+    /// Pseudo views beside the training cameras ([`pseudo_view`]).
     pub pseudo_views: PseudoViewConfig,
     /// Write a checkpoint every this many iterations (0: only at the end).
     pub checkpoint_every: u64,
@@ -650,11 +650,8 @@ pub fn train_from(
         && hooks
             .device_decay()
             .is_some_and(|d| GpuDecay::supports(d.config));
-    // Pseudo views render and compare on the host (render and backward stay on the GPU):
-    // a GPU run takes the host path for them only when a weight is set.
-    let pseudo_views = config.pseudo_views.required();
     let mut stepper: Box<dyn Stepper + '_> = match backend.as_gpu() {
-        Some(gpu) if (access != ModelAccess::OpacityFactor || decay_on_device) && !pseudo_views => {
+        Some(gpu) if access != ModelAccess::OpacityFactor || decay_on_device => {
             Box::new(DeviceStep::new(
                 gpu, config, background, dataset, &model, &adam, &stats, hooks,
             )?)

@@ -20,11 +20,8 @@ use shared_types::camera::{Camera, WorldToCamera};
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PseudoViewConfig {
-    /// Weight of the consistency L1 beside the image loss (0: off). Unset:
-    /// [`DEFAULT_WEIGHT`] where the step runs on the host, none on the GPU's
-    /// whole-iteration step (which has no pseudo views; a weight set here moves a GPU run
-    /// to the host path).
-    pub weight: Option<f64>,
+    /// Weight of the consistency L1 beside the image loss (0: off).
+    pub weight: f64,
     /// How far the virtual camera sits beside the training camera, as a fraction of the
     /// distance to the nearest other training camera (in a random direction of the image
     /// plane each step).
@@ -36,13 +33,10 @@ pub struct PseudoViewConfig {
     pub per_step: usize,
 }
 
-/// The weight where none is set and the step runs on the host.
-pub const DEFAULT_WEIGHT: f64 = 0.3;
-
 impl Default for PseudoViewConfig {
     fn default() -> Self {
         Self {
-            weight: None,
+            weight: 0.3,
             baseline: 0.3,
             start: 0.25,
             per_step: crate::train::DEFAULT_BATCH_SIZE,
@@ -53,7 +47,7 @@ impl Default for PseudoViewConfig {
 impl PseudoViewConfig {
     /// Why the settings are invalid, if they are.
     pub fn problem(&self) -> Option<&'static str> {
-        if !self.weight.is_none_or(|w| w.is_finite() && w >= 0.0) {
+        if !(self.weight.is_finite() && self.weight >= 0.0) {
             return Some("pseudo_views.weight must be finite and ≥ 0 (0: off)");
         }
         if !(self.baseline > 0.0 && self.baseline <= 1.0) {
@@ -70,45 +64,35 @@ impl PseudoViewConfig {
         None
     }
 
-    /// The weight on the host path.
-    pub fn host_weight(&self) -> f64 {
-        self.weight.unwrap_or(DEFAULT_WEIGHT)
-    }
-
-    /// Whether the settings ask for pseudo views wherever the step runs (a weight above 0
-    /// set), which keeps a GPU run on the host path.
-    pub fn required(&self) -> bool {
-        self.weight.is_some_and(|w| w > 0.0)
-    }
-
-    /// Whether the view at `position` in iteration `iteration`'s batch gets a pseudo view
-    /// on the host path.
+    /// Whether the view at `position` in iteration `iteration`'s batch gets a pseudo view.
     pub fn applies(&self, iteration: u64, iterations: u64, position: usize) -> bool {
-        self.host_weight() > 0.0
+        self.weight > 0.0
             && position < self.per_step
             && iteration as f64 >= self.start * iterations as f64
     }
 }
 
-/// The pseudo-view term of one run: each view's baseline length and a reused gradient
-/// buffer.
-pub(crate) struct PseudoViews {
+/// The virtual view of one training view at one step.
+#[derive(Clone, Debug)]
+pub struct VirtualView {
+    /// The training camera moved by `shift` along its own x and y axes.
+    pub camera: Camera,
+    pub shift: [f64; 2],
+    /// The term's weight for this view: the configured one times the batch's 1/n.
+    pub weight: f32,
+}
+
+/// Where and when the pseudo views of one run are: each view's baseline length and the
+/// settings. Both steps, host and device, draw their virtual views from it.
+pub(crate) struct PseudoPlan {
     config: PseudoViewConfig,
     iterations: u64,
     seed: u64,
     /// Per dataset view, the virtual camera's distance from it.
     baselines: Vec<f64>,
-    /// The virtual view's gradients, made on first use and reused.
-    g: Option<Gradients<f32>>,
 }
 
-/// The upstream gradients of a training render that the pseudo view adds.
-pub(crate) struct DepthGradients {
-    pub alpha: Vec<f32>,
-    pub depth: Vec<f32>,
-}
-
-impl PseudoViews {
+impl PseudoPlan {
     pub fn new(config: PseudoViewConfig, iterations: u64, seed: u64, views: &[View]) -> Self {
         let cameras: Vec<&Camera> = views.iter().map(|v| &v.camera).collect();
         let baselines = nearest_other_centre(&cameras)
@@ -120,14 +104,54 @@ impl PseudoViews {
             iterations,
             seed,
             baselines,
-            g: None,
         }
+    }
+
+    /// The virtual view of dataset view `vi` at batch position `position` of iteration
+    /// `iteration`, whose batch weighs each view `scale`; `None` when the term does not
+    /// apply (or the view has no other camera to set its baseline).
+    pub fn virtual_view(
+        &self,
+        iteration: u64,
+        (vi, position): (usize, usize),
+        camera: &Camera,
+        scale: f32,
+    ) -> Option<VirtualView> {
+        let length = self.baselines[vi];
+        if !self.config.applies(iteration, self.iterations, position) || length <= 0.0 {
+            return None;
+        }
+        let shift = shift_for(self.seed, iteration, vi, length);
+        Some(VirtualView {
+            camera: shifted_camera(camera, shift),
+            shift,
+            weight: self.config.weight as f32 * scale,
+        })
+    }
+}
+
+/// The pseudo-view term of the host step: its plan and a reused gradient buffer.
+pub(crate) struct PseudoViews {
+    plan: PseudoPlan,
+    /// The virtual view's gradients, made on first use and reused.
+    g: Option<Gradients<f32>>,
+}
+
+/// The upstream gradients of a training render that the pseudo view adds.
+pub(crate) struct DepthGradients {
+    pub alpha: Vec<f32>,
+    pub depth: Vec<f32>,
+}
+
+impl PseudoViews {
+    pub fn new(plan: PseudoPlan) -> Self {
+        Self { plan, g: None }
     }
 
     /// For view `vi` at batch position `position`, rendered as `r` against `target`:
     /// render the virtual view, add its gradient (scaled by `scale`, the batch's 1/n) to
     /// `grads`, and return the training render's extra upstream gradients; `None` when
-    /// the term does not apply (or the view has no other camera to set its baseline).
+    /// the term does not apply.
     #[allow(clippy::too_many_arguments)]
     pub fn apply(
         &mut self,
@@ -142,23 +166,23 @@ impl PseudoViews {
         scale: f32,
         grads: &mut Gradients<f32>,
     ) -> Result<Option<DepthGradients>, TrainError> {
-        let length = self.baselines[vi];
-        if !self.config.applies(iteration, self.iterations, position) || length <= 0.0 {
+        let Some(v) = self
+            .plan
+            .virtual_view(iteration, (vi, position), &view.camera, scale)
+        else {
             return Ok(None);
-        }
-        let shift = shift_for(self.seed, iteration, vi, length);
-        let virtual_camera = shifted_camera(&view.camera, shift);
+        };
         let render_error = |source| TrainError::Render { index: vi, source };
         let rv = backend
-            .render(model, &virtual_camera, view.time, options)
+            .render(model, &v.camera, view.time, options)
             .map_err(render_error)?;
         let c = consistency(
             &view.camera,
-            shift,
+            v.shift,
             (r.width as usize, r.height as usize),
             (&r.alpha, &r.depth, target),
             (&rv.rgb, &rv.alpha, &rv.depth),
-            self.config.host_weight() as f32 * scale,
+            v.weight,
         );
         let up = ImageGradients {
             rgb: &c.d_virtual_rgb,
@@ -400,34 +424,24 @@ mod tests {
         }
     }
 
-    /// Unset, the weight is the default on the host path and asks nothing of a GPU run;
-    /// a weight set above 0 asks for pseudo views there too.
+    /// From a quarter of the run on, every view of a default batch of 4 gets a pseudo
+    /// view and a fifth would not; a weight of 0 turns the term off and a NaN one is
+    /// refused.
     #[test]
-    fn an_unset_weight_is_the_host_default_and_a_set_one_is_required() {
-        let unset = PseudoViewConfig::default();
-        assert_eq!(
-            (unset.host_weight(), unset.required()),
-            (DEFAULT_WEIGHT, false)
-        );
-        assert!(unset.applies(10, 10, 0) && !unset.applies(2, 10, 0));
-        // Every view of a default batch of 4.
-        assert!(unset.applies(10, 10, 3) && !unset.applies(10, 10, 4));
+    fn the_term_applies_from_its_start_to_every_view_of_a_default_batch() {
+        let default = PseudoViewConfig::default();
+        assert!(default.applies(10, 10, 0) && !default.applies(2, 10, 0));
+        assert!(default.applies(10, 10, 3) && !default.applies(10, 10, 4));
         let off = PseudoViewConfig {
-            weight: Some(0.0),
-            ..unset
+            weight: 0.0,
+            ..default
         };
-        assert_eq!((off.host_weight(), off.required()), (0.0, false));
         assert!(!off.applies(10, 10, 0));
-        let set = PseudoViewConfig {
-            weight: Some(0.5),
-            ..unset
-        };
-        assert_eq!((set.host_weight(), set.required()), (0.5, true));
         let bad = PseudoViewConfig {
-            weight: Some(f64::NAN),
-            ..unset
+            weight: f64::NAN,
+            ..default
         };
-        assert!(bad.problem().is_some() && unset.problem().is_none());
+        assert!(bad.problem().is_some() && default.problem().is_none());
     }
 
     /// A pixel whose landing point is hidden behind a nearer surface of the virtual view,

@@ -15,7 +15,7 @@ use crate::render::{Gradients, ImageGradients, RenderBackend, RenderOptions};
 use crate::train::densify::DensifyStats;
 use crate::train::loss::{LossValue, image_loss};
 use crate::train::optim::{Adam, GroupRates};
-use crate::train::pseudo_view::PseudoViews;
+use crate::train::pseudo_view::{PseudoPlan, PseudoViews};
 use crate::train::{Dataset, TrainConfig, TrainError, TrainHooks};
 
 /// What the hooks do with the model during a step ([`TrainHooks::model_access`]), so a
@@ -131,12 +131,12 @@ impl<'a> HostStep<'a> {
             target: Vec::new(),
             d_image: Vec::new(),
             g: Gradients::zeros_like(model, false),
-            pseudo: PseudoViews::new(
+            pseudo: PseudoViews::new(PseudoPlan::new(
                 config.pseudo_views,
                 config.iterations,
                 config.seed,
                 &dataset.views,
-            ),
+            )),
         }
     }
 }

@@ -47,6 +47,7 @@ fn gpu_profile_times_every_kernel_of_a_training_iteration() {
         camera: &cam,
         t: 0.5,
         target: &target,
+        pseudo: None,
     }];
     let mut step = || {
         adam.train_step(backend, &model, &views, [0.0; 3], 0.2, &rates)

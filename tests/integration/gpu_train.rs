@@ -20,6 +20,9 @@ use splat4d::render::gpu::GpuBackend;
 use splat4d::train::gpu::{GpuAdam, GpuTraining, TrainView};
 use splat4d::train::loss::image_loss;
 use splat4d::train::optim::{Adam, GroupRates, LearningRates, ParamBuffers};
+use splat4d::train::pseudo_view::{
+    VirtualView, consistency, nearest_other_centre, shift_for, shifted_camera,
+};
 use splat4d::train::{Dataset, NoHooks, TrainConfig, evaluate_psnr, train};
 use splat4d::{CpuBackend, Gaussians, Gradients, ImageGradients, NoProgress, RenderOptions};
 
@@ -101,12 +104,14 @@ fn three_hundred_iterations_on_the_gpu_backend_match_the_cpu() {
 }
 
 /// One iteration of the CPU trainer's step (render, loss, backward, gradients summed
-/// with weight 1/batch, Adam) on `batch`; the views' total losses.
+/// with weight 1/batch, Adam) on `batch`, with the pseudo view given for each view of the
+/// batch (the host's term: `consistency` on the CPU backend's renders, the virtual
+/// render's backward added to the batch's gradients); the views' total losses.
 fn cpu_step(
     model: &mut Gaussians<f32>,
     adam: &mut Adam,
     data: &Dataset,
-    batch: &[usize],
+    (batch, pseudo): (&[usize], &[Option<VirtualView>]),
     rates: &GroupRates,
 ) -> (Vec<f64>, Gradients<f32>) {
     let options = RenderOptions::default();
@@ -114,23 +119,7 @@ fn cpu_step(
     let mut g = Gradients::zeros_like(model, false);
     let scale = 1.0 / batch.len() as f32;
     let mut losses = Vec::new();
-    for &vi in batch {
-        let view = &data.views[vi];
-        let r = CpuBackend
-            .render(model, &view.camera, view.time, &options)
-            .unwrap();
-        let mut target = Vec::new();
-        view.image.to_f32_into(&mut target);
-        let mut d = vec![0.0f32; target.len()];
-        let (w, h) = (r.width as usize, r.height as usize);
-        losses.push(image_loss(&r.rgb, &target, w, h, 0.2, Some(&mut d)).total);
-        d.iter_mut().for_each(|v| *v *= scale);
-        let up = ImageGradients {
-            rgb: &d,
-            alpha: None,
-            depth: None,
-        };
-        CpuBackend.backward(model, &r, &up, &mut g).unwrap();
+    let add = |grads: &mut Gradients<f32>, g: &Gradients<f32>| {
         let flat = |a: &mut [[f32; 4]], b: &[[f32; 4]]| {
             for (x, y) in a.as_flattened_mut().iter_mut().zip(b.as_flattened()) {
                 *x += y;
@@ -146,6 +135,46 @@ fn cpu_step(
         for (x, y) in grads.colours.iter_mut().zip(&g.colours) {
             *x += y;
         }
+    };
+    for (&vi, pseudo) in batch.iter().zip(pseudo) {
+        let view = &data.views[vi];
+        let r = CpuBackend
+            .render(model, &view.camera, view.time, &options)
+            .unwrap();
+        let mut target = Vec::new();
+        view.image.to_f32_into(&mut target);
+        let mut d = vec![0.0f32; target.len()];
+        let (w, h) = (r.width as usize, r.height as usize);
+        losses.push(image_loss(&r.rgb, &target, w, h, 0.2, Some(&mut d)).total);
+        d.iter_mut().for_each(|v| *v *= scale);
+        let term = pseudo.as_ref().map(|p| {
+            let rv = CpuBackend
+                .render(model, &p.camera, view.time, &options)
+                .unwrap();
+            let c = consistency(
+                &view.camera,
+                p.shift,
+                (w, h),
+                (&r.alpha, &r.depth, &target),
+                (&rv.rgb, &rv.alpha, &rv.depth),
+                p.weight,
+            );
+            let up = ImageGradients {
+                rgb: &c.d_virtual_rgb,
+                alpha: None,
+                depth: None,
+            };
+            CpuBackend.backward(model, &rv, &up, &mut g).unwrap();
+            add(&mut grads, &g);
+            c
+        });
+        let up = ImageGradients {
+            rgb: &d,
+            alpha: term.as_ref().map(|c| c.d_alpha.as_slice()),
+            depth: term.as_ref().map(|c| c.d_depth.as_slice()),
+        };
+        CpuBackend.backward(model, &r, &up, &mut g).unwrap();
+        add(&mut grads, &g);
     }
     adam.step(model, &grads, rates);
     (losses, grads)
@@ -199,11 +228,31 @@ fn buffer_groups(b: &ParamBuffers) -> Vec<(&'static str, Vec<f32>)> {
 #[test]
 fn gpu_iterations_match_the_cpu_trainer_step() {
     let Some(gpu) = gpu() else { return };
-    let gpu = &gpu;
+    device_and_host_steps_agree(&gpu, None);
+}
+
+/// As above with a pseudo view for every view of the batch (the device's
+/// `shaders/pseudo.wgsl` and the virtual render's backward against the host's
+/// `consistency` around the CPU backend's renders), weighted 3 so the term carries a
+/// large part of the gradient (checked: it moves the CPU step's gradient by ≥ 20 % of its
+/// norm), with the same bounds (gradients seen ≤ 3e-6, changes ≤ 9e-6).
+#[test]
+fn gpu_pseudo_views_match_the_host_term() {
+    let Some(gpu) = gpu() else { return };
+    device_and_host_steps_agree(&gpu, Some(3.0));
+}
+
+/// 6 iterations of 2 views on the device and on the host, with pseudo views of this weight
+/// when given; see the tests above for the bounds.
+fn device_and_host_steps_agree(gpu: &GpuBackend, pseudo_weight: Option<f32>) {
     let data = train_scene::dataset(32, 24);
     let init = train_scene::points(8, 6, &[0.0, 0.5, 1.0]);
-    let mut start =
-        gaussians_from_points(&init, data.time_mapping, &InitOptions::default()).unwrap();
+    // Pseudo views lift only pixels with alpha > 0.5: an opaque start has them.
+    let options = InitOptions {
+        opacity: if pseudo_weight.is_some() { 0.9 } else { 0.1 },
+        ..Default::default()
+    };
+    let mut start = gaussians_from_points(&init, data.time_mapping, &options).unwrap();
     // Turned and anisotropic Gaussians: with the initial identity rotations of isotropic
     // Gaussians the rotation gradients are rounding noise (~1e-10), which Adam turns into
     // full-rate steps of either sign on each side.
@@ -232,19 +281,51 @@ fn gpu_iterations_match_the_cpu_trainer_step() {
     let mut on_gpu = GpuAdam::new(gpu, &start).unwrap();
     let iterations = 6u64;
     let extent = data.scene_extent();
+    let cameras: Vec<&splat4d::Camera> = data.views.iter().map(|v| &v.camera).collect();
+    let baselines = nearest_other_centre(&cameras);
     for it in 0..iterations {
         let batch = [
             (3 * it as usize) % data.views.len(),
             (7 * it as usize + 1) % data.views.len(),
         ];
         let rates = LearningRates::default().at(it, iterations, extent);
-        let (want, want_grads) = cpu_step(&mut cpu_model, &mut adam, &data, &batch, &rates);
+        let pseudo: Vec<Option<VirtualView>> = batch
+            .iter()
+            .map(|&vi| {
+                pseudo_weight.map(|weight| {
+                    let shift = shift_for(7, it, vi, 0.3 * baselines[vi]);
+                    VirtualView {
+                        camera: shifted_camera(&data.views[vi].camera, shift),
+                        shift,
+                        weight: weight / batch.len() as f32,
+                    }
+                })
+            })
+            .collect();
+        if pseudo_weight.is_some() {
+            // The term is a large part of the step's gradient.
+            let (mut m, mut a) = (cpu_model.clone(), adam.clone());
+            let (_, without) = cpu_step(&mut m, &mut a, &data, (&batch, &[None, None]), &rates);
+            let (mut m, mut a) = (cpu_model.clone(), adam.clone());
+            let (_, with) = cpu_step(&mut m, &mut a, &data, (&batch, &pseudo), &rates);
+            let rel = relative(with.means.as_flattened(), without.means.as_flattened())
+                .max(relative(&with.colours, &without.colours));
+            eprintln!("iteration {it}: the pseudo views move the gradient by {rel:.2}");
+            assert!(
+                rel >= 0.2,
+                "iteration {it}: the term moves the gradient by {rel:.3}"
+            );
+        }
+        let (want, want_grads) =
+            cpu_step(&mut cpu_model, &mut adam, &data, (&batch, &pseudo), &rates);
         let views: Vec<TrainView> = batch
             .iter()
-            .map(|&vi| TrainView {
+            .enumerate()
+            .map(|(i, &vi)| TrainView {
                 camera: &data.views[vi].camera,
                 t: data.views[vi].time,
                 target: &targets[vi],
+                pseudo: pseudo[i].clone(),
             })
             .collect();
         let got = on_gpu

@@ -135,7 +135,7 @@ fn pseudo_views_train_and_resume_bit_identically() {
     let data = train_scene::dataset(32, 24);
     let init = train_scene::points(12, 9, &[0.0, 1.0]);
     let mut with = config(30);
-    with.pseudo_views.weight = Some(0.3);
+    with.pseudo_views.weight = 0.3;
     with.pseudo_views.start = 0.2;
     let run = |c: &TrainConfig, hooks: &mut dyn TrainHooks, dir: &std::path::Path, resume| {
         train(
@@ -155,7 +155,7 @@ fn pseudo_views_train_and_resume_bit_identically() {
         tempfile::tempdir().unwrap(),
     );
     let mut without = config(30);
-    without.pseudo_views.weight = Some(0.0);
+    without.pseudo_views.weight = 0.0;
     run(&without, &mut NoHooks, off.path(), false).unwrap();
     run(&with, &mut NoHooks, straight.path(), false).unwrap();
     let e = run(&with, &mut StopAt(17), resumed.path(), false).unwrap_err();

@@ -173,18 +173,6 @@ pub fn run(
         summary.gaussians,
         summary.final_psnr
     );
-    if backend.as_gpu().is_some() {
-        if settings.pseudo_views.required() {
-            tracing::info!(
-                "pseudo views compare on the host, so the GPU renders while the host computes the loss (leave [train.pseudo_views] weight unset to keep the whole step on the GPU, without them)"
-            );
-        } else if summary.placement != "host" && settings.pseudo_views.weight.is_none() {
-            tracing::info!(
-                "the GPU step trains without pseudo views (set [train.pseudo_views] weight = {} to have them, on the slower host path)",
-                splat4d::train::pseudo_view::DEFAULT_WEIGHT
-            );
-        }
-    }
     tracing::info!(
         "background: {:?} ({:?})",
         summary.background,

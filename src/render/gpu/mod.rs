@@ -87,6 +87,9 @@ pub(crate) struct GpuFrame {
 pub(crate) struct ViewBuffers {
     /// The rendered image (interleaved RGB), for a loss on the device.
     pub(crate) rgb: Pooled,
+    /// The rendered alpha and `Σ wᵢzᵢ` planes, for a pseudo view's comparison on the device.
+    pub(crate) alpha: Pooled,
+    pub(crate) depth: Pooled,
     /// One `Splat` per Gaussian.
     splats: Pooled,
     /// Tiles touched per Gaussian (0 when culled).
@@ -454,13 +457,6 @@ impl GpuBackend {
 
         // Pass 2: render every view and copy its images into one read-back buffer.
         let keys = SortBuffers::new(&self.gpu, max_pairs);
-        let max_pixels = prepared
-            .iter()
-            .map(|p| p.uniform.width as u64 * p.uniform.height as u64)
-            .max()
-            .unwrap_or(1);
-        let out_alpha = self.gpu.scratch(4 * max_pixels, "alpha");
-        let out_depth = self.gpu.scratch(4 * max_pixels, "depth");
         let layout: Vec<(u64, u64)> = prepared
             .iter()
             .map(|p| (p.uniform.width as u64 * p.uniform.height as u64, n as u64))
@@ -488,6 +484,8 @@ impl GpuBackend {
             let scratch_of = |bytes, label| self.gpu.scratch(bytes, label);
             let buffers = ViewBuffers {
                 rgb: scratch_of(12 * px, "rgb"),
+                alpha: scratch_of(4 * px, "alpha"),
+                depth: scratch_of(4 * px, "depth"),
                 splats,
                 counts,
                 ends: scratch_of(4 * n as u64, "tile ends of a view"),
@@ -531,8 +529,8 @@ impl GpuBackend {
                         &sorted[2],
                         &buffers.ranges,
                         &buffers.rgb,
-                        &out_alpha,
-                        &out_depth,
+                        &buffers.alpha,
+                        &buffers.depth,
                         &buffers.pixels,
                     ],
                 );
@@ -550,8 +548,8 @@ impl GpuBackend {
             if read_images {
                 for (buf, words) in [
                     (&buffers.rgb, 3 * px),
-                    (&out_alpha, px),
-                    (&out_depth, px),
+                    (&buffers.alpha, px),
+                    (&buffers.depth, px),
                     (&buffers.radii, g),
                 ] {
                     if words > 0 {

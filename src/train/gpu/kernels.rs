@@ -1,6 +1,6 @@
 //! The training step's compute pipelines (WGSL in `shaders/`): the loss passes, the
-//! conversion of a byte target, Adam, the batch sum of gradients and the densification
-//! statistics. Built with the GPU toolkit (`gpu::compute`) once per device,
+//! conversion of a byte target, Adam, the batch sum of gradients, the densification
+//! statistics and the pseudo views' comparison. Built with the GPU toolkit (`gpu::compute`) once per device,
 //! on first use ([`TrainKernels::of`]).
 
 use crate::gpu::compute::{Kernel, Slot, layout, shader};
@@ -19,6 +19,9 @@ pub(super) struct TrainKernels {
     pub adam_step: Kernel,
     pub add_into: Kernel,
     pub record_stats: Kernel,
+    /// The pseudo-view term (`shaders/pseudo.wgsl`), sharing one layout.
+    pub pseudo_land: Kernel,
+    pub pseudo_resolve: Kernel,
 }
 
 impl TrainKernels {
@@ -33,6 +36,7 @@ impl TrainKernels {
         let adam = shader(device, "adam", &[], include_str!("shaders/adam.wgsl"));
         let add = shader(device, "add", &[], include_str!("shaders/add.wgsl"));
         let stats = shader(device, "stats", &[], include_str!("shaders/stats.wgsl"));
+        let pseudo = shader(device, "pseudo", &[], include_str!("shaders/pseudo.wgsl"));
         let k = |m: &wgpu::ShaderModule, entry: &str, slots: &[Slot]| {
             Kernel::alone(device, m, entry, slots)
         };
@@ -43,7 +47,16 @@ impl TrainKernels {
                 Uniform, Read, Read, ReadWrite, ReadWrite, ReadWrite, ReadWrite,
             ],
         );
+        let pseudo_layout = layout(
+            device,
+            "pseudo",
+            &[
+                Uniform, Read, Read, Read, Read, Read, Read, ReadWrite, ReadWrite,
+            ],
+        );
         Self {
+            pseudo_land: Kernel::new(device, &pseudo, "pseudo_land", &pseudo_layout),
+            pseudo_resolve: Kernel::new(device, &pseudo, "pseudo_resolve", &pseudo_layout),
             ssim_blur_h: Kernel::new(device, &loss, "ssim_blur_h", &loss_layout),
             ssim_pixel: Kernel::new(device, &loss, "ssim_pixel", &loss_layout),
             ssim_grad: Kernel::new(device, &loss, "ssim_grad", &loss_layout),

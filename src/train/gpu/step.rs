@@ -5,21 +5,28 @@
 //! step; one 16-byte loss total per view is read back (and the render's count of
 //! (tile, splat) pairs, to size its sort). The rendered images stay on the device. With
 //! [`GpuStats`] the step also adds each view's densification statistics on the device.
+//! A view with a [`VirtualView`] renders it too and adds the pseudo-view term (the host's
+//! `train::pseudo_view::consistency`, `shaders/pseudo.wgsl`): into the view's upstream
+//! alpha and depth planes, and through the virtual render's backward into the batch's
+//! gradients.
 //! The anisotropy cap and hooks are not part of the step (the trainer runs them on the
 //! host, see `train::device_step`).
 
 use super::adam::GpuAdam;
+use super::kernels::TrainKernels;
 use super::loss::{LossPass, pack_bytes, unpack};
 use super::stats::GpuStats;
 use crate::Camera;
 use crate::decay::gpu::{DecayOutcome, GpuDecay, RESULT_BYTES};
-use crate::gpu::compute::{read_buffer, storage, storage_init, uniform};
+use crate::gpu::compute::{Kernel, read_buffer, storage, storage_init, uniform};
+use crate::gpu::pool::Pooled;
 use crate::model::Gaussians;
 use crate::render::gpu::{GpuBackend, GpuFrame, ModelBuffers, PARAM_FLOATS, encode_backward};
 use crate::render::{RenderError, RenderOptions, Rendered, ViewRequest};
 use crate::train::dataset::ImageU8;
 use crate::train::loss::LossValue;
 use crate::train::optim::GroupRates;
+use crate::train::pseudo_view::VirtualView;
 use std::sync::Arc;
 
 /// A target image on the device: its bytes, four to a word.
@@ -37,6 +44,17 @@ pub struct TrainView<'a> {
     pub t: f32,
     /// The view's image, uploaded with [`GpuTraining::upload_image`](super::GpuTraining).
     pub target: &'a GpuImage,
+    /// The view's pseudo view, when it gets one this step.
+    pub pseudo: Option<VirtualView>,
+}
+
+/// The pseudo-view term's constants (`Pseudo` in `shaders/pseudo.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct PseudoUniform {
+    size: [u32; 4],
+    focal: [f32; 4],
+    shift: [f32; 4],
 }
 
 /// What one iteration gives back.
@@ -129,21 +147,27 @@ impl GpuAdam {
                 self.colour_len
             )));
         }
-        let requests: Vec<ViewRequest<'_>> = views
-            .iter()
-            .map(|v| ViewRequest {
-                camera: v.camera,
-                t: v.t,
-                options: RenderOptions {
-                    background,
-                    ..Default::default()
-                },
-            })
-            .collect();
+        let request = |camera, t| ViewRequest {
+            camera,
+            t,
+            options: RenderOptions {
+                background,
+                ..Default::default()
+            },
+        };
+        // The training views, then the virtual views of those that have one.
+        let mut requests: Vec<ViewRequest<'_>> =
+            views.iter().map(|v| request(v.camera, v.t)).collect();
+        for v in views {
+            if let Some(p) = &v.pseudo {
+                requests.push(request(&p.camera, v.t));
+            }
+        }
         let mut prepared = requests
             .iter()
             .map(|r| backend.prepare(model, r))
             .collect::<Result<Vec<_>, _>>()?;
+        let virtual_prepared = prepared.split_off(views.len());
         for (p, v) in prepared.iter().zip(views) {
             let (w, h) = (p.uniform.width, p.uniform.height);
             if (w, h) != (v.target.width, v.target.height) {
@@ -169,6 +193,12 @@ impl GpuAdam {
                     p.factor = Some(f);
                 }
             }
+        }
+        // A virtual view renders with its training view's opacity factor, as on the host.
+        let owners = views.iter().enumerate().filter(|(_, v)| v.pseudo.is_some());
+        for ((owner, _), mut p) in owners.zip(virtual_prepared) {
+            p.factor = prepared[owner].factor.clone();
+            prepared.push(p);
         }
         let frames = backend.checked(|| {
             let uploaded = Arc::new(ModelBuffers {
@@ -218,16 +248,34 @@ impl GpuAdam {
         let mut enc = device.create_command_encoder(&Default::default());
         let param_words = (PARAM_FLOATS * self.count) as u32;
         let colour_words = self.colour_len as u32;
-        // Later views' gradients, added into the batch's (none with one view).
-        let part_bytes = |words: u32| if views.len() > 1 { 4 * words as u64 } else { 0 };
+        // Later views' and virtual views' gradients, added into the batch's (none with one
+        // view and no virtual one).
+        let (training, virtual_frames) = frames.split_at(views.len());
+        let parts = views.len() > 1 || !virtual_frames.is_empty();
+        let mut virtual_frames = virtual_frames.iter();
+        let virtual_of: Vec<Option<&Rendered<f32>>> = views
+            .iter()
+            .map(|v| v.pseudo.as_ref().and_then(|_| virtual_frames.next()))
+            .collect();
+        let part_bytes = |words: u32| if parts { 4 * words as u64 } else { 0 };
         let part_params = storage(device, part_bytes(param_words), "view gradients");
         let part_colours = storage(device, part_bytes(colour_words), "view colour gradients");
         let mut passes = Vec::with_capacity(views.len());
-        for (v, (frame, view)) in frames.iter().zip(views).enumerate() {
-            let state = frame
-                .state
-                .downcast_ref::<GpuFrame>()
-                .ok_or(RenderError::WrongBackend { backend: "gpu" })?;
+        let add_part = |enc: &mut wgpu::CommandEncoder| {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            for (words, part, sum) in [
+                (param_words, &part_params, &self.grads.params),
+                (colour_words, &part_colours, &self.grads.colours),
+            ] {
+                let len = uniform(device, &[words, 0, 0, 0]);
+                let bind = k.add_into.bind(device, &[&len, part, sum]);
+                k.add_into.dispatch_items(&mut pass, &bind, words);
+            }
+        };
+        for (v, ((frame, view), virtual_frame)) in
+            training.iter().zip(views).zip(virtual_of).enumerate()
+        {
+            let state = gpu_frame(frame)?;
             let (w, h) = (frame.width, frame.height);
             let npix = w as u64 * h as u64;
             let target = unpack(device, k, &mut enc, &view.target.packed, 3 * npix as u32);
@@ -249,6 +297,23 @@ impl GpuAdam {
                 loss.encode(k, &mut pass);
             }
             enc.copy_buffer_to_buffer(&loss.sums, loss.total_offset(), &staging, 16 * v as u64, 16);
+            // The pseudo view: the training view's alpha and depth gradients into
+            // `upstream`, the virtual view's into its own upstream.
+            let pseudo = match (&view.pseudo, virtual_frame) {
+                (Some(p), Some(virtual_frame)) => {
+                    let virtual_state = gpu_frame(virtual_frame)?;
+                    let virtual_upstream = encode_pseudo(
+                        backend,
+                        k,
+                        &mut enc,
+                        (view.camera, p, (w, h)),
+                        (state, &target, &upstream),
+                        virtual_state,
+                    );
+                    Some((virtual_state, virtual_upstream))
+                }
+                _ => None,
+            };
             let (out_params, out_colours) = if v == 0 {
                 (&self.grads.params, &self.grads.colours)
             } else {
@@ -267,15 +332,22 @@ impl GpuAdam {
                 s.encode_record(backend, &mut enc, out_params, &state.buffers.radii, to_ndc);
             }
             if v > 0 {
-                let mut pass = enc.begin_compute_pass(&Default::default());
-                for (words, part, sum) in [
-                    (param_words, &part_params, &self.grads.params),
-                    (colour_words, &part_colours, &self.grads.colours),
-                ] {
-                    let len = uniform(device, &[words, 0, 0, 0]);
-                    let bind = k.add_into.bind(device, &[&len, part, sum]);
-                    k.add_into.dispatch_items(&mut pass, &bind, words);
-                }
+                add_part(&mut enc);
+            }
+            // As on the host: the virtual view's gradient joins the batch's, not the
+            // view's statistics or its decay factor's gradient.
+            if let Some((virtual_state, virtual_upstream)) = pseudo {
+                enc.clear_buffer(&part_params, 0, None);
+                enc.clear_buffer(&part_colours, 0, None);
+                encode_backward(
+                    backend,
+                    virtual_state,
+                    &virtual_upstream,
+                    &part_params,
+                    &part_colours,
+                    &mut enc,
+                );
+                add_part(&mut enc);
             }
             passes.push(loss);
         }
@@ -297,4 +369,60 @@ impl GpuAdam {
             .collect();
         Ok((losses, decay_words.to_vec()))
     }
+}
+
+/// The device state of a frame the GPU backend rendered.
+fn gpu_frame(frame: &Rendered<f32>) -> Result<&GpuFrame, RenderError> {
+    frame
+        .state
+        .downcast_ref::<GpuFrame>()
+        .ok_or(RenderError::WrongBackend { backend: "gpu" })
+}
+
+/// Record the pseudo-view term of one training view (`state`, its unpacked `target` and
+/// its `upstream` planes, whose alpha and depth planes it writes) against its virtual
+/// view's render (`virtual_state`); returns the virtual view's upstream planes.
+fn encode_pseudo(
+    backend: &GpuBackend,
+    k: &TrainKernels,
+    enc: &mut wgpu::CommandEncoder,
+    (camera, view, (w, h)): (&Camera, &VirtualView, (u32, u32)),
+    (state, target, upstream): (&GpuFrame, &wgpu::Buffer, &wgpu::Buffer),
+    virtual_state: &GpuFrame,
+) -> Pooled {
+    let device = &backend.gpu.device;
+    let npix = w * h;
+    let i = &camera.intrinsics;
+    let constants = PseudoUniform {
+        size: [w, h, npix, 0],
+        focal: [i.fx, i.fy, i.cx, i.cy].map(|v| v as f32),
+        shift: [
+            view.shift[0] as f32,
+            view.shift[1] as f32,
+            view.weight / (3 * npix) as f32,
+            0.0,
+        ],
+    };
+    let constants = uniform(device, &constants);
+    let virtual_upstream = backend.gpu.scratch(20 * npix as u64, "virtual upstream");
+    let sums = backend.gpu.scratch(12 * npix as u64, "pseudo-view sums");
+    enc.clear_buffer(&virtual_upstream, 0, None);
+    enc.clear_buffer(&sums, 0, None);
+    let (b, vb) = (&state.buffers, &virtual_state.buffers);
+    let reads = [
+        &constants, target, &b.alpha, &b.depth, &vb.rgb, &vb.alpha, &vb.depth,
+    ];
+    let bind = |out: &wgpu::Buffer, kernel: &Kernel| {
+        let mut slots: Vec<&wgpu::Buffer> = reads.to_vec();
+        slots.extend([out, &sums]);
+        kernel.bind(device, &slots)
+    };
+    let land = bind(upstream, &k.pseudo_land);
+    let resolve = bind(&virtual_upstream, &k.pseudo_resolve);
+    let mut pass = enc.begin_compute_pass(&Default::default());
+    k.pseudo_land.dispatch_items(&mut pass, &land, npix);
+    k.pseudo_resolve
+        .dispatch_items(&mut pass, &resolve, 3 * npix);
+    drop(pass);
+    virtual_upstream
 }
