@@ -25,7 +25,7 @@
 #      the ones too slow for lavapipe;
 #   3. benchmarks at 1352×1014: forward of 1M Gaussians, forward + backward through the
 #      host, one whole resident training iteration (render, loss, backward, Adam) at 100k
-#      and 1M, Adam alone at 1M, the loss, and LPIPS on the GPU (one pair at 640×360 and
+#      and 1M, alone and with a pseudo view (`…_pseudo_view`), Adam alone at 1M, the loss, and LPIPS on the GPU (one pair at 640×360 and
 #      at 1352×1014, a batch of four);
 #   4. where one training iteration's device time goes, kernel by kernel, at 100k and 1M
 #      (timestamp queries; profile.md);
