@@ -3,7 +3,8 @@
 //! ([`GpuTraining::image_loss`], [`loss`]) and [`GpuAdam`] (Adam with the model and its
 //! moments resident, [`adam`]), chained with the renderer's forward and backward into one
 //! iteration by [`GpuAdam::train_step`] ([`step`]), which can also gather the
-//! densification statistics on the device ([`GpuStats`], [`stats`]) and run the 4C4D
+//! densification statistics on the device ([`GpuStats`], [`stats`]), add the views'
+//! pseudo views (`shaders/pseudo.wgsl`, [`TrainView::pseudo`]) and run the 4C4D
 //! decay there (`decay::gpu::GpuDecay`: visibility and the opacity write-back, and for the
 //! neural variant f_θ's forward, factor gradient and Adam; [`GpuAdam::train_step_decayed`]).
 //! `train::train` runs its iterations this way when given a GPU backend (see
