@@ -244,7 +244,7 @@ impl<F: Real> Gradients<F> {
 
     /// Add `other` (same layout) into these gradients, parameter by parameter (the
     /// densification statistic and the opacity-factor gradient are left as they are).
-    pub(crate) fn add(&mut self, other: &Self) {
+    pub fn add(&mut self, other: &Self) {
         let add4 = |a: &mut Vec<[F; 4]>, b: &Vec<[F; 4]>| {
             a.as_flattened_mut()
                 .iter_mut()

@@ -119,23 +119,6 @@ fn cpu_step(
     let mut g = Gradients::zeros_like(model, false);
     let scale = 1.0 / batch.len() as f32;
     let mut losses = Vec::new();
-    let add = |grads: &mut Gradients<f32>, g: &Gradients<f32>| {
-        let flat = |a: &mut [[f32; 4]], b: &[[f32; 4]]| {
-            for (x, y) in a.as_flattened_mut().iter_mut().zip(b.as_flattened()) {
-                *x += y;
-            }
-        };
-        flat(&mut grads.means, &g.means);
-        flat(&mut grads.log_scales, &g.log_scales);
-        flat(&mut grads.rot_left, &g.rot_left);
-        flat(&mut grads.rot_right, &g.rot_right);
-        for (x, y) in grads.opacity_logits.iter_mut().zip(&g.opacity_logits) {
-            *x += y;
-        }
-        for (x, y) in grads.colours.iter_mut().zip(&g.colours) {
-            *x += y;
-        }
-    };
     for (&vi, pseudo) in batch.iter().zip(pseudo) {
         let view = &data.views[vi];
         let r = CpuBackend
@@ -165,7 +148,7 @@ fn cpu_step(
                 depth: None,
             };
             CpuBackend.backward(model, &rv, &up, &mut g).unwrap();
-            add(&mut grads, &g);
+            grads.add(&g);
             c
         });
         let up = ImageGradients {
@@ -174,7 +157,7 @@ fn cpu_step(
             depth: term.as_ref().map(|c| c.d_depth.as_slice()),
         };
         CpuBackend.backward(model, &r, &up, &mut g).unwrap();
-        add(&mut grads, &g);
+        grads.add(&g);
     }
     adam.step(model, &grads, rates);
     (losses, grads)
